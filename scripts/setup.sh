@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Idempotent set-up for a fresh machine: the torch venv (libtorch for tch, and the Python
+# test peers: mcap, rosbags, cyclonedds), then a release build of imu-fsda.
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+source "$here/scripts/env.sh"
+stamp="$IMU_FSDA_VENV/.imu-fsda-ready-v1"
+if [ ! -f "$stamp" ]; then
+  echo "[setup] creating the torch venv at $IMU_FSDA_VENV (first run only, ~2-5 min)"
+  mkdir -p "$(dirname "$IMU_FSDA_VENV")"
+  [ -x "$IMU_FSDA_VENV/bin/python" ] || python3 -m venv "$IMU_FSDA_VENV"
+  "$IMU_FSDA_VENV/bin/pip" install -q --disable-pip-version-check -r "$here/scripts/requirements.txt"
+  touch "$stamp"
+fi
+if ! command -v unshare >/dev/null || ! command -v ip >/dev/null; then
+  echo "[setup] installing iproute2/util-linux for the network-namespace tests"
+  (apt-get update -qq && apt-get install -y -qq iproute2 util-linux) >/dev/null 2>&1 || echo "[setup] could not install iproute2; DDS tests will skip loudly"
+fi
+cd "$here"
+cargo build --release --quiet

@@ -1,0 +1,507 @@
+//! MCAP bags as rosbag2 writes them: profile `ros2`, `ros2msg` schemas with full
+//! definitions, `cdr` messages, Zstd chunks, a summary with Statistics.
+//!
+//! Reading streams record by record (memory does not grow with the bag); writing keeps only
+//! the open chunk in memory. [`read_recording`] turns a bag into a [`Recording`] with the
+//! repairs it made counted in a [`LoadReport`].
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufReader, BufWriter};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use crate::core::{ImuSample, PoseSample, Recording, TemperatureSample};
+use crate::msg::{Imu, MsgError, Odometry, PoseStamped, RosMessage, Temperature};
+
+/// Default topic names written by `import` and `simulate` and read by `eval`.
+pub const IMU_TOPIC: &str = "/imu/data";
+pub const GROUND_TRUTH_TOPIC: &str = "/ground_truth/pose";
+pub const TEMPERATURE_TOPIC: &str = "/imu/temperature";
+pub const IMU_FRAME: &str = "imu_link";
+pub const WORLD_FRAME: &str = "world";
+
+#[derive(Debug, thiserror::Error)]
+pub enum BagError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: not a readable MCAP bag (after {messages} messages): {source}")]
+    Mcap {
+        path: PathBuf,
+        messages: u64,
+        #[source]
+        source: mcap::McapError,
+    },
+    #[error("{path}: message {index} on {topic} (log time {log_time_ns} ns): {source}")]
+    Decode {
+        path: PathBuf,
+        topic: String,
+        index: u64,
+        log_time_ns: u64,
+        #[source]
+        source: MsgError,
+    },
+    #[error("{path}: topic {topic} has type {found}, expected {expected}")]
+    WrongType { path: PathBuf, topic: String, found: String, expected: String },
+    #[error("{path}: no messages on topic {topic} (topics present: {present})")]
+    MissingTopic { path: PathBuf, topic: String, present: String },
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BagError + '_ {
+    move |source| BagError::Io { path: path.to_path_buf(), source }
+}
+
+/// Writes a ROS 2 MCAP bag. Call [`BagWriter::finish`] to write the summary; a bag that is
+/// not finished still holds its complete chunks (readable, without a summary).
+pub struct BagWriter {
+    path: PathBuf,
+    writer: mcap::Writer<BufWriter<File>>,
+    schemas: BTreeMap<&'static str, u16>,
+    sequence: u32,
+    scratch: Vec<u8>,
+}
+
+/// A channel opened on a [`BagWriter`] for one message type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Channel {
+    id: u16,
+}
+
+impl BagWriter {
+    pub fn create(path: impl AsRef<Path>) -> Result<Self, BagError> {
+        let path = path.as_ref().to_path_buf();
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(io_err(&path))?;
+        }
+        let file = File::create(&path).map_err(io_err(&path))?;
+        let writer = mcap::WriteOptions::new()
+            .profile("ros2")
+            .library(concat!("imu-fsda ", env!("CARGO_PKG_VERSION")))
+            .compression(Some(mcap::Compression::Zstd))
+            .chunk_size(Some(1 << 20))
+            .create(BufWriter::with_capacity(1 << 16, file))
+            .map_err(|source| BagError::Mcap { path: path.clone(), messages: 0, source })?;
+        Ok(BagWriter { path, writer, schemas: BTreeMap::new(), sequence: 0, scratch: Vec::with_capacity(512) })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn mcap_err(&self, source: mcap::McapError) -> BagError {
+        BagError::Mcap { path: self.path.clone(), messages: self.sequence as u64, source }
+    }
+
+    /// Open (or reuse) a channel for messages of type `M` on `topic`.
+    pub fn channel<M: RosMessage>(&mut self, topic: &str) -> Result<Channel, BagError> {
+        let schema_id = match self.schemas.get(M::TYPE_NAME) {
+            Some(id) => *id,
+            None => {
+                let id = self
+                    .writer
+                    .add_schema(M::TYPE_NAME, "ros2msg", M::DEFINITION.as_bytes())
+                    .map_err(|e| self.mcap_err(e))?;
+                self.schemas.insert(M::TYPE_NAME, id);
+                id
+            }
+        };
+        let id = self.writer.add_channel(schema_id, topic, "cdr", &BTreeMap::new()).map_err(|e| self.mcap_err(e))?;
+        Ok(Channel { id })
+    }
+
+    /// Write one message with its log time (ns); publish time is the same.
+    pub fn write<M: RosMessage>(&mut self, channel: Channel, log_time_ns: i64, msg: &M) -> Result<(), BagError> {
+        let mut buf = std::mem::take(&mut self.scratch);
+        msg.encode_into(&mut buf).map_err(|source| BagError::Decode {
+            path: self.path.clone(),
+            topic: format!("channel {}", channel.id),
+            index: self.sequence as u64,
+            log_time_ns: log_time_ns.max(0) as u64,
+            source,
+        })?;
+        let res = self.write_raw(channel, log_time_ns, &buf);
+        self.scratch = buf;
+        res
+    }
+
+    /// Write already-encoded CDR bytes.
+    pub fn write_raw(&mut self, channel: Channel, log_time_ns: i64, cdr: &[u8]) -> Result<(), BagError> {
+        let t = log_time_ns.max(0) as u64;
+        let header = mcap::records::MessageHeader { channel_id: channel.id, sequence: self.sequence, log_time: t, publish_time: t };
+        self.sequence = self.sequence.wrapping_add(1);
+        self.writer.write_to_known_channel(&header, cdr).map_err(|e| self.mcap_err(e))
+    }
+
+    /// Write the summary (schemas, channels, Statistics, indexes) and close the file.
+    pub fn finish(mut self) -> Result<(), BagError> {
+        self.writer.finish().map_err(|e| self.mcap_err(e))?;
+        Ok(())
+    }
+}
+
+/// One message read from a bag: its topic, type, log time and CDR payload.
+#[derive(Debug, Clone)]
+pub struct BagMessage {
+    pub topic: Arc<str>,
+    pub type_name: Arc<str>,
+    pub log_time_ns: u64,
+    pub data: Vec<u8>,
+}
+
+/// Streams the messages of a bag in file order; memory stays bounded by one chunk.
+pub struct BagReader {
+    path: PathBuf,
+    inner: mcap::io::MessageReader<BufReader<File>>,
+    topics: BTreeMap<u16, (Arc<str>, Arc<str>)>,
+    count: u64,
+}
+
+impl BagReader {
+    pub fn open(path: impl AsRef<Path>) -> Result<Self, BagError> {
+        let path = path.as_ref().to_path_buf();
+        let file = File::open(&path).map_err(io_err(&path))?;
+        let inner = mcap::io::MessageReader::new(BufReader::with_capacity(1 << 16, file));
+        Ok(BagReader { path, inner, topics: BTreeMap::new(), count: 0 })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Iterator for BagReader {
+    type Item = Result<BagMessage, BagError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let msg = match self.inner.next()? {
+            Ok(m) => m,
+            Err(source) => return Some(Err(BagError::Mcap { path: self.path.clone(), messages: self.count, source })),
+        };
+        self.count += 1;
+        let (topic, type_name) = self
+            .topics
+            .entry(msg.channel.id)
+            .or_insert_with(|| {
+                let type_name = msg.channel.schema.as_ref().map(|s| s.name.as_str()).unwrap_or("");
+                (Arc::from(msg.channel.topic.as_str()), Arc::from(type_name))
+            })
+            .clone();
+        Some(Ok(BagMessage { topic, type_name, log_time_ns: msg.log_time, data: msg.data.into_owned() }))
+    }
+}
+
+/// Per-topic figures of a bag, as `bag info` prints them.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct TopicInfo {
+    pub topic: String,
+    pub type_name: String,
+    pub count: u64,
+    pub first_ns: u64,
+    pub last_ns: u64,
+}
+
+impl TopicInfo {
+    pub fn rate_hz(&self) -> f64 {
+        if self.count > 1 && self.last_ns > self.first_ns {
+            (self.count - 1) as f64 / ((self.last_ns - self.first_ns) as f64 * 1e-9)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Scan a bag once and count its topics. Reports what was read before an error too.
+pub fn bag_info(path: impl AsRef<Path>) -> (Vec<TopicInfo>, Option<BagError>) {
+    let mut topics: BTreeMap<Arc<str>, TopicInfo> = BTreeMap::new();
+    let reader = match BagReader::open(path) {
+        Ok(r) => r,
+        Err(e) => return (Vec::new(), Some(e)),
+    };
+    for m in reader {
+        match m {
+            Ok(m) => {
+                let e = topics.entry(m.topic.clone()).or_insert_with(|| TopicInfo {
+                    topic: m.topic.to_string(),
+                    type_name: m.type_name.to_string(),
+                    first_ns: m.log_time_ns,
+                    last_ns: m.log_time_ns,
+                    ..Default::default()
+                });
+                e.count += 1;
+                e.first_ns = e.first_ns.min(m.log_time_ns);
+                e.last_ns = e.last_ns.max(m.log_time_ns);
+            }
+            Err(e) => return (topics.into_values().collect(), Some(e)),
+        }
+    }
+    (topics.into_values().collect(), None)
+}
+
+/// What [`read_recording`] skipped, by reason. Every skip is counted, never silent.
+#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
+pub struct LoadReport {
+    pub imu_read: u64,
+    pub imu_non_finite: u64,
+    pub imu_duplicate_stamp: u64,
+    pub imu_backwards_stamp: u64,
+    pub ground_truth_read: u64,
+    pub ground_truth_invalid: u64,
+    pub ground_truth_out_of_order: u64,
+    pub temperature_read: u64,
+}
+
+impl LoadReport {
+    pub fn skipped(&self) -> u64 {
+        self.imu_non_finite + self.imu_duplicate_stamp + self.imu_backwards_stamp + self.ground_truth_invalid + self.ground_truth_out_of_order
+    }
+}
+
+impl std::fmt::Display for LoadReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "imu {} read, skipped {} non-finite, {} duplicate stamps, {} backwards stamps; ground truth {} read, skipped {} invalid, {} out of order",
+            self.imu_read, self.imu_non_finite, self.imu_duplicate_stamp, self.imu_backwards_stamp, self.ground_truth_read, self.ground_truth_invalid, self.ground_truth_out_of_order
+        )
+    }
+}
+
+/// Which topics to read a recording from. Ground truth may be `geometry_msgs/PoseStamped`,
+/// `nav_msgs/Odometry` or a reference `sensor_msgs/Imu` with orientation; the type is
+/// taken from the bag's schema.
+#[derive(Debug, Clone)]
+pub struct RecordingTopics {
+    pub imu: String,
+    pub ground_truth: Option<String>,
+    pub temperature: Option<String>,
+}
+
+impl Default for RecordingTopics {
+    fn default() -> Self {
+        RecordingTopics { imu: IMU_TOPIC.into(), ground_truth: Some(GROUND_TRUTH_TOPIC.into()), temperature: Some(TEMPERATURE_TOPIC.into()) }
+    }
+}
+
+/// Read a recording from a bag, stamps from the message headers. Samples that are not
+/// finite, repeat a stamp or go back in time are skipped and counted in the report.
+/// An IMU topic with no messages is an error; a missing ground-truth topic is not (the
+/// recording then has none, and callers that need it say so).
+pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Result<(Recording, LoadReport), BagError> {
+    let path = path.as_ref();
+    let mut rec = Recording { name: path.display().to_string(), ..Default::default() };
+    let mut report = LoadReport::default();
+    let mut present: BTreeMap<Arc<str>, Arc<str>> = BTreeMap::new();
+    let mut index = 0u64;
+    for m in BagReader::open(path)? {
+        let m = m?;
+        index += 1;
+        if !present.contains_key(&m.topic) {
+            present.insert(m.topic.clone(), m.type_name.clone());
+        }
+        let decode_err = |source| BagError::Decode { path: path.to_path_buf(), topic: m.topic.to_string(), index, log_time_ns: m.log_time_ns, source };
+        let wrong_type = |expected: &str| BagError::WrongType { path: path.to_path_buf(), topic: m.topic.to_string(), found: m.type_name.to_string(), expected: expected.into() };
+        if *m.topic == *topics.imu {
+            if *m.type_name != *Imu::TYPE_NAME {
+                return Err(wrong_type(Imu::TYPE_NAME));
+            }
+            let s = Imu::decode(&m.data).map_err(decode_err)?.sample();
+            report.imu_read += 1;
+            push_imu(&mut rec.imu, s, &mut report);
+        } else if topics.ground_truth.as_deref() == Some(&*m.topic) {
+            let pose = match &*m.type_name {
+                t if t == PoseStamped::TYPE_NAME => PoseStamped::decode(&m.data).map_err(decode_err)?.sample(),
+                t if t == Odometry::TYPE_NAME => Odometry::decode(&m.data).map_err(decode_err)?.sample(),
+                t if t == Imu::TYPE_NAME => {
+                    let imu = Imu::decode(&m.data).map_err(decode_err)?;
+                    imu.has_orientation()
+                        .then(|| imu.orientation.to_unit())
+                        .flatten()
+                        .map(|q| PoseSample { stamp_ns: imu.header.stamp.to_ns(), position_in_world: nalgebra::Vector3::zeros(), world_from_body: q })
+                }
+                _ => return Err(wrong_type("geometry_msgs/msg/PoseStamped, nav_msgs/msg/Odometry or sensor_msgs/msg/Imu")),
+            };
+            report.ground_truth_read += 1;
+            match pose {
+                None => report.ground_truth_invalid += 1,
+                Some(p) => match rec.ground_truth.last() {
+                    Some(last) if p.stamp_ns <= last.stamp_ns => report.ground_truth_out_of_order += 1,
+                    _ => rec.ground_truth.push(p),
+                },
+            }
+        } else if topics.temperature.as_deref() == Some(&*m.topic) {
+            if *m.type_name != *Temperature::TYPE_NAME {
+                return Err(wrong_type(Temperature::TYPE_NAME));
+            }
+            let t: TemperatureSample = Temperature::decode(&m.data).map_err(decode_err)?.sample();
+            report.temperature_read += 1;
+            if t.celsius.is_finite() && rec.temperature.last().is_none_or(|l| t.stamp_ns > l.stamp_ns) {
+                rec.temperature.push(t);
+            }
+        }
+    }
+    if rec.imu.is_empty() {
+        let present = present.iter().map(|(t, ty)| format!("{t} [{ty}]")).collect::<Vec<_>>().join(", ");
+        return Err(BagError::MissingTopic { path: path.to_path_buf(), topic: topics.imu.clone(), present });
+    }
+    if report.skipped() > 0 {
+        tracing::warn!("{}: {}", path.display(), report);
+    }
+    Ok((rec, report))
+}
+
+/// Append an IMU sample unless it is non-finite or not strictly after the last one.
+pub fn push_imu(imu: &mut Vec<ImuSample>, s: ImuSample, report: &mut LoadReport) {
+    if !s.is_finite() {
+        report.imu_non_finite += 1;
+        return;
+    }
+    if let Some(last) = imu.last() {
+        if s.stamp_ns == last.stamp_ns {
+            report.imu_duplicate_stamp += 1;
+            return;
+        }
+        if s.stamp_ns < last.stamp_ns {
+            report.imu_backwards_stamp += 1;
+            return;
+        }
+    }
+    imu.push(s);
+}
+
+/// Write a recording as a bag: `/imu/data`, `/ground_truth/pose` and, when present,
+/// `/imu/temperature`, interleaved in stamp order (log time = header stamp).
+pub fn write_recording(path: impl AsRef<Path>, rec: &Recording) -> Result<(), BagError> {
+    let mut w = BagWriter::create(path)?;
+    let imu_ch = w.channel::<Imu>(IMU_TOPIC)?;
+    let gt_ch = if rec.ground_truth.is_empty() { None } else { Some(w.channel::<PoseStamped>(GROUND_TRUTH_TOPIC)?) };
+    let temp_ch = if rec.temperature.is_empty() { None } else { Some(w.channel::<Temperature>(TEMPERATURE_TOPIC)?) };
+    let (mut i, mut g, mut t) = (0, 0, 0);
+    let mut imu_msg = Imu::from_sample(&rec.imu.first().copied().unwrap_or(ImuSample { stamp_ns: 0, gyro: Default::default(), accel: Default::default() }), IMU_FRAME);
+    loop {
+        let ti = rec.imu.get(i).map(|s| s.stamp_ns).unwrap_or(i64::MAX);
+        let tg = rec.ground_truth.get(g).map(|s| s.stamp_ns).unwrap_or(i64::MAX);
+        let tt = rec.temperature.get(t).map(|s| s.stamp_ns).unwrap_or(i64::MAX);
+        let next = ti.min(tg).min(tt);
+        if next == i64::MAX {
+            break;
+        }
+        if tg == next {
+            if let Some(ch) = gt_ch {
+                w.write(ch, tg, &PoseStamped::from_sample(&rec.ground_truth[g], WORLD_FRAME))?;
+            }
+            g += 1;
+        } else if ti == next {
+            let s = &rec.imu[i];
+            imu_msg.header.stamp = crate::msg::Time::from_ns(s.stamp_ns);
+            imu_msg.angular_velocity = s.gyro.into();
+            imu_msg.linear_acceleration = s.accel.into();
+            w.write(imu_ch, ti, &imu_msg)?;
+            i += 1;
+        } else {
+            if let Some(ch) = temp_ch {
+                let s = &rec.temperature[t];
+                let msg = Temperature { header: crate::msg::Header { stamp: crate::msg::Time::from_ns(s.stamp_ns), frame_id: IMU_FRAME.into() }, temperature: s.celsius, variance: 0.0 };
+                w.write(ch, tt, &msg)?;
+            }
+            t += 1;
+        }
+    }
+    w.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    fn recording() -> Recording {
+        let imu = (0..500)
+            .map(|k| ImuSample { stamp_ns: 1_000_000_000 + k * 5_000_000, gyro: Vector3::new(0.01 * k as f64, -0.2, 0.3), accel: Vector3::new(0.0, 0.1, 9.81) })
+            .collect();
+        let ground_truth = (0..250)
+            .map(|k| PoseSample { stamp_ns: 1_000_000_000 + k * 10_000_000, position_in_world: Vector3::new(k as f64, 0.0, 1.0), world_from_body: UnitQuaternion::from_euler_angles(0.0, 0.0, 0.001 * k as f64) })
+            .collect();
+        let temperature = (0..25).map(|k| TemperatureSample { stamp_ns: 1_000_000_000 + k * 100_000_000, celsius: 25.0 + k as f64 * 0.01 }).collect();
+        Recording { name: "t".into(), imu, ground_truth, temperature }
+    }
+
+    #[test]
+    fn recording_round_trips_through_a_bag() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.mcap");
+        let rec = recording();
+        write_recording(&path, &rec).unwrap();
+        let (back, report) = read_recording(&path, &RecordingTopics::default()).unwrap();
+        assert_eq!(report.skipped(), 0);
+        assert_eq!(back.imu, rec.imu);
+        assert_eq!(back.temperature, rec.temperature);
+        assert_eq!(back.ground_truth.len(), rec.ground_truth.len());
+        for (a, b) in back.ground_truth.iter().zip(&rec.ground_truth) {
+            assert_eq!(a.stamp_ns, b.stamp_ns);
+            assert!(a.world_from_body.angle_to(&b.world_from_body) < 1e-12);
+        }
+        let (info, err) = bag_info(&path);
+        assert!(err.is_none());
+        let imu = info.iter().find(|t| t.topic == IMU_TOPIC).unwrap();
+        assert_eq!(imu.count, 500);
+        assert!((imu.rate_hz() - 200.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn bad_samples_are_skipped_and_counted() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bad.mcap");
+        let mut rec = recording();
+        rec.imu[10].gyro.x = f64::NAN;
+        rec.imu[20].stamp_ns = rec.imu[19].stamp_ns; // duplicate
+        rec.imu[30].accel.z = f64::INFINITY;
+        // The writer interleaves by stamp, so write the raw stream by hand to keep a backwards stamp.
+        let mut w = BagWriter::create(&path).unwrap();
+        let ch = w.channel::<Imu>(IMU_TOPIC).unwrap();
+        for (k, s) in rec.imu.iter().enumerate() {
+            let mut s = *s;
+            if k == 40 {
+                s.stamp_ns -= 1_000_000_000;
+            }
+            w.write(ch, s.stamp_ns, &Imu::from_sample(&s, IMU_FRAME)).unwrap();
+        }
+        w.finish().unwrap();
+        let (back, report) = read_recording(&path, &RecordingTopics::default()).unwrap();
+        assert_eq!(report.imu_non_finite, 2);
+        assert_eq!(report.imu_duplicate_stamp, 1);
+        assert_eq!(report.imu_backwards_stamp, 1);
+        assert_eq!(back.imu.len(), 496);
+        assert!(back.imu.windows(2).all(|w| w[1].stamp_ns > w[0].stamp_ns));
+    }
+
+    #[test]
+    fn truncated_bag_is_an_error_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.mcap");
+        write_recording(&path, &recording()).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let cut = dir.path().join("cut.mcap");
+        std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+        let err = read_recording(&cut, &RecordingTopics::default()).unwrap_err();
+        assert!(err.to_string().contains("cut.mcap"), "{err}");
+        let (_, err) = bag_info(&cut);
+        assert!(err.is_some());
+        let garbage = dir.path().join("garbage.mcap");
+        std::fs::write(&garbage, b"not an mcap file at all").unwrap();
+        assert!(read_recording(&garbage, &RecordingTopics::default()).is_err());
+    }
+
+    #[test]
+    fn missing_topic_names_what_is_there() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.mcap");
+        write_recording(&path, &recording()).unwrap();
+        let topics = RecordingTopics { imu: "/imu/data_raw".into(), ..Default::default() };
+        let err = read_recording(&path, &topics).unwrap_err().to_string();
+        assert!(err.contains("/imu/data_raw") && err.contains("/imu/data [sensor_msgs/msg/Imu]"), "{err}");
+    }
+}

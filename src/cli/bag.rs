@@ -1,0 +1,102 @@
+//! `imu-fsda bag info|echo`: what is in a bag, as `ros2 bag info` and `ros2 topic echo` show it.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use imu_fsda::bag::{bag_info, BagReader};
+use imu_fsda::msg::{DiagnosticArray, Imu, Odometry, PoseStamped, RosMessage, Temperature, Vector3Stamped};
+
+#[derive(Debug, clap::Subcommand)]
+pub enum BagCommand {
+    /// Topics, types, message counts, rates and time span of a bag.
+    Info {
+        /// The MCAP bag.
+        file: PathBuf,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Print the messages of a bag as JSON lines (one message a line), decoded with our types.
+    Echo {
+        /// The MCAP bag.
+        file: PathBuf,
+        /// Only this topic (default: all topics).
+        #[arg(long)]
+        topic: Option<String>,
+        /// Stop after this many messages.
+        #[arg(long)]
+        limit: Option<u64>,
+    },
+}
+
+pub fn run(cmd: BagCommand) -> anyhow::Result<()> {
+    match cmd {
+        BagCommand::Info { file, json } => info(file, json),
+        BagCommand::Echo { file, topic, limit } => echo(file, topic, limit),
+    }
+}
+
+fn info(file: PathBuf, json: bool) -> anyhow::Result<()> {
+    let (topics, err) = bag_info(&file);
+    let first = topics.iter().map(|t| t.first_ns).min().unwrap_or(0);
+    let last = topics.iter().map(|t| t.last_ns).max().unwrap_or(0);
+    let total: u64 = topics.iter().map(|t| t.count).sum();
+    if json {
+        let v = serde_json::json!({
+            "file": file.display().to_string(),
+            "messages": total,
+            "start_ns": first,
+            "end_ns": last,
+            "duration_s": (last.saturating_sub(first)) as f64 * 1e-9,
+            "topics": topics.iter().map(|t| serde_json::json!({"topic": t.topic, "type": t.type_name, "count": t.count, "rate_hz": t.rate_hz(), "first_ns": t.first_ns, "last_ns": t.last_ns})).collect::<Vec<_>>(),
+            "complete": err.is_none(),
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!("Files:     {}", file.display());
+        println!("Duration:  {:.3} s", (last.saturating_sub(first)) as f64 * 1e-9);
+        println!("Start:     {:.9} s", first as f64 * 1e-9);
+        println!("End:       {:.9} s", last as f64 * 1e-9);
+        println!("Messages:  {total}");
+        println!("Topics:");
+        for t in &topics {
+            println!("  {:<28} {:<38} {:>9} msgs  {:>9.3} Hz  span {:.3} s", t.topic, t.type_name, t.count, t.rate_hz(), (t.last_ns - t.first_ns) as f64 * 1e-9);
+        }
+    }
+    match err {
+        None => Ok(()),
+        Some(e) => Err(e).context("the bag could be read only up to the figures above"),
+    }
+}
+
+fn to_json<M: RosMessage + serde::Serialize>(data: &[u8]) -> anyhow::Result<serde_json::Value> {
+    Ok(serde_json::to_value(M::decode(data)?)?)
+}
+
+fn echo(file: PathBuf, topic: Option<String>, limit: Option<u64>) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    let mut n = 0u64;
+    for m in BagReader::open(&file)? {
+        let m = m?;
+        if topic.as_deref().is_some_and(|t| t != &*m.topic) {
+            continue;
+        }
+        if limit.is_some_and(|l| n >= l) {
+            break;
+        }
+        let value = match &*m.type_name {
+            t if t == Imu::TYPE_NAME => to_json::<Imu>(&m.data),
+            t if t == PoseStamped::TYPE_NAME => to_json::<PoseStamped>(&m.data),
+            t if t == Vector3Stamped::TYPE_NAME => to_json::<Vector3Stamped>(&m.data),
+            t if t == Odometry::TYPE_NAME => to_json::<Odometry>(&m.data),
+            t if t == Temperature::TYPE_NAME => to_json::<Temperature>(&m.data),
+            t if t == DiagnosticArray::TYPE_NAME => to_json::<DiagnosticArray>(&m.data),
+            _ => Ok(serde_json::json!({"undecoded_bytes": m.data.len()})),
+        }
+        .with_context(|| format!("{}: message {} on {}", file.display(), n, m.topic))?;
+        writeln!(out, "{}", serde_json::json!({"topic": &*m.topic, "type": &*m.type_name, "log_time_ns": m.log_time_ns, "msg": value}))?;
+        n += 1;
+    }
+    Ok(())
+}

@@ -1,0 +1,92 @@
+//! `imu-fsda eval BAG... --method M...`: the orientation-error table for bags × methods.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use imu_fsda::bag::{read_recording, RecordingTopics};
+use imu_fsda::eval::{evaluate, BaselineMethod, EvalOptions, OrientationErrors, RestDetector};
+
+#[derive(Debug, clap::Args)]
+pub struct EvalArgs {
+    /// Bags with an IMU topic and a ground-truth topic.
+    #[arg(required = true)]
+    pub bags: Vec<PathBuf>,
+    /// Methods to evaluate (repeat the flag); default: raw and static-bias.
+    #[arg(short, long = "method", value_enum)]
+    pub methods: Vec<BaselineMethod>,
+    /// IMU topic (sensor_msgs/Imu).
+    #[arg(long, default_value = imu_fsda::bag::IMU_TOPIC)]
+    pub imu_topic: String,
+    /// Ground-truth topic (PoseStamped, Odometry, or an Imu carrying orientation).
+    #[arg(long, default_value = imu_fsda::bag::GROUND_TRUTH_TOPIC)]
+    pub ground_truth_topic: String,
+    /// Longest ground-truth gap interpolated over, ms; samples in longer gaps are not scored.
+    #[arg(long, default_value_t = 50.0)]
+    pub max_gap_ms: f64,
+    /// Also write the table as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Also write the table as Markdown here.
+    #[arg(long)]
+    pub markdown: Option<PathBuf>,
+}
+
+/// One row of the table.
+#[derive(Debug, serde::Serialize)]
+pub struct Row {
+    pub bag: String,
+    pub method: String,
+    #[serde(flatten)]
+    pub errors: Option<OrientationErrors>,
+    pub note: String,
+}
+
+pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    let methods = if args.methods.is_empty() { vec![BaselineMethod::Raw, BaselineMethod::StaticBias] } else { args.methods.clone() };
+    let opts = EvalOptions { max_gap_ns: (args.max_gap_ms * 1e6) as i64 };
+    let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
+    let detector = RestDetector::default();
+    let mut rows = Vec::new();
+    for bag in &args.bags {
+        let (rec, report) = read_recording(bag, &topics)?;
+        let name = bag.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        if rec.ground_truth.is_empty() {
+            anyhow::bail!("{}: no ground truth on {}", bag.display(), args.ground_truth_topic);
+        }
+        for &m in &methods {
+            let row = match m.apply(&rec, &detector).and_then(|(g, note)| Ok((evaluate(&rec, &g, &opts)?, note))) {
+                Ok((e, mut note)) => {
+                    if report.skipped() > 0 {
+                        note = format!("{note}{}skipped {} input samples", if note.is_empty() { "" } else { "; " }, report.skipped());
+                    }
+                    Row { bag: name.clone(), method: m.name().into(), errors: Some(e), note }
+                }
+                Err(e) => Row { bag: name.clone(), method: m.name().into(), errors: None, note: e.to_string() },
+            };
+            rows.push(row);
+        }
+    }
+    let table = markdown_table(&rows);
+    print!("{table}");
+    if let Some(p) = &args.json {
+        std::fs::write(p, serde_json::to_string_pretty(&serde_json::json!({"options": opts, "rows": rows}))?).with_context(|| format!("writing {}", p.display()))?;
+    }
+    if let Some(p) = &args.markdown {
+        std::fs::write(p, &table).with_context(|| format!("writing {}", p.display()))?;
+    }
+    Ok(())
+}
+
+pub fn markdown_table(rows: &[Row]) -> String {
+    let mut s = String::from("| bag | method | AOE° | roll° | pitch° | yaw° | tilt° | heading° | s | note |\n|---|---|---|---|---|---|---|---|---|---|\n");
+    for r in rows {
+        match &r.errors {
+            Some(e) => s += &format!(
+                "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} | {} |\n",
+                r.bag, r.method, e.aoe_deg, e.roll_rmse_deg, e.pitch_rmse_deg, e.yaw_rmse_deg, e.tilt_rmse_deg, e.heading_rmse_deg, e.seconds, r.note
+            ),
+            None => s += &format!("| {} | {} | – | – | – | – | – | – | – | {} |\n", r.bag, r.method, r.note),
+        }
+    }
+    s
+}

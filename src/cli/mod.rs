@@ -1,0 +1,51 @@
+//! Subcommands of `imu-fsda`, one file each.
+
+mod bag;
+mod eval;
+mod import;
+mod simulate;
+
+use clap::{Parser, Subcommand};
+
+/// Few-shot domain-adapted IMU gyroscope denoising for ROS 2.
+#[derive(Debug, Parser)]
+#[command(name = "imu-fsda", version, about)]
+pub struct Cli {
+    /// More log output (-v info, -vv debug); RUST_LOG overrides.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Inspect MCAP bags.
+    #[command(subcommand)]
+    Bag(bag::BagCommand),
+    /// Import an EuRoC or TUM-VI sequence folder (ASL layout) into a ROS 2 MCAP bag.
+    Import(import::ImportArgs),
+    /// Evaluate gyro methods on bags: open-loop orientation error (AOE, roll/pitch/yaw RMSE).
+    Eval(eval::EvalArgs),
+    /// Simulate an IMU on a trajectory and write a bag with ground truth.
+    Simulate(simulate::SimulateArgs),
+}
+
+pub fn init_tracing(verbose: u8) {
+    let default = match verbose {
+        0 => "warn",
+        1 => "info",
+        _ => "debug",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Bag(c) => bag::run(c),
+        Command::Import(a) => import::run(a),
+        Command::Eval(a) => eval::run(a),
+        Command::Simulate(a) => simulate::run(a),
+    }
+}

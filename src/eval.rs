@@ -1,0 +1,355 @@
+//! Evaluation of a gyro stream against ground truth: open-loop integration from the
+//! ground-truth attitude at the first IMU sample it covers, with the real per-sample dt,
+//! compared with the ground truth slerped at the IMU stamps (never across a gap longer
+//! than [`EvalOptions::max_gap_ns`]).
+//!
+//! Metrics (degrees): AOE = sqrt(mean ‖Log(R_gtᵀ R̂)‖²) (DIGDL's); roll/pitch/yaw RMSE of the
+//! ZYX Euler angles of `world_from_body`, differences wrapped to [−180°, 180°) (the paper's
+//! table); tilt and heading RMSE of E = R̂ R_gtᵀ split into a twist about world z (heading)
+//! and the remaining swing (tilt), which do not depend on the Euler convention.
+
+use nalgebra::{UnitQuaternion, Vector3};
+
+use crate::core::{ImuSample, Recording, STANDARD_GRAVITY};
+use crate::so3::{euler_zyx, integrate_gyro, log, slerp_at, wrap_pi};
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("{0}: no ground truth to evaluate against")]
+    NoGroundTruth(String),
+    #[error("{name}: ground truth ({gt_start:.3}–{gt_end:.3} s) does not overlap the IMU stream ({imu_start:.3}–{imu_end:.3} s)")]
+    NoOverlap { name: String, imu_start: f64, imu_end: f64, gt_start: f64, gt_end: f64 },
+    #[error("{name}: method gave {got} gyro samples for {expected} IMU samples")]
+    Length { name: String, got: usize, expected: usize },
+    #[error("{name}: {method}: {why}")]
+    Method { name: String, method: String, why: String },
+}
+
+/// How the comparison is made.
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+pub struct EvalOptions {
+    /// Longest ground-truth interval (ns) that is interpolated; IMU samples inside a longer
+    /// gap are left out of the metrics (TUM-VI mocap drops out). Default 50 ms: six periods
+    /// of 120 Hz mocap, a quarter of a second of nothing is a dropout, not data.
+    pub max_gap_ns: i64,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        EvalOptions { max_gap_ns: 50_000_000 }
+    }
+}
+
+/// Orientation errors of one gyro stream on one recording.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct OrientationErrors {
+    pub aoe_deg: f64,
+    pub roll_rmse_deg: f64,
+    pub pitch_rmse_deg: f64,
+    pub yaw_rmse_deg: f64,
+    pub tilt_rmse_deg: f64,
+    pub heading_rmse_deg: f64,
+    /// Error at the last evaluated sample, degrees.
+    pub final_error_deg: f64,
+    /// IMU samples compared with ground truth.
+    pub evaluated_samples: usize,
+    /// IMU samples left out because the ground truth had a gap there.
+    pub samples_in_gaps: usize,
+    /// Seconds from the initial attitude to the last evaluated sample.
+    pub seconds: f64,
+}
+
+/// Integrate `gyro` (one per IMU sample) and compare with the ground truth.
+pub fn evaluate(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOptions) -> Result<OrientationErrors, EvalError> {
+    evaluate_with_path(rec, gyro, opts).map(|(e, _)| e)
+}
+
+/// The integrated attitude and the ground truth at every IMU sample from the start of the
+/// evaluation, for plots.
+pub struct OrientationPath {
+    pub start: usize,
+    pub estimate: Vec<UnitQuaternion<f64>>,
+    pub ground_truth: Vec<Option<UnitQuaternion<f64>>>,
+}
+
+pub fn evaluate_with_path(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOptions) -> Result<(OrientationErrors, OrientationPath), EvalError> {
+    if gyro.len() != rec.imu.len() {
+        return Err(EvalError::Length { name: rec.name.clone(), got: gyro.len(), expected: rec.imu.len() });
+    }
+    let (Some(g0), Some(g1)) = (rec.ground_truth.first(), rec.ground_truth.last()) else {
+        return Err(EvalError::NoGroundTruth(rec.name.clone()));
+    };
+    let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), opts.max_gap_ns);
+    let Some(start) = gt.iter().position(Option::is_some) else {
+        let (i0, i1) = (rec.imu.first().map_or(0, |s| s.stamp_ns), rec.imu.last().map_or(0, |s| s.stamp_ns));
+        return Err(EvalError::NoOverlap { name: rec.name.clone(), imu_start: i0 as f64 * 1e-9, imu_end: i1 as f64 * 1e-9, gt_start: g0.stamp_ns as f64 * 1e-9, gt_end: g1.stamp_ns as f64 * 1e-9 });
+    };
+    let imu = &rec.imu[start..];
+    let gt = &gt[start..];
+    let initial = gt[0].expect("start is the first covered sample");
+    let estimate = integrate_gyro(imu, initial, |n| gyro[start + n]);
+
+    let mut acc = ErrorAccumulator::default();
+    let mut last_eval = 0;
+    for (n, (r_hat, r_gt)) in estimate.iter().zip(gt).enumerate() {
+        if let Some(r_gt) = r_gt {
+            acc.add(r_hat, r_gt);
+            last_eval = n;
+        }
+    }
+    let mut errors = acc.finish();
+    errors.samples_in_gaps = gt.iter().take(last_eval + 1).filter(|g| g.is_none()).count();
+    errors.seconds = (imu[last_eval].stamp_ns - imu[0].stamp_ns) as f64 * 1e-9;
+    Ok((errors, OrientationPath { start, estimate, ground_truth: gt.to_vec() }))
+}
+
+#[derive(Default)]
+struct ErrorAccumulator {
+    n: usize,
+    sq_angle: f64,
+    sq_euler: Vector3<f64>,
+    sq_tilt: f64,
+    sq_heading: f64,
+    last_angle: f64,
+}
+
+impl ErrorAccumulator {
+    fn add(&mut self, r_hat: &UnitQuaternion<f64>, r_gt: &UnitQuaternion<f64>) {
+        let angle = log(&(r_gt.inverse() * r_hat)).norm();
+        let d = euler_zyx(r_hat) - euler_zyx(r_gt);
+        let d = d.map(wrap_pi);
+        let (tilt, heading) = tilt_heading(&(r_hat * r_gt.inverse()));
+        self.n += 1;
+        self.sq_angle += angle * angle;
+        self.sq_euler += d.component_mul(&d);
+        self.sq_tilt += tilt * tilt;
+        self.sq_heading += heading * heading;
+        self.last_angle = angle;
+    }
+
+    fn finish(&self) -> OrientationErrors {
+        let n = self.n.max(1) as f64;
+        let rms = |s: f64| (s / n).sqrt().to_degrees();
+        OrientationErrors {
+            aoe_deg: rms(self.sq_angle),
+            roll_rmse_deg: rms(self.sq_euler.x),
+            pitch_rmse_deg: rms(self.sq_euler.y),
+            yaw_rmse_deg: rms(self.sq_euler.z),
+            tilt_rmse_deg: rms(self.sq_tilt),
+            heading_rmse_deg: rms(self.sq_heading),
+            final_error_deg: self.last_angle.to_degrees(),
+            evaluated_samples: self.n,
+            samples_in_gaps: 0,
+            seconds: 0.0,
+        }
+    }
+}
+
+/// Swing–twist split of a world-frame error rotation about world z: (tilt, heading) in rad.
+pub fn tilt_heading(e: &UnitQuaternion<f64>) -> (f64, f64) {
+    // Twist about z: the quaternion's (w, z) part; swing = e · twist⁻¹.
+    let heading = wrap_pi(2.0 * e.k.atan2(e.w));
+    let twist = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), heading);
+    let tilt = log(&(e * twist.inverse())).norm();
+    (tilt, heading.abs())
+}
+
+/// How rest is detected for the static-bias baseline. Rest is judged on the means of short
+/// blocks, not on sample spread: a robot on the ground with motors or engine running
+/// vibrates (EuRoC's MAV: accel std ≈ 0.3 m/s² at rest) but its block means stay put.
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+pub struct RestDetector {
+    /// Window judged at once, s.
+    pub window_s: f64,
+    /// Blocks per window whose means are compared.
+    pub blocks: usize,
+    /// Rest while the block means of every gyro axis span less than this, rad/s …
+    pub max_gyro_spread: f64,
+    /// … and those of every accelerometer axis less than this, m/s² …
+    pub max_accel_spread: f64,
+    /// … and ‖mean accel‖ is within this of 9.81 m/s² (not in free fall or accelerating).
+    pub max_gravity_error: f64,
+    /// The bias is averaged over at most this many seconds from the start.
+    pub max_seconds: f64,
+    /// Less rest than this and the baseline is not available.
+    pub min_seconds: f64,
+}
+
+impl Default for RestDetector {
+    fn default() -> Self {
+        // 0.1 s block means of a vibrating robot at rest (σ ≈ 0.02 rad/s per sample at 200 Hz)
+        // scatter by ~0.005 rad/s; walking or driving moves them by far more than 0.02 rad/s.
+        RestDetector { window_s: 0.5, blocks: 5, max_gyro_spread: 0.02, max_accel_spread: 0.2, max_gravity_error: 0.5, max_seconds: 10.0, min_seconds: 0.5 }
+    }
+}
+
+/// The initial rest interval as IMU indices [0, end), if at least `min_seconds` long.
+/// Windows are consecutive from the first sample; rest ends at the first window that moves.
+pub fn detect_initial_rest(imu: &[ImuSample], det: &RestDetector) -> Option<usize> {
+    let t0 = imu.first()?.stamp_ns;
+    let block_ns = (det.window_s / det.blocks.max(1) as f64 * 1e9) as i64;
+    let mut start = 0;
+    let mut end = 0;
+    'windows: while start < imu.len() {
+        let mut lo = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::INFINITY));
+        let mut hi = (Vector3::repeat(f64::NEG_INFINITY), Vector3::repeat(f64::NEG_INFINITY));
+        let mut accel_sum = Vector3::zeros();
+        let mut b0 = start;
+        for _ in 0..det.blocks.max(1) {
+            let stop_ns = imu.get(b0)?.stamp_ns + block_ns;
+            let b1 = imu[b0..].iter().position(|s| s.stamp_ns >= stop_ns).map_or(imu.len(), |k| b0 + k);
+            if b1 - b0 < 2 || (imu[b1 - 1].stamp_ns - t0) as f64 * 1e-9 > det.max_seconds {
+                break 'windows;
+            }
+            let n = (b1 - b0) as f64;
+            let g = imu[b0..b1].iter().map(|s| s.gyro).sum::<Vector3<f64>>() / n;
+            let a = imu[b0..b1].iter().map(|s| s.accel).sum::<Vector3<f64>>() / n;
+            accel_sum += a;
+            lo = (lo.0.inf(&g), lo.1.inf(&a));
+            hi = (hi.0.sup(&g), hi.1.sup(&a));
+            b0 = b1;
+        }
+        let mean_accel = accel_sum / det.blocks.max(1) as f64;
+        let still = (hi.0 - lo.0).max() < det.max_gyro_spread
+            && (hi.1 - lo.1).max() < det.max_accel_spread
+            && (mean_accel.norm() - STANDARD_GRAVITY).abs() < det.max_gravity_error;
+        if !still {
+            break;
+        }
+        end = b0;
+        start = b0;
+    }
+    // Duration covered by the rest samples, each counted with its own interval.
+    let secs = if end > 0 { (imu[end.min(imu.len() - 1)].stamp_ns - t0) as f64 * 1e-9 } else { 0.0 };
+    (secs >= det.min_seconds).then_some(end)
+}
+
+fn mean(it: impl Iterator<Item = Vector3<f64>>) -> Vector3<f64> {
+    let (sum, n) = it.fold((Vector3::zeros(), 0usize), |(s, n), v| (s + v, n + 1));
+    sum / n.max(1) as f64
+}
+
+/// A gyro method that needs no model: what a user has before learning anything.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BaselineMethod {
+    /// The gyro as recorded.
+    Raw,
+    /// The gyro minus its mean over the initial rest (see [`RestDetector`]).
+    StaticBias,
+}
+
+impl BaselineMethod {
+    pub fn name(self) -> &'static str {
+        match self {
+            BaselineMethod::Raw => "raw",
+            BaselineMethod::StaticBias => "static-bias",
+        }
+    }
+
+    /// Corrected gyro for each IMU sample, and a note on what was done.
+    pub fn apply(self, rec: &Recording, det: &RestDetector) -> Result<(Vec<Vector3<f64>>, String), EvalError> {
+        let raw = rec.imu.iter().map(|s| s.gyro);
+        match self {
+            BaselineMethod::Raw => Ok((raw.collect(), String::new())),
+            BaselineMethod::StaticBias => {
+                let end = detect_initial_rest(&rec.imu, det).ok_or_else(|| EvalError::Method {
+                    name: rec.name.clone(),
+                    method: self.name().into(),
+                    why: format!(
+                        "no initial rest of at least {} s (0.1 s block means spreading < {} rad/s gyro, < {} m/s² accel)",
+                        det.min_seconds, det.max_gyro_spread, det.max_accel_spread
+                    ),
+                })?;
+                let bias = mean(rec.imu[..end].iter().map(|s| s.gyro));
+                let secs = (rec.imu[end - 1].stamp_ns - rec.imu[0].stamp_ns) as f64 * 1e-9;
+                let note = format!("rest {secs:.1} s, bias [{:.5}, {:.5}, {:.5}] rad/s", bias.x, bias.y, bias.z);
+                Ok((raw.map(|g| g - bias).collect(), note))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::PoseSample;
+    use crate::so3::exp;
+
+    /// A recording rotating at a constant rate about a tilted axis, with exact ground truth.
+    fn spinning(n: usize, rate_hz: f64, w: Vector3<f64>) -> Recording {
+        let dt = (1e9 / rate_hz) as i64;
+        let q0 = exp(&Vector3::new(0.2, -0.4, 1.0));
+        let imu: Vec<ImuSample> = (0..n).map(|k| ImuSample { stamp_ns: 5_000 + k as i64 * dt, gyro: w, accel: Vector3::new(0.0, 0.0, 9.81) }).collect();
+        let ground_truth = (0..n).step_by(2).map(|k| PoseSample { stamp_ns: imu[k].stamp_ns, position_in_world: Vector3::zeros(), world_from_body: q0 * exp(&(w * (k as f64 * dt as f64 * 1e-9))) }).collect();
+        Recording { name: "spin".into(), imu, ground_truth, temperature: vec![] }
+    }
+
+    #[test]
+    fn exact_gyro_has_zero_error_and_bias_grows_linearly() {
+        let w = Vector3::new(0.3, -0.1, 0.5);
+        let rec = spinning(2001, 200.0, w);
+        let exact = evaluate(&rec, &vec![w; rec.imu.len()], &EvalOptions::default()).unwrap();
+        assert!(exact.aoe_deg < 1e-6, "{exact:?}");
+        assert_eq!(exact.evaluated_samples, 2001);
+        // A bias about an axis gives an angle error b·t, so the RMS over [0, T] is b·T/√3.
+        let b = Vector3::new(0.0, 0.0, 0.01);
+        let r = Recording { imu: rec.imu.iter().map(|s| ImuSample { gyro: Vector3::zeros(), ..*s }).collect(), ..spinning(2001, 200.0, Vector3::zeros()) };
+        let biased = evaluate(&r, &vec![b; r.imu.len()], &EvalOptions::default()).unwrap();
+        let expected = (0.01 * 10.0 / 3f64.sqrt()).to_degrees();
+        assert!((biased.aoe_deg - expected).abs() / expected < 1e-3, "{} vs {expected}", biased.aoe_deg);
+        assert!((biased.final_error_deg - (0.1f64).to_degrees()).abs() < 1e-6);
+        // Heading only: tilt error is zero.
+        assert!(biased.tilt_rmse_deg < 1e-9 && (biased.heading_rmse_deg - expected).abs() / expected < 1e-3);
+    }
+
+    #[test]
+    fn gaps_are_not_evaluated() {
+        let w = Vector3::new(0.0, 0.0, 0.2);
+        let mut rec = spinning(2001, 200.0, w);
+        rec.ground_truth.retain(|p| !(p.stamp_ns > 2_000_000_000 && p.stamp_ns < 4_000_000_000));
+        let e = evaluate(&rec, &vec![w; rec.imu.len()], &EvalOptions::default()).unwrap();
+        assert!(e.samples_in_gaps > 390 && e.samples_in_gaps < 410, "{e:?}");
+        assert_eq!(e.evaluated_samples + e.samples_in_gaps, 2001);
+    }
+
+    #[test]
+    fn no_overlap_and_no_ground_truth_are_errors() {
+        let w = Vector3::zeros();
+        let mut rec = spinning(100, 200.0, w);
+        for p in &mut rec.ground_truth {
+            p.stamp_ns += 10_000_000_000;
+        }
+        assert!(matches!(evaluate(&rec, &vec![w; 100], &EvalOptions::default()), Err(EvalError::NoOverlap { .. })));
+        rec.ground_truth.clear();
+        assert!(matches!(evaluate(&rec, &vec![w; 100], &EvalOptions::default()), Err(EvalError::NoGroundTruth(_))));
+        assert!(matches!(evaluate(&spinning(100, 200.0, w), &vec![w; 99], &EvalOptions::default()), Err(EvalError::Length { .. })));
+    }
+
+    #[test]
+    fn static_bias_is_found_at_rest() {
+        let b = Vector3::new(-0.002, 0.021, 0.077);
+        let mut rec = spinning(4000, 200.0, Vector3::zeros());
+        for (k, s) in rec.imu.iter_mut().enumerate() {
+            let moving = k >= 1000;
+            s.gyro = b + if moving { Vector3::new(0.5 * (k as f64 * 0.05).sin(), 0.0, 0.0) } else { Vector3::new(1e-3 * ((k * 7919) % 13) as f64 / 13.0, 0.0, 0.0) };
+        }
+        let end = detect_initial_rest(&rec.imu, &RestDetector::default()).unwrap();
+        assert!((800..=1000).contains(&end), "{end}");
+        let (g, note) = BaselineMethod::StaticBias.apply(&rec, &RestDetector::default()).unwrap();
+        assert!((g[0] - (rec.imu[0].gyro - b)).norm() < 1e-3, "{note}");
+        // Moving from the start: no rest, a clear error.
+        let mut moving = rec.clone();
+        moving.imu.drain(..1000);
+        assert!(BaselineMethod::StaticBias.apply(&moving, &RestDetector::default()).is_err());
+    }
+
+    #[test]
+    fn tilt_heading_split() {
+        let e = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3) * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.1);
+        let (tilt, heading) = tilt_heading(&(UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.1) * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3)));
+        assert!((tilt - 0.1).abs() < 1e-12 && (heading - 0.3).abs() < 1e-12, "{tilt} {heading}");
+        let (t2, _) = tilt_heading(&e);
+        assert!((t2 - 0.1).abs() < 1e-12);
+    }
+}

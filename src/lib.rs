@@ -1,0 +1,14 @@
+//! imu-fsda: few-shot domain-adapted IMU gyroscope denoising for ROS 2.
+//!
+//! Data flows one way: bags / datasets → samples → model → corrected samples →
+//! metrics / bags / topics. See ARCHITECTURE.md for the layers.
+
+pub mod bag;
+pub mod core;
+pub mod dataset;
+pub mod eval;
+pub mod model;
+pub mod msg;
+pub mod physics;
+pub mod sim;
+pub mod so3;
