@@ -101,10 +101,7 @@ impl BagWriter {
         let schema_id = match self.schemas.get(M::TYPE_NAME) {
             Some(id) => *id,
             None => {
-                let id = self
-                    .writer
-                    .add_schema(M::TYPE_NAME, "ros2msg", M::DEFINITION.as_bytes())
-                    .map_err(|e| self.mcap_err(e))?;
+                let id = self.writer.add_schema(M::TYPE_NAME, "ros2msg", M::DEFINITION.as_bytes()).map_err(|e| self.mcap_err(e))?;
                 self.schemas.insert(M::TYPE_NAME, id);
                 id
             }
@@ -256,7 +253,11 @@ pub struct LoadReport {
 
 impl LoadReport {
     pub fn skipped(&self) -> u64 {
-        self.imu_non_finite + self.imu_duplicate_stamp + self.imu_backwards_stamp + self.ground_truth_invalid + self.ground_truth_out_of_order
+        self.imu_non_finite
+            + self.imu_duplicate_stamp
+            + self.imu_backwards_stamp
+            + self.ground_truth_invalid
+            + self.ground_truth_out_of_order
     }
 }
 
@@ -282,7 +283,11 @@ pub struct RecordingTopics {
 
 impl Default for RecordingTopics {
     fn default() -> Self {
-        RecordingTopics { imu: IMU_TOPIC.into(), ground_truth: Some(GROUND_TRUTH_TOPIC.into()), temperature: Some(TEMPERATURE_TOPIC.into()) }
+        RecordingTopics {
+            imu: IMU_TOPIC.into(),
+            ground_truth: Some(GROUND_TRUTH_TOPIC.into()),
+            temperature: Some(TEMPERATURE_TOPIC.into()),
+        }
     }
 }
 
@@ -295,15 +300,20 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
     let mut rec = Recording { name: path.display().to_string(), ..Default::default() };
     let mut report = LoadReport::default();
     let mut present: BTreeMap<Arc<str>, Arc<str>> = BTreeMap::new();
-    let mut index = 0u64;
-    for m in BagReader::open(path)? {
+    for (index, m) in BagReader::open(path)?.enumerate() {
         let m = m?;
-        index += 1;
+        let index = index as u64 + 1;
         if !present.contains_key(&m.topic) {
             present.insert(m.topic.clone(), m.type_name.clone());
         }
-        let decode_err = |source| BagError::Decode { path: path.to_path_buf(), topic: m.topic.to_string(), index, log_time_ns: m.log_time_ns, source };
-        let wrong_type = |expected: &str| BagError::WrongType { path: path.to_path_buf(), topic: m.topic.to_string(), found: m.type_name.to_string(), expected: expected.into() };
+        let decode_err =
+            |source| BagError::Decode { path: path.to_path_buf(), topic: m.topic.to_string(), index, log_time_ns: m.log_time_ns, source };
+        let wrong_type = |expected: &str| BagError::WrongType {
+            path: path.to_path_buf(),
+            topic: m.topic.to_string(),
+            found: m.type_name.to_string(),
+            expected: expected.into(),
+        };
         if *m.topic == *topics.imu {
             if *m.type_name != *Imu::TYPE_NAME {
                 return Err(wrong_type(Imu::TYPE_NAME));
@@ -317,10 +327,11 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
                 t if t == Odometry::TYPE_NAME => Odometry::decode(&m.data).map_err(decode_err)?.sample(),
                 t if t == Imu::TYPE_NAME => {
                     let imu = Imu::decode(&m.data).map_err(decode_err)?;
-                    imu.has_orientation()
-                        .then(|| imu.orientation.to_unit())
-                        .flatten()
-                        .map(|q| PoseSample { stamp_ns: imu.header.stamp.to_ns(), position_in_world: nalgebra::Vector3::zeros(), world_from_body: q })
+                    imu.has_orientation().then(|| imu.orientation.to_unit()).flatten().map(|q| PoseSample {
+                        stamp_ns: imu.header.stamp.to_ns(),
+                        position_in_world: nalgebra::Vector3::zeros(),
+                        world_from_body: q,
+                    })
                 }
                 _ => return Err(wrong_type("geometry_msgs/msg/PoseStamped, nav_msgs/msg/Odometry or sensor_msgs/msg/Imu")),
             };
@@ -380,7 +391,10 @@ pub fn write_recording(path: impl AsRef<Path>, rec: &Recording) -> Result<(), Ba
     let gt_ch = if rec.ground_truth.is_empty() { None } else { Some(w.channel::<PoseStamped>(GROUND_TRUTH_TOPIC)?) };
     let temp_ch = if rec.temperature.is_empty() { None } else { Some(w.channel::<Temperature>(TEMPERATURE_TOPIC)?) };
     let (mut i, mut g, mut t) = (0, 0, 0);
-    let mut imu_msg = Imu::from_sample(&rec.imu.first().copied().unwrap_or(ImuSample { stamp_ns: 0, gyro: Default::default(), accel: Default::default() }), IMU_FRAME);
+    let mut imu_msg = Imu::from_sample(
+        &rec.imu.first().copied().unwrap_or(ImuSample { stamp_ns: 0, gyro: Default::default(), accel: Default::default() }),
+        IMU_FRAME,
+    );
     loop {
         let ti = rec.imu.get(i).map(|s| s.stamp_ns).unwrap_or(i64::MAX);
         let tg = rec.ground_truth.get(g).map(|s| s.stamp_ns).unwrap_or(i64::MAX);
@@ -404,7 +418,11 @@ pub fn write_recording(path: impl AsRef<Path>, rec: &Recording) -> Result<(), Ba
         } else {
             if let Some(ch) = temp_ch {
                 let s = &rec.temperature[t];
-                let msg = Temperature { header: crate::msg::Header { stamp: crate::msg::Time::from_ns(s.stamp_ns), frame_id: IMU_FRAME.into() }, temperature: s.celsius, variance: 0.0 };
+                let msg = Temperature {
+                    header: crate::msg::Header { stamp: crate::msg::Time::from_ns(s.stamp_ns), frame_id: IMU_FRAME.into() },
+                    temperature: s.celsius,
+                    variance: 0.0,
+                };
                 w.write(ch, tt, &msg)?;
             }
             t += 1;
@@ -420,12 +438,21 @@ mod tests {
 
     fn recording() -> Recording {
         let imu = (0..500)
-            .map(|k| ImuSample { stamp_ns: 1_000_000_000 + k * 5_000_000, gyro: Vector3::new(0.01 * k as f64, -0.2, 0.3), accel: Vector3::new(0.0, 0.1, 9.81) })
+            .map(|k| ImuSample {
+                stamp_ns: 1_000_000_000 + k * 5_000_000,
+                gyro: Vector3::new(0.01 * k as f64, -0.2, 0.3),
+                accel: Vector3::new(0.0, 0.1, 9.81),
+            })
             .collect();
         let ground_truth = (0..250)
-            .map(|k| PoseSample { stamp_ns: 1_000_000_000 + k * 10_000_000, position_in_world: Vector3::new(k as f64, 0.0, 1.0), world_from_body: UnitQuaternion::from_euler_angles(0.0, 0.0, 0.001 * k as f64) })
+            .map(|k| PoseSample {
+                stamp_ns: 1_000_000_000 + k * 10_000_000,
+                position_in_world: Vector3::new(k as f64, 0.0, 1.0),
+                world_from_body: UnitQuaternion::from_euler_angles(0.0, 0.0, 0.001 * k as f64),
+            })
             .collect();
-        let temperature = (0..25).map(|k| TemperatureSample { stamp_ns: 1_000_000_000 + k * 100_000_000, celsius: 25.0 + k as f64 * 0.01 }).collect();
+        let temperature =
+            (0..25).map(|k| TemperatureSample { stamp_ns: 1_000_000_000 + k * 100_000_000, celsius: 25.0 + k as f64 * 0.01 }).collect();
         Recording { name: "t".into(), imu, ground_truth, temperature }
     }
 

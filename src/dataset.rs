@@ -62,7 +62,8 @@ pub fn detect(dir: &Path) -> Result<Sequence, DatasetError> {
         return Err(DatasetError::Layout(dir.to_path_buf()));
     };
     let seq_dir = if mav0.file_name().is_some_and(|n| n == "mav0") { mav0.parent().unwrap_or(&mav0) } else { &mav0 };
-    let name = seq_dir.canonicalize().unwrap_or(seq_dir.to_path_buf()).file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name =
+        seq_dir.canonicalize().unwrap_or(seq_dir.to_path_buf()).file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     Ok(Sequence { kind, name, imu_csv, ground_truth_csv })
 }
 
@@ -76,7 +77,7 @@ struct AslCsv {
 /// Column name without the leading `#`, spaces and the unit in brackets.
 fn column_key(raw: &str) -> String {
     let s = raw.trim().trim_start_matches('#').trim();
-    s.split(|c: char| c == ' ' || c == '[').next().unwrap_or("").to_string()
+    s.split([' ', '[']).next().unwrap_or("").to_string()
 }
 
 impl AslCsv {
@@ -111,13 +112,27 @@ impl AslCsv {
             if record.iter().all(|f| f.is_empty()) {
                 continue;
             }
-            let field = |i: usize| record.get(i).ok_or_else(|| DatasetError::Malformed { path: self.path.clone(), line, what: format!("{} fields, expected {}", record.len(), self.columns.len()) });
+            let field = |i: usize| {
+                record.get(i).ok_or_else(|| DatasetError::Malformed {
+                    path: self.path.clone(),
+                    line,
+                    what: format!("{} fields, expected {}", record.len(), self.columns.len()),
+                })
+            };
             let stamp_text = field(0)?;
-            let stamp: i64 = stamp_text.parse().map_err(|_| DatasetError::Malformed { path: self.path.clone(), line, what: format!("timestamp {stamp_text:?} is not an integer of ns") })?;
+            let stamp: i64 = stamp_text.parse().map_err(|_| DatasetError::Malformed {
+                path: self.path.clone(),
+                line,
+                what: format!("timestamp {stamp_text:?} is not an integer of ns"),
+            })?;
             for (v, &c) in values.iter_mut().zip(cols) {
                 let text = field(c)?;
                 // "nan"/"inf" parse as floats and are dealt with by the caller (skipped, counted).
-                *v = text.parse().map_err(|_| DatasetError::Malformed { path: self.path.clone(), line, what: format!("column {} value {text:?} is not a number", self.columns[c]) })?;
+                *v = text.parse().map_err(|_| DatasetError::Malformed {
+                    path: self.path.clone(),
+                    line,
+                    what: format!("column {} value {text:?} is not a number", self.columns[c]),
+                })?;
             }
             visit(line, stamp, &values);
         }
@@ -131,7 +146,10 @@ pub fn read_imu_csv(path: &Path, report: &mut LoadReport) -> Result<Vec<ImuSampl
     if csv.columns.first().map(String::as_str) != Some("timestamp") {
         return Err(DatasetError::MissingColumn { path: path.into(), column: "timestamp (first)".into(), header: csv.columns.join(",") });
     }
-    let cols = ["w_RS_S_x", "w_RS_S_y", "w_RS_S_z", "a_RS_S_x", "a_RS_S_y", "a_RS_S_z"].map(|c| csv.index(c)).into_iter().collect::<Result<Vec<_>, _>>()?;
+    let cols = ["w_RS_S_x", "w_RS_S_y", "w_RS_S_z", "a_RS_S_x", "a_RS_S_y", "a_RS_S_z"]
+        .map(|c| csv.index(c))
+        .into_iter()
+        .collect::<Result<Vec<_>, _>>()?;
     let mut imu = Vec::new();
     csv.rows(&cols, |_, stamp_ns, v| {
         report.imu_read += 1;
@@ -148,7 +166,10 @@ pub fn read_imu_csv(path: &Path, report: &mut LoadReport) -> Result<Vec<ImuSampl
 /// Hamilton quaternion (w first) of the IMU frame in the world.
 pub fn read_ground_truth_csv(path: &Path, report: &mut LoadReport) -> Result<Vec<PoseSample>, DatasetError> {
     let mut csv = AslCsv::open(path)?;
-    let cols = ["p_RS_R_x", "p_RS_R_y", "p_RS_R_z", "q_RS_w", "q_RS_x", "q_RS_y", "q_RS_z"].map(|c| csv.index(c)).into_iter().collect::<Result<Vec<_>, _>>()?;
+    let cols = ["p_RS_R_x", "p_RS_R_y", "p_RS_R_z", "q_RS_w", "q_RS_x", "q_RS_y", "q_RS_z"]
+        .map(|c| csv.index(c))
+        .into_iter()
+        .collect::<Result<Vec<_>, _>>()?;
     let mut out: Vec<PoseSample> = Vec::new();
     csv.rows(&cols, |_, stamp_ns, v| {
         report.ground_truth_read += 1;
@@ -162,7 +183,11 @@ pub fn read_ground_truth_csv(path: &Path, report: &mut LoadReport) -> Result<Vec
             report.ground_truth_out_of_order += 1;
             return;
         }
-        out.push(PoseSample { stamp_ns, position_in_world: Vector3::new(v[0], v[1], v[2]), world_from_body: UnitQuaternion::new_normalize(q) });
+        out.push(PoseSample {
+            stamp_ns,
+            position_in_world: Vector3::new(v[0], v[1], v[2]),
+            world_from_body: UnitQuaternion::new_normalize(q),
+        });
     })?;
     if out.is_empty() {
         return Err(DatasetError::Empty { path: path.into() });
@@ -207,7 +232,11 @@ mod tests {
         assert_eq!(rec.ground_truth.len(), 2);
 
         write(d.path(), "room/mav0/imu0/data.csv", &imu);
-        write(d.path(), "room/mav0/mocap0/data.csv", "#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []\n1000,0,0,0,1,0,0,0\n");
+        write(
+            d.path(),
+            "room/mav0/mocap0/data.csv",
+            "#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []\n1000,0,0,0,1,0,0,0\n",
+        );
         let (seq, _, _) = load_sequence(&d.path().join("room/mav0")).unwrap();
         assert_eq!(seq.kind, DatasetKind::TumVi);
         assert_eq!(seq.name, "room");
@@ -217,7 +246,11 @@ mod tests {
     fn malformed_line_names_file_and_line() {
         let d = tempfile::tempdir().unwrap();
         write(d.path(), "s/mav0/imu0/data.csv", &format!("{IMU_HEADER}1000,0.1,0.2,0.3,9.8,0,0\n2000,0.1,zz,0.3,9.8,0,0\n"));
-        write(d.path(), "s/mav0/mocap0/data.csv", "#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []\n1000,0,0,0,1,0,0,0\n");
+        write(
+            d.path(),
+            "s/mav0/mocap0/data.csv",
+            "#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []\n1000,0,0,0,1,0,0,0\n",
+        );
         let err = load_sequence(&d.path().join("s")).unwrap_err().to_string();
         assert!(err.contains("imu0/data.csv:3") && err.contains("w_RS_S_y"), "{err}");
         write(d.path(), "s/mav0/imu0/data.csv", &format!("{IMU_HEADER}1000,0.1,0.2\n"));

@@ -72,7 +72,11 @@ pub struct OrientationPath {
     pub ground_truth: Vec<Option<UnitQuaternion<f64>>>,
 }
 
-pub fn evaluate_with_path(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOptions) -> Result<(OrientationErrors, OrientationPath), EvalError> {
+pub fn evaluate_with_path(
+    rec: &Recording,
+    gyro: &[Vector3<f64>],
+    opts: &EvalOptions,
+) -> Result<(OrientationErrors, OrientationPath), EvalError> {
     if gyro.len() != rec.imu.len() {
         return Err(EvalError::Length { name: rec.name.clone(), got: gyro.len(), expected: rec.imu.len() });
     }
@@ -82,7 +86,13 @@ pub fn evaluate_with_path(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOpt
     let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), opts.max_gap_ns);
     let Some(start) = gt.iter().position(Option::is_some) else {
         let (i0, i1) = (rec.imu.first().map_or(0, |s| s.stamp_ns), rec.imu.last().map_or(0, |s| s.stamp_ns));
-        return Err(EvalError::NoOverlap { name: rec.name.clone(), imu_start: i0 as f64 * 1e-9, imu_end: i1 as f64 * 1e-9, gt_start: g0.stamp_ns as f64 * 1e-9, gt_end: g1.stamp_ns as f64 * 1e-9 });
+        return Err(EvalError::NoOverlap {
+            name: rec.name.clone(),
+            imu_start: i0 as f64 * 1e-9,
+            imu_end: i1 as f64 * 1e-9,
+            gt_start: g0.stamp_ns as f64 * 1e-9,
+            gt_end: g1.stamp_ns as f64 * 1e-9,
+        });
     };
     let imu = &rec.imu[start..];
     let gt = &gt[start..];
@@ -179,7 +189,15 @@ impl Default for RestDetector {
     fn default() -> Self {
         // 0.1 s block means of a vibrating robot at rest (σ ≈ 0.02 rad/s per sample at 200 Hz)
         // scatter by ~0.005 rad/s; walking or driving moves them by far more than 0.02 rad/s.
-        RestDetector { window_s: 0.5, blocks: 5, max_gyro_spread: 0.02, max_accel_spread: 0.2, max_gravity_error: 0.5, max_seconds: 10.0, min_seconds: 0.5 }
+        RestDetector {
+            window_s: 0.5,
+            blocks: 5,
+            max_gyro_spread: 0.02,
+            max_accel_spread: 0.2,
+            max_gravity_error: 0.5,
+            max_seconds: 10.0,
+            min_seconds: 0.5,
+        }
     }
 }
 
@@ -280,8 +298,16 @@ mod tests {
     fn spinning(n: usize, rate_hz: f64, w: Vector3<f64>) -> Recording {
         let dt = (1e9 / rate_hz) as i64;
         let q0 = exp(&Vector3::new(0.2, -0.4, 1.0));
-        let imu: Vec<ImuSample> = (0..n).map(|k| ImuSample { stamp_ns: 5_000 + k as i64 * dt, gyro: w, accel: Vector3::new(0.0, 0.0, 9.81) }).collect();
-        let ground_truth = (0..n).step_by(2).map(|k| PoseSample { stamp_ns: imu[k].stamp_ns, position_in_world: Vector3::zeros(), world_from_body: q0 * exp(&(w * (k as f64 * dt as f64 * 1e-9))) }).collect();
+        let imu: Vec<ImuSample> =
+            (0..n).map(|k| ImuSample { stamp_ns: 5_000 + k as i64 * dt, gyro: w, accel: Vector3::new(0.0, 0.0, 9.81) }).collect();
+        let ground_truth = (0..n)
+            .step_by(2)
+            .map(|k| PoseSample {
+                stamp_ns: imu[k].stamp_ns,
+                position_in_world: Vector3::zeros(),
+                world_from_body: q0 * exp(&(w * (k as f64 * dt as f64 * 1e-9))),
+            })
+            .collect();
         Recording { name: "spin".into(), imu, ground_truth, temperature: vec![] }
     }
 
@@ -294,7 +320,11 @@ mod tests {
         assert_eq!(exact.evaluated_samples, 2001);
         // A bias about an axis gives an angle error b·t, so the RMS over [0, T] is b·T/√3.
         let b = Vector3::new(0.0, 0.0, 0.01);
-        let r = Recording { imu: rec.imu.iter().map(|s| ImuSample { gyro: Vector3::zeros(), ..*s }).collect(), ..spinning(2001, 200.0, Vector3::zeros()) };
+        let mut r = spinning(2001, 200.0, Vector3::zeros());
+        // Body z along world z, so a z bias is a pure heading error.
+        for p in &mut r.ground_truth {
+            p.world_from_body = exp(&Vector3::new(0.0, 0.0, 0.7));
+        }
         let biased = evaluate(&r, &vec![b; r.imu.len()], &EvalOptions::default()).unwrap();
         let expected = (0.01 * 10.0 / 3f64.sqrt()).to_degrees();
         assert!((biased.aoe_deg - expected).abs() / expected < 1e-3, "{} vs {expected}", biased.aoe_deg);
@@ -332,7 +362,11 @@ mod tests {
         let mut rec = spinning(4000, 200.0, Vector3::zeros());
         for (k, s) in rec.imu.iter_mut().enumerate() {
             let moving = k >= 1000;
-            s.gyro = b + if moving { Vector3::new(0.5 * (k as f64 * 0.05).sin(), 0.0, 0.0) } else { Vector3::new(1e-3 * ((k * 7919) % 13) as f64 / 13.0, 0.0, 0.0) };
+            s.gyro = b + if moving {
+                Vector3::new(0.5 * (k as f64 * 0.05).sin(), 0.0, 0.0)
+            } else {
+                Vector3::new(1e-3 * ((k * 7919) % 13) as f64 / 13.0, 0.0, 0.0)
+            };
         }
         let end = detect_initial_rest(&rec.imu, &RestDetector::default()).unwrap();
         assert!((800..=1000).contains(&end), "{end}");
@@ -347,7 +381,9 @@ mod tests {
     #[test]
     fn tilt_heading_split() {
         let e = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3) * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.1);
-        let (tilt, heading) = tilt_heading(&(UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.1) * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3)));
+        let (tilt, heading) = tilt_heading(
+            &(UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.1) * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3)),
+        );
         assert!((tilt - 0.1).abs() < 1e-12 && (heading - 0.3).abs() < 1e-12, "{tilt} {heading}");
         let (t2, _) = tilt_heading(&e);
         assert!((t2 - 0.1).abs() < 1e-12);

@@ -7,6 +7,7 @@ pub mod bag;
 pub mod core;
 pub mod dataset;
 pub mod eval;
+pub mod infer;
 pub mod model;
 pub mod msg;
 pub mod physics;

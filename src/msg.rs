@@ -87,7 +87,6 @@ macro_rules! sep {
     };
 }
 
-
 /// builtin_interfaces/msg/Time.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Time {
@@ -256,11 +255,7 @@ impl Imu {
     }
 
     pub fn sample(&self) -> ImuSample {
-        ImuSample {
-            stamp_ns: self.header.stamp.to_ns(),
-            gyro: self.angular_velocity.into(),
-            accel: self.linear_acceleration.into(),
-        }
+        ImuSample { stamp_ns: self.header.stamp.to_ns(), gyro: self.angular_velocity.into(), accel: self.linear_acceleration.into() }
     }
 
     /// True when the message carries an orientation (REP 145: covariance[0] ≠ −1).
@@ -282,7 +277,6 @@ pub struct PoseStamped {
     pub header: Header,
     pub pose: Pose,
 }
-
 
 impl RosMessage for PoseStamped {
     const TYPE_NAME: &'static str = "geometry_msgs/msg/PoseStamped";
@@ -509,7 +503,6 @@ impl RosMessage for DiagnosticArray {
     );
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -521,7 +514,11 @@ mod tests {
     #[test]
     fn imu_round_trip_and_layout() {
         let mut m = Imu::from_sample(
-            &ImuSample { stamp_ns: 1_403_636_579_758_555_648, gyro: nalgebra::Vector3::new(0.1, -0.2, 0.3), accel: nalgebra::Vector3::new(9.0, 0.5, -1.0) },
+            &ImuSample {
+                stamp_ns: 1_403_636_579_758_555_648,
+                gyro: nalgebra::Vector3::new(0.1, -0.2, 0.3),
+                accel: nalgebra::Vector3::new(9.0, 0.5, -1.0),
+            },
             "imu_link",
         );
         m.angular_velocity_covariance.0[4] = 1e-6;
@@ -536,7 +533,10 @@ mod tests {
 
     #[test]
     fn every_type_round_trips() {
-        let pose = PoseStamped { header: header(), pose: Pose { position: Vector3 { x: 1.0, y: 2.0, z: 3.0 }, orientation: Quaternion { x: 0.0, y: 0.0, z: 0.6, w: 0.8 } } };
+        let pose = PoseStamped {
+            header: header(),
+            pose: Pose { position: Vector3 { x: 1.0, y: 2.0, z: 3.0 }, orientation: Quaternion { x: 0.0, y: 0.0, z: 0.6, w: 0.8 } },
+        };
         assert_eq!(PoseStamped::decode(&pose.encode().unwrap()).unwrap(), pose);
         let v = Vector3Stamped { header: header(), vector: Vector3 { x: 1e-3, y: -2.0, z: 5.0 } };
         assert_eq!(Vector3Stamped::decode(&v.encode().unwrap()).unwrap(), v);
@@ -548,7 +548,13 @@ mod tests {
         assert_eq!(Temperature::decode(&t.encode().unwrap()).unwrap(), t);
         let d = DiagnosticArray {
             header: header(),
-            status: vec![DiagnosticStatus { level: DiagnosticStatus::WARN, name: "imu_fsda: node".into(), message: "warm-up".into(), hardware_id: "imu".into(), values: vec![KeyValue { key: "rate_hz".into(), value: "200".into() }] }],
+            status: vec![DiagnosticStatus {
+                level: DiagnosticStatus::WARN,
+                name: "imu_fsda: node".into(),
+                message: "warm-up".into(),
+                hardware_id: "imu".into(),
+                values: vec![KeyValue { key: "rate_hz".into(), value: "200".into() }],
+            }],
         };
         assert_eq!(DiagnosticArray::decode(&d.encode().unwrap()).unwrap(), d);
     }

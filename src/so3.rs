@@ -18,22 +18,14 @@ pub fn exp(phi: &Vector3<f64>) -> UnitQuaternion<f64> {
     let theta = phi.norm();
     let half = 0.5 * theta;
     // sin(θ/2)/θ, with its Taylor series near 0.
-    let k = if theta < SMALL_ANGLE {
-        0.5 - theta * theta / 48.0
-    } else {
-        half.sin() / theta
-    };
+    let k = if theta < SMALL_ANGLE { 0.5 - theta * theta / 48.0 } else { half.sin() / theta };
     UnitQuaternion::new_unchecked(Quaternion::new(half.cos(), k * phi.x, k * phi.y, k * phi.z))
 }
 
 /// Log: unit quaternion → rotation vector with angle in [0, π].
 pub fn log(q: &UnitQuaternion<f64>) -> Vector3<f64> {
     // q and −q are the same rotation; take w ≥ 0 so the angle is ≤ π.
-    let (w, v) = if q.w < 0.0 {
-        (-q.w, -q.imag())
-    } else {
-        (q.w, q.imag())
-    };
+    let (w, v) = if q.w < 0.0 { (-q.w, -q.imag()) } else { (q.w, q.imag()) };
     let s = v.norm();
     if s < SMALL_ANGLE {
         // θ ≈ 2s, and θ/s ≈ 2/w to second order.
@@ -215,7 +207,11 @@ mod tests {
 
     #[test]
     fn slerp_never_bridges_a_gap() {
-        let pose = |t: i64, yaw: f64| PoseSample { stamp_ns: t, position_in_world: Vector3::zeros(), world_from_body: exp(&Vector3::new(0.0, 0.0, yaw)) };
+        let pose = |t: i64, yaw: f64| PoseSample {
+            stamp_ns: t,
+            position_in_world: Vector3::zeros(),
+            world_from_body: exp(&Vector3::new(0.0, 0.0, yaw)),
+        };
         let gt = vec![pose(0, 0.0), pose(10, 0.1), pose(1000, 0.2)];
         let out = slerp_at(&gt, [-5, 0, 5, 10, 500, 1000, 1001], 100);
         assert!(out[0].is_none());

@@ -21,7 +21,9 @@ fn shared_data() -> Option<PathBuf> {
 
 fn python() -> Option<PathBuf> {
     let p = std::env::var_os("PYTHON").map(PathBuf::from).unwrap_or_else(|| {
-        let cache = std::env::var_os("XDG_CACHE_HOME").map(PathBuf::from).unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache"));
+        let cache = std::env::var_os("XDG_CACHE_HOME")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache"));
         cache.join("imu-fsda/torch-2.13.0/bin/python")
     });
     if p.exists() {
@@ -102,7 +104,8 @@ fn import_errors_name_the_problem() {
     // A bag without ground truth cannot be evaluated: a clear error, not a panic.
     let csv_dir = dir.path().join("s/mav0/imu0");
     std::fs::create_dir_all(&csv_dir).unwrap();
-    std::fs::write(csv_dir.join("data.csv"), "#timestamp [ns],w_RS_S_x,w_RS_S_y,w_RS_S_z,a_RS_S_x,a_RS_S_y,a_RS_S_z\n1,0,0,0,0,0,9.8\n").unwrap();
+    std::fs::write(csv_dir.join("data.csv"), "#timestamp [ns],w_RS_S_x,w_RS_S_y,w_RS_S_z,a_RS_S_x,a_RS_S_y,a_RS_S_z\n1,0,0,0,0,0,9.8\n")
+        .unwrap();
     let gt = dir.path().join("s/mav0/mocap0");
     std::fs::create_dir_all(&gt).unwrap();
     std::fs::write(gt.join("data.csv"), "#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []\n1,0,0,0,1,0,0,0\n2,0,0,0,bad,0,0,0\n").unwrap();

@@ -60,7 +60,14 @@ fn info(file: PathBuf, json: bool) -> anyhow::Result<()> {
         println!("Messages:  {total}");
         println!("Topics:");
         for t in &topics {
-            println!("  {:<28} {:<38} {:>9} msgs  {:>9.3} Hz  span {:.3} s", t.topic, t.type_name, t.count, t.rate_hz(), (t.last_ns - t.first_ns) as f64 * 1e-9);
+            println!(
+                "  {:<28} {:<38} {:>9} msgs  {:>9.3} Hz  span {:.3} s",
+                t.topic,
+                t.type_name,
+                t.count,
+                t.rate_hz(),
+                (t.last_ns - t.first_ns) as f64 * 1e-9
+            );
         }
     }
     match err {

@@ -69,7 +69,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let table = markdown_table(&rows);
     print!("{table}");
     if let Some(p) = &args.json {
-        std::fs::write(p, serde_json::to_string_pretty(&serde_json::json!({"options": opts, "rows": rows}))?).with_context(|| format!("writing {}", p.display()))?;
+        std::fs::write(p, serde_json::to_string_pretty(&serde_json::json!({"options": opts, "rows": rows}))?)
+            .with_context(|| format!("writing {}", p.display()))?;
     }
     if let Some(p) = &args.markdown {
         std::fs::write(p, &table).with_context(|| format!("writing {}", p.display()))?;
@@ -78,13 +79,26 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
 }
 
 pub fn markdown_table(rows: &[Row]) -> String {
-    let mut s = String::from("| bag | method | AOE° | roll° | pitch° | yaw° | tilt° | heading° | s | note |\n|---|---|---|---|---|---|---|---|---|---|\n");
+    let mut s = String::from(
+        "| bag | method | AOE° | roll° | pitch° | yaw° | tilt° | heading° | s | note |\n|---|---|---|---|---|---|---|---|---|---|\n",
+    );
     for r in rows {
         match &r.errors {
-            Some(e) => s += &format!(
-                "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} | {} |\n",
-                r.bag, r.method, e.aoe_deg, e.roll_rmse_deg, e.pitch_rmse_deg, e.yaw_rmse_deg, e.tilt_rmse_deg, e.heading_rmse_deg, e.seconds, r.note
-            ),
+            Some(e) => {
+                s += &format!(
+                    "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} | {} |\n",
+                    r.bag,
+                    r.method,
+                    e.aoe_deg,
+                    e.roll_rmse_deg,
+                    e.pitch_rmse_deg,
+                    e.yaw_rmse_deg,
+                    e.tilt_rmse_deg,
+                    e.heading_rmse_deg,
+                    e.seconds,
+                    r.note
+                )
+            }
             None => s += &format!("| {} | {} | – | – | – | – | – | – | – | {} |\n", r.bag, r.method, r.note),
         }
     }

@@ -15,8 +15,10 @@ def load(path, names):
     with open(path) as f:
         header = [h.strip().lstrip("#").strip().split(" ")[0].split("[")[0] for h in f.readline().split(",")]
     data = np.loadtxt(path, delimiter=",", comments="#")
+    # stamps as exact integers: float64 would round 19-digit ns stamps by ~256 ns
+    stamps = np.loadtxt(path, delimiter=",", comments="#", usecols=0, dtype=np.int64)
     idx = [header.index(n) for n in names]
-    return data[:, 0].astype(np.int64), data[:, idx]
+    return stamps, data[:, idx]
 
 
 def quat_to_mat(q):  # q = [w, x, y, z], normalised here

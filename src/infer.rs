@@ -1,0 +1,447 @@
+//! The per-sample denoising pipeline, free of ROS and async: input checks → gyro correction
+//! (any [`GyroCorrector`], e.g. the model's streaming form) → orientation integration.
+//! The node, `replay` and the tests all drive this same [`Pipeline::push`], so what the node
+//! publishes on a bag is what `replay` writes. No allocation and no I/O per sample.
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+use crate::core::{ImuSample, STANDARD_GRAVITY};
+use crate::so3::{exp, renormalize};
+
+/// Something that corrects a gyro stream sample by sample (causal, stateful).
+pub trait GyroCorrector: Send {
+    /// Corrected angular velocity (rad/s) of the newest sample.
+    fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64>;
+    /// Forget the history: the next sample starts a new stream (warm-up again).
+    fn reset(&mut self);
+    /// Samples of history the correction depends on (N); 1 for memoryless methods.
+    fn window(&self) -> usize;
+    /// The IMU rate the corrector was made for, Hz, if it has one.
+    fn rate_hz(&self) -> Option<f64>;
+    /// Short name for diagnostics.
+    fn name(&self) -> &str;
+}
+
+/// The identity: the raw gyro minus a constant bias. The baseline and the model-free mode.
+#[derive(Debug, Clone)]
+pub struct BiasCorrector {
+    pub bias: Vector3<f64>,
+}
+
+impl GyroCorrector for BiasCorrector {
+    fn step(&mut self, gyro: &Vector3<f64>, _accel: &Vector3<f64>) -> Vector3<f64> {
+        gyro - self.bias
+    }
+    fn reset(&mut self) {}
+    fn window(&self) -> usize {
+        1
+    }
+    fn rate_hz(&self) -> Option<f64> {
+        None
+    }
+    fn name(&self) -> &str {
+        "bias"
+    }
+}
+
+/// Pipeline settings (the node reads them from its ROS parameters).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct PipelineConfig {
+    /// Nominal input rate, Hz; 0 = take the corrector's, else measure it from the first samples.
+    pub nominal_rate_hz: f64,
+    /// An interval longer than this many nominal periods is a gap: the corrector's window is
+    /// reset (warm-up again) and the orientation is held and flagged, not integrated across.
+    pub gap_periods: f64,
+    /// A rate that differs from nominal by more than this fraction (smoothed) is reported.
+    pub rate_tolerance: f64,
+    /// Standard deviation of the corrected gyro, rad/s, per sample: its covariance, and the
+    /// orientation covariance growth (σ·dt per step, a random walk).
+    pub angular_velocity_stddev: f64,
+    /// Initial attitude from gravity: average the accelerometer over this long, s.
+    pub gravity_init_seconds: f64,
+    /// Variance of roll and pitch from the gravity initialisation, rad².
+    pub initial_tilt_variance: f64,
+    /// Variance of the initial yaw, rad² (gravity says nothing about it).
+    pub initial_yaw_variance: f64,
+    /// Orientation variance added per second of gap, rad² (the attitude is held over a gap).
+    pub gap_variance_per_second: f64,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        PipelineConfig {
+            nominal_rate_hz: 0.0,
+            gap_periods: 5.0,
+            rate_tolerance: 0.2,
+            angular_velocity_stddev: 0.005,
+            gravity_init_seconds: 0.5,
+            initial_tilt_variance: 1e-4,
+            initial_yaw_variance: std::f64::consts::PI * std::f64::consts::PI,
+            gap_variance_per_second: 0.25,
+        }
+    }
+}
+
+/// Why an input sample was not used. Every drop is counted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Dropped {
+    NonFinite,
+    DuplicateStamp,
+    BackwardsStamp,
+}
+
+/// Counters of everything the pipeline saw and did, by reason (published on /diagnostics).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct Counters {
+    pub received: u64,
+    pub processed: u64,
+    pub dropped_non_finite: u64,
+    pub dropped_duplicate_stamp: u64,
+    pub dropped_backwards_stamp: u64,
+    pub gaps: u64,
+    pub rate_changes: u64,
+    pub resets: u64,
+    pub warmup_samples: u64,
+}
+
+/// One corrected sample: what `/imu/denoised` and `/imu/gyro_correction` carry.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CorrectedImu {
+    pub stamp_ns: i64,
+    /// Corrected angular velocity ω̂, rad/s.
+    pub gyro: Vector3<f64>,
+    /// The estimated correction ω̂ − ω, rad/s.
+    pub correction: Vector3<f64>,
+    /// Specific force, passed through, m/s².
+    pub accel: Vector3<f64>,
+    /// Variance of each corrected gyro axis, (rad/s)².
+    pub gyro_variance: f64,
+    /// Integrated `world_from_body` and its covariance (rad², about world x, y, z); `None`
+    /// until the initial attitude is known.
+    pub orientation: Option<(UnitQuaternion<f64>, Matrix3<f64>)>,
+    /// The corrector has seen fewer than N samples since the start or the last reset.
+    pub warming_up: bool,
+    /// This sample follows a gap (the window was reset, the attitude held).
+    pub after_gap: bool,
+}
+
+/// Open-loop attitude from the corrected gyro, with the same convention as evaluation:
+/// R(t_{n+1}) = R(t_n)·Exp(ω̂_n (t_{n+1} − t_n)).
+#[derive(Debug, Clone)]
+struct Attitude {
+    world_from_body: Option<UnitQuaternion<f64>>,
+    covariance: Matrix3<f64>,
+    gravity_sum: Vector3<f64>,
+    gravity_count: u32,
+    gravity_start_ns: Option<i64>,
+}
+
+impl Attitude {
+    fn new() -> Self {
+        Attitude {
+            world_from_body: None,
+            covariance: Matrix3::zeros(),
+            gravity_sum: Vector3::zeros(),
+            gravity_count: 0,
+            gravity_start_ns: None,
+        }
+    }
+
+    /// Roll and pitch that put the measured specific force on world +z; yaw 0.
+    fn from_gravity(f: &Vector3<f64>) -> UnitQuaternion<f64> {
+        let roll = f.y.atan2(f.z);
+        let pitch = (-f.x).atan2((f.y * f.y + f.z * f.z).sqrt());
+        UnitQuaternion::from_euler_angles(roll, pitch, 0.0)
+    }
+}
+
+/// The pipeline: feed raw samples in stamp order, get corrected samples out.
+pub struct Pipeline {
+    corrector: Box<dyn GyroCorrector>,
+    cfg: PipelineConfig,
+    nominal_period_ns: Option<f64>,
+    smoothed_period_ns: f64,
+    rate_off: bool,
+    last: Option<(i64, Vector3<f64>)>,
+    since_reset: u64,
+    attitude: Attitude,
+    counters: Counters,
+    first_dts: [i64; 8],
+    n_first_dts: usize,
+}
+
+impl Pipeline {
+    pub fn new(corrector: Box<dyn GyroCorrector>, cfg: PipelineConfig) -> Self {
+        let rate = if cfg.nominal_rate_hz > 0.0 { Some(cfg.nominal_rate_hz) } else { corrector.rate_hz() };
+        let nominal_period_ns = rate.map(|r| 1e9 / r);
+        Pipeline {
+            corrector,
+            cfg,
+            nominal_period_ns,
+            smoothed_period_ns: nominal_period_ns.unwrap_or(0.0),
+            rate_off: false,
+            last: None,
+            since_reset: 0,
+            attitude: Attitude::new(),
+            counters: Counters::default(),
+            first_dts: [0; 8],
+            n_first_dts: 0,
+        }
+    }
+
+    /// Set the initial attitude from an external source (an initial-pose topic).
+    pub fn set_attitude(&mut self, world_from_body: UnitQuaternion<f64>, covariance: Matrix3<f64>) {
+        self.attitude.world_from_body = Some(world_from_body);
+        self.attitude.covariance = covariance;
+    }
+
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    pub fn corrector_name(&self) -> &str {
+        self.corrector.name()
+    }
+
+    pub fn window(&self) -> usize {
+        self.corrector.window()
+    }
+
+    /// Nominal input period, s, once known.
+    pub fn nominal_rate_hz(&self) -> Option<f64> {
+        self.nominal_period_ns.map(|p| 1e9 / p)
+    }
+
+    /// True while the smoothed input rate is off nominal by more than the tolerance.
+    pub fn rate_off_nominal(&self) -> bool {
+        self.rate_off
+    }
+
+    /// Swap the corrector (after adaptation). The history is replayed by the caller if it
+    /// wants continuity; here the new corrector simply starts its own warm-up.
+    pub fn replace_corrector(&mut self, corrector: Box<dyn GyroCorrector>) -> Box<dyn GyroCorrector> {
+        self.since_reset = 0;
+        std::mem::replace(&mut self.corrector, corrector)
+    }
+
+    /// Process one raw sample.
+    pub fn push(&mut self, s: &ImuSample) -> Result<CorrectedImu, Dropped> {
+        self.counters.received += 1;
+        if !s.is_finite() {
+            self.counters.dropped_non_finite += 1;
+            return Err(Dropped::NonFinite);
+        }
+        let mut after_gap = false;
+        if let Some((t_last, w_last)) = self.last {
+            let dt_ns = s.stamp_ns - t_last;
+            if dt_ns == 0 {
+                self.counters.dropped_duplicate_stamp += 1;
+                return Err(Dropped::DuplicateStamp);
+            }
+            if dt_ns < 0 {
+                self.counters.dropped_backwards_stamp += 1;
+                return Err(Dropped::BackwardsStamp);
+            }
+            self.learn_period(dt_ns);
+            let is_gap = self.nominal_period_ns.is_some_and(|p| dt_ns as f64 > self.cfg.gap_periods * p);
+            if is_gap {
+                after_gap = true;
+                self.counters.gaps += 1;
+                self.counters.resets += 1;
+                self.corrector.reset();
+                self.since_reset = 0;
+                // Hold the attitude over the gap: integrating a stale rate would invent motion.
+                self.attitude.covariance += Matrix3::identity() * (self.cfg.gap_variance_per_second * dt_ns as f64 * 1e-9);
+            } else if let Some(q) = self.attitude.world_from_body {
+                let dt = dt_ns as f64 * 1e-9;
+                self.attitude.world_from_body = Some(renormalize(q * exp(&(w_last * dt))));
+                let sigma = self.cfg.angular_velocity_stddev * dt;
+                self.attitude.covariance += Matrix3::identity() * (sigma * sigma);
+            }
+        }
+        let gyro = self.corrector.step(&s.gyro, &s.accel);
+        let warming_up = self.since_reset < self.corrector.window() as u64;
+        if warming_up {
+            self.counters.warmup_samples += 1;
+        }
+        self.since_reset += 1;
+        self.last = Some((s.stamp_ns, gyro));
+        self.counters.processed += 1;
+        self.init_attitude(s);
+        let orientation = self.attitude.world_from_body.map(|q| (q, self.attitude.covariance));
+        Ok(CorrectedImu {
+            stamp_ns: s.stamp_ns,
+            gyro,
+            correction: gyro - s.gyro,
+            accel: s.accel,
+            gyro_variance: self.cfg.angular_velocity_stddev * self.cfg.angular_velocity_stddev,
+            orientation,
+            warming_up,
+            after_gap,
+        })
+    }
+
+    fn init_attitude(&mut self, s: &ImuSample) {
+        let att = &mut self.attitude;
+        if att.world_from_body.is_some() {
+            return;
+        }
+        let t0 = *att.gravity_start_ns.get_or_insert(s.stamp_ns);
+        att.gravity_sum += s.accel;
+        att.gravity_count += 1;
+        if (s.stamp_ns - t0) as f64 * 1e-9 >= self.cfg.gravity_init_seconds {
+            let f = att.gravity_sum / att.gravity_count as f64;
+            if (f.norm() - STANDARD_GRAVITY).abs() < 0.1 * STANDARD_GRAVITY {
+                att.world_from_body = Some(Attitude::from_gravity(&f));
+                att.covariance = Matrix3::from_diagonal(&Vector3::new(
+                    self.cfg.initial_tilt_variance,
+                    self.cfg.initial_tilt_variance,
+                    self.cfg.initial_yaw_variance,
+                ));
+            } else {
+                // Not at rest (or not in gravity): try again over the next interval.
+                att.gravity_sum = Vector3::zeros();
+                att.gravity_count = 0;
+                att.gravity_start_ns = None;
+            }
+        }
+    }
+
+    /// Learn the nominal period from the first intervals (median of 8) if not given, then
+    /// track the smoothed period to report rate changes.
+    fn learn_period(&mut self, dt_ns: i64) {
+        match self.nominal_period_ns {
+            None => {
+                self.first_dts[self.n_first_dts] = dt_ns;
+                self.n_first_dts += 1;
+                if self.n_first_dts == self.first_dts.len() {
+                    let mut d = self.first_dts;
+                    d.sort_unstable();
+                    let p = (d[3] + d[4]) as f64 / 2.0;
+                    self.nominal_period_ns = Some(p);
+                    self.smoothed_period_ns = p;
+                }
+            }
+            Some(p) => {
+                // Gaps are not rate changes.
+                if (dt_ns as f64) < self.cfg.gap_periods * p {
+                    self.smoothed_period_ns += 0.02 * (dt_ns as f64 - self.smoothed_period_ns);
+                }
+                let off = (self.smoothed_period_ns / p - 1.0).abs() > self.cfg.rate_tolerance;
+                if off && !self.rate_off {
+                    self.counters.rate_changes += 1;
+                }
+                self.rate_off = off;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::Recording;
+    use crate::so3::integrate_gyro;
+
+    fn stream(n: usize, dt_ns: i64) -> Vec<ImuSample> {
+        (0..n)
+            .map(|k| {
+                let t = k as f64 * dt_ns as f64 * 1e-9;
+                ImuSample {
+                    stamp_ns: 1_000_000 + k as i64 * dt_ns,
+                    gyro: Vector3::new(0.3 * (t * 2.0).sin(), 0.1, -0.2 * t.cos()) + Vector3::new(0.01, 0.02, 0.03),
+                    accel: Vector3::new(0.0, 0.0, 9.81),
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn orientation_equals_offline_integration() {
+        let imu = stream(2000, 5_000_000);
+        let bias = Vector3::new(0.01, 0.02, 0.03);
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias }), PipelineConfig { gravity_init_seconds: 0.0, ..Default::default() });
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        let q0 = out[0].orientation.unwrap().0;
+        let offline = integrate_gyro(&imu, q0, |n| imu[n].gyro - bias);
+        let worst = out.iter().zip(&offline).map(|(o, q)| o.orientation.unwrap().0.angle_to(q)).fold(0.0, f64::max);
+        assert!(worst < 1e-12, "{worst}");
+        assert!((out[5].correction + bias).norm() < 1e-15);
+        let _ = Recording::default();
+    }
+
+    #[test]
+    fn bad_samples_are_dropped_and_counted() {
+        let mut imu = stream(100, 5_000_000);
+        imu[10].gyro.y = f64::NAN;
+        imu[20].stamp_ns = imu[19].stamp_ns;
+        imu[30].stamp_ns = imu[29].stamp_ns - 1;
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
+        let results: Vec<_> = imu.iter().map(|s| p.push(s)).collect();
+        assert_eq!(results[10], Err(Dropped::NonFinite));
+        assert_eq!(results[20], Err(Dropped::DuplicateStamp));
+        assert_eq!(results[30], Err(Dropped::BackwardsStamp));
+        let c = p.counters();
+        assert_eq!(
+            (c.received, c.processed, c.dropped_non_finite, c.dropped_duplicate_stamp, c.dropped_backwards_stamp),
+            (100, 97, 1, 1, 1)
+        );
+    }
+
+    #[test]
+    fn a_gap_resets_and_holds_the_attitude() {
+        let mut imu = stream(400, 5_000_000);
+        for s in &mut imu[200..] {
+            s.stamp_ns += 1_000_000_000; // one second of nothing
+        }
+        let mut p = Pipeline::new(
+            Box::new(BiasCorrector { bias: Vector3::zeros() }),
+            PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..Default::default() },
+        );
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!(out[200].after_gap && !out[199].after_gap && !out[201].after_gap);
+        assert_eq!(p.counters().gaps, 1);
+        let (q199, p199) = out[199].orientation.unwrap();
+        let (q200, p200) = out[200].orientation.unwrap();
+        assert!(q199.angle_to(&q200) < 1e-15, "held across the gap");
+        assert!(p200[(0, 0)] > p199[(0, 0)] + 0.2, "flagged by a larger covariance");
+        assert_eq!(p.counters().rate_changes, 0);
+    }
+
+    #[test]
+    fn gravity_initialises_roll_and_pitch() {
+        let mut imu = stream(300, 5_000_000);
+        let tilt = UnitQuaternion::from_euler_angles(0.2, -0.3, 0.0);
+        for s in &mut imu {
+            s.accel = tilt.inverse() * Vector3::new(0.0, 0.0, 9.81);
+        }
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!(out[50].orientation.is_none(), "no orientation before 0.5 s of gravity");
+        let k = out.iter().position(|o| o.orientation.is_some()).unwrap();
+        assert_eq!(k, 100);
+        let (q, cov) = out[k].orientation.unwrap();
+        let (r, pch, _) = q.euler_angles();
+        assert!((r - 0.2).abs() < 1e-9 && (pch + 0.3).abs() < 1e-9);
+        assert!(cov[(2, 2)] > 1.0, "yaw unknown");
+    }
+
+    #[test]
+    fn rate_change_is_reported_once() {
+        let mut imu = stream(600, 5_000_000);
+        for (k, s) in imu.iter_mut().enumerate().skip(300) {
+            s.stamp_ns = imu_stamp(k);
+        }
+        fn imu_stamp(k: usize) -> i64 {
+            1_000_000 + 300 * 5_000_000 + (k as i64 - 300) * 2_500_000
+        }
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
+        for s in &imu {
+            p.push(s).unwrap();
+        }
+        assert_eq!(p.nominal_rate_hz().map(|r| r.round()), Some(200.0));
+        assert_eq!(p.counters().rate_changes, 1);
+        assert!(p.rate_off_nominal());
+    }
+}
