@@ -110,6 +110,17 @@ impl BagWriter {
         Ok(Channel { id })
     }
 
+    /// Open (or reuse) a channel with a schema taken from another bag (copying messages
+    /// through unchanged). Without a schema the channel is schemaless.
+    pub fn channel_like(&mut self, topic: &str, schema: Option<&mcap::Schema<'_>>) -> Result<Channel, BagError> {
+        let schema_id = match schema {
+            None => 0,
+            Some(s) => self.writer.add_schema(&s.name, &s.encoding, &s.data).map_err(|e| self.mcap_err(e))?,
+        };
+        let id = self.writer.add_channel(schema_id, topic, "cdr", &BTreeMap::new()).map_err(|e| self.mcap_err(e))?;
+        Ok(Channel { id })
+    }
+
     /// Write one message with its log time (ns); publish time is the same.
     pub fn write<M: RosMessage>(&mut self, channel: Channel, log_time_ns: i64, msg: &M) -> Result<(), BagError> {
         let mut buf = std::mem::take(&mut self.scratch);
@@ -145,6 +156,8 @@ impl BagWriter {
 pub struct BagMessage {
     pub topic: Arc<str>,
     pub type_name: Arc<str>,
+    /// The channel's schema (encoding and definition), to copy messages into another bag.
+    pub schema: Option<Arc<mcap::Schema<'static>>>,
     pub log_time_ns: u64,
     pub data: Vec<u8>,
 }
@@ -153,9 +166,11 @@ pub struct BagMessage {
 pub struct BagReader {
     path: PathBuf,
     inner: mcap::io::MessageReader<BufReader<File>>,
-    topics: BTreeMap<u16, (Arc<str>, Arc<str>)>,
+    topics: BTreeMap<u16, ChannelInfo>,
     count: u64,
 }
+
+type ChannelInfo = (Arc<str>, Arc<str>, Option<Arc<mcap::Schema<'static>>>);
 
 impl BagReader {
     pub fn open(path: impl AsRef<Path>) -> Result<Self, BagError> {
@@ -179,15 +194,15 @@ impl Iterator for BagReader {
             Err(source) => return Some(Err(BagError::Mcap { path: self.path.clone(), messages: self.count, source })),
         };
         self.count += 1;
-        let (topic, type_name) = self
+        let (topic, type_name, schema) = self
             .topics
             .entry(msg.channel.id)
             .or_insert_with(|| {
                 let type_name = msg.channel.schema.as_ref().map(|s| s.name.as_str()).unwrap_or("");
-                (Arc::from(msg.channel.topic.as_str()), Arc::from(type_name))
+                (Arc::from(msg.channel.topic.as_str()), Arc::from(type_name), msg.channel.schema.clone())
             })
             .clone();
-        Some(Ok(BagMessage { topic, type_name, log_time_ns: msg.log_time, data: msg.data.into_owned() }))
+        Some(Ok(BagMessage { topic, type_name, schema, log_time_ns: msg.log_time, data: msg.data.into_owned() }))
     }
 }
 

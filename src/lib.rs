@@ -10,6 +10,7 @@ pub mod eval;
 pub mod infer;
 pub mod model;
 pub mod msg;
+pub mod node;
 pub mod physics;
 pub mod sim;
 pub mod so3;

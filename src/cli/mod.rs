@@ -1,8 +1,12 @@
 //! Subcommands of `imu-fsda`, one file each.
 
 mod bag;
+mod corrector;
 mod eval;
 mod import;
+mod node;
+mod play;
+mod replay;
 mod simulate;
 
 use clap::{Parser, Subcommand};
@@ -29,12 +33,20 @@ pub enum Command {
     Eval(eval::EvalArgs),
     /// Simulate an IMU on a trajectory and write a bag with ground truth.
     Simulate(simulate::SimulateArgs),
+    /// Run the ROS 2 denoising node (subscribes raw IMU, publishes /imu/denoised).
+    Node(node::NodeArgs),
+    /// Run the node's pipeline over a bag and write its topics beside the input.
+    Replay(replay::ReplayArgs),
+    /// Publish a bag onto DDS at its recorded rate, like `ros2 bag play`.
+    Play(play::PlayArgs),
 }
 
 pub fn init_tracing(verbose: u8) {
+    // rustdds logs routine network chatter (and shutdown races) at warn/error: keep it quiet
+    // unless asked for.
     let default = match verbose {
-        0 => "warn",
-        1 => "info",
+        0 => "warn,rustdds=off,ros2_client=off",
+        1 => "info,rustdds=warn,ros2_client=warn",
         _ => "debug",
     };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
@@ -47,5 +59,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Import(a) => import::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Simulate(a) => simulate::run(a),
+        Command::Node(a) => node::run(a),
+        Command::Replay(a) => replay::run(a),
+        Command::Play(a) => play::run(a),
     }
 }

@@ -1,0 +1,82 @@
+//! `imu-fsda node`: the live ROS 2 denoising node.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Context;
+use imu_fsda::infer::Pipeline;
+use imu_fsda::node::{run_node, NodeParams, RosEnvironment, RunLimits};
+
+use super::corrector::load_corrector;
+
+#[derive(Debug, clap::Args)]
+pub struct NodeArgs {
+    /// ROS 2 parameter file (`imu_fsda: ros__parameters: …`); defaults apply without one.
+    #[arg(long)]
+    pub params: Option<PathBuf>,
+    /// Node name (also the section read from the parameter file).
+    #[arg(long, default_value = "imu_fsda")]
+    pub node_name: String,
+    /// Topic remapping `from:=to` (repeatable), as `--ros-args -r`.
+    #[arg(short = 'r', long = "remap")]
+    pub remaps: Vec<String>,
+    /// Model file, overriding the parameter `model` ("" = none).
+    #[arg(long)]
+    pub model: Option<String>,
+    /// Exit after publishing this many messages (tests, benchmarks).
+    #[arg(long)]
+    pub max_messages: Option<u64>,
+    /// Exit when no input arrives for this many seconds after the first (tests, benchmarks).
+    #[arg(long)]
+    pub idle_exit_s: Option<f64>,
+    /// Print the final statistics as JSON on exit.
+    #[arg(long)]
+    pub stats_json: bool,
+}
+
+pub fn load_params(path: Option<&PathBuf>, node_name: &str, remaps: &[String], model: Option<&String>) -> anyhow::Result<NodeParams> {
+    let mut params = match path {
+        Some(p) => NodeParams::from_yaml_file(p, node_name)?,
+        None => NodeParams::default(),
+    };
+    for r in remaps {
+        params.remap(r)?;
+    }
+    if let Some(m) = model {
+        params.model.clone_from(m);
+    }
+    Ok(params)
+}
+
+pub fn run(args: NodeArgs) -> anyhow::Result<()> {
+    let params = load_params(args.params.as_ref(), &args.node_name, &args.remaps, args.model.as_ref())?;
+    let env = RosEnvironment::from_env()?;
+    let (corrector, status) = load_corrector(&params.model)?;
+    let pipeline = Pipeline::new(corrector, params.pipeline.clone());
+    let limits = RunLimits { max_messages: args.max_messages, idle_exit: args.idle_exit_s.map(Duration::from_secs_f64) };
+    // Inference beside an async runtime: one intra-op thread (toolchain.md: sporadic 10–20×
+    // slowdowns with two OpenMP threads next to other work).
+    tch::set_num_threads(1);
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("tokio runtime")?;
+    let stats = rt.block_on(run_node(&args.node_name, params, env, pipeline, status, limits))?;
+    let c = &stats.counters;
+    eprintln!(
+        "imu-fsda node: received {}, published {}, dropped {} (non-finite {}, duplicate {}, backwards {}), gaps {}, latency p50 {:.0} µs p99 {:.0} µs",
+        c.received,
+        c.processed,
+        c.dropped_non_finite + c.dropped_duplicate_stamp + c.dropped_backwards_stamp,
+        c.dropped_non_finite,
+        c.dropped_duplicate_stamp,
+        c.dropped_backwards_stamp,
+        c.gaps,
+        stats.latency.quantile_us(0.5),
+        stats.latency.quantile_us(0.99)
+    );
+    if args.stats_json {
+        println!(
+            "{}",
+            serde_json::json!({"counters": c, "latency_p50_us": stats.latency.quantile_us(0.5), "latency_p99_us": stats.latency.quantile_us(0.99), "latency_samples": stats.latency.count(), "frame_changes": stats.frame_changes})
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,189 @@
+//! `imu-fsda play IN.mcap`: publish a bag onto DDS at its recorded rate (or ×k), like
+//! `ros2 bag play`, so the live node can be driven end to end.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use imu_fsda::bag::BagReader;
+use imu_fsda::msg::{DiagnosticArray, Imu, Odometry, PoseStamped, RosMessage, Temperature, Time, Vector3Stamped};
+use imu_fsda::node::{ros_type_name, RosEnvironment};
+use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile};
+
+#[derive(Debug, clap::Args)]
+pub struct PlayArgs {
+    /// The bag to publish.
+    pub input: PathBuf,
+    /// Playback speed factor (2 = twice as fast). 0 = as fast as possible.
+    #[arg(long, default_value_t = 1.0)]
+    pub rate: f64,
+    /// Only these topics (repeatable; default: all known message types).
+    #[arg(long = "topic")]
+    pub topics: Vec<String>,
+    /// Topic remapping `from:=to` (repeatable), e.g. /imu/data:=/imu/data_raw.
+    #[arg(short = 'r', long = "remap")]
+    pub remaps: Vec<String>,
+    /// Also publish /clock (rosgraph_msgs/Clock) from the bag's log times, for use_sim_time.
+    #[arg(long)]
+    pub clock: bool,
+    /// Before starting, wait up to this many seconds for a subscriber on every played topic.
+    #[arg(long, default_value_t = 0.0)]
+    pub wait_for_subscribers_s: f64,
+    /// DDS history depth of the publishers (reliable).
+    #[arg(long, default_value_t = 1000)]
+    pub queue_depth: usize,
+}
+
+enum AnyPublisher {
+    Imu(Publisher<Imu>),
+    Pose(Publisher<PoseStamped>),
+    Odom(Publisher<Odometry>),
+    Temp(Publisher<Temperature>),
+    Vec3(Publisher<Vector3Stamped>),
+    Diag(Publisher<DiagnosticArray>),
+}
+
+/// rosgraph_msgs/msg/Clock.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Clock {
+    clock: Time,
+}
+impl ros2_client::Message for Clock {}
+
+impl AnyPublisher {
+    async fn publish(&self, data: &[u8]) -> anyhow::Result<()> {
+        macro_rules! go {
+            ($p:expr, $t:ty) => {
+                $p.async_publish(<$t>::decode(data)?).await.map_err(|e| anyhow::anyhow!("publish: {e:?}"))
+            };
+        }
+        match self {
+            AnyPublisher::Imu(p) => go!(p, Imu),
+            AnyPublisher::Pose(p) => go!(p, PoseStamped),
+            AnyPublisher::Odom(p) => go!(p, Odometry),
+            AnyPublisher::Temp(p) => go!(p, Temperature),
+            AnyPublisher::Vec3(p) => go!(p, Vector3Stamped),
+            AnyPublisher::Diag(p) => go!(p, DiagnosticArray),
+        }
+    }
+}
+
+pub fn run(args: PlayArgs) -> anyhow::Result<()> {
+    let env = RosEnvironment::from_env()?;
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("tokio runtime")?;
+    rt.block_on(play(args, env))
+}
+
+async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
+    let remap: HashMap<String, String> = args
+        .remaps
+        .iter()
+        .map(|r| {
+            r.split_once(":=")
+                .map(|(a, b)| (a.to_string(), b.to_string()))
+                .ok_or_else(|| anyhow::anyhow!("remapping {r:?} is not from:=to"))
+        })
+        .collect::<Result<_, _>>()?;
+    let context = env.context()?;
+    let mut node = context
+        .new_node(NodeName::new("/", "imu_fsda_player").map_err(|e| anyhow::anyhow!("{e:?}"))?, NodeOptions::new().enable_rosout(false))
+        .map_err(|e| anyhow::anyhow!("node: {e:?}"))?;
+    let qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: args.queue_depth.max(1) });
+
+    // One pass to find the topics and their types (streaming, cheap next to playback).
+    let (topics, err) = imu_fsda::bag::bag_info(&args.input);
+    if let Some(e) = err {
+        return Err(e).context("reading the bag");
+    }
+    let mut pubs: HashMap<String, AnyPublisher> = HashMap::new();
+    for t in &topics {
+        if !args.topics.is_empty() && !args.topics.contains(&t.topic) {
+            continue;
+        }
+        let out = remap.get(&t.topic).cloned().unwrap_or_else(|| t.topic.clone());
+        let name = Name::parse(&out).map_err(|e| anyhow::anyhow!("topic {out}: {e:?}"))?;
+        let topic = node.create_topic(&name, ros_type_name(&t.type_name), &qos).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        macro_rules! mk {
+            ($v:ident, $t:ty) => {
+                AnyPublisher::$v(node.create_publisher::<$t>(&topic, Some(qos.clone())).map_err(|e| anyhow::anyhow!("{e:?}"))?)
+            };
+        }
+        let p = match t.type_name.as_str() {
+            x if x == Imu::TYPE_NAME => mk!(Imu, Imu),
+            x if x == PoseStamped::TYPE_NAME => mk!(Pose, PoseStamped),
+            x if x == Odometry::TYPE_NAME => mk!(Odom, Odometry),
+            x if x == Temperature::TYPE_NAME => mk!(Temp, Temperature),
+            x if x == Vector3Stamped::TYPE_NAME => mk!(Vec3, Vector3Stamped),
+            x if x == DiagnosticArray::TYPE_NAME => mk!(Diag, DiagnosticArray),
+            other => {
+                tracing::warn!("{}: type {other} is not played", t.topic);
+                continue;
+            }
+        };
+        pubs.insert(t.topic.clone(), p);
+    }
+    let clock_pub = if args.clock {
+        let topic = node
+            .create_topic(
+                &Name::parse("/clock").map_err(|e| anyhow::anyhow!("{e:?}"))?,
+                MessageTypeName::new("rosgraph_msgs", "Clock"),
+                &QosProfile::publisher_default(),
+            )
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        Some(node.create_publisher::<Clock>(&topic, None).map_err(|e| anyhow::anyhow!("{e:?}"))?)
+    } else {
+        None
+    };
+    let spinner = node.spinner().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let spin = tokio::spawn(async move {
+        let _ = spinner.spin().await;
+    });
+    if args.wait_for_subscribers_s > 0.0 {
+        let deadline = Instant::now() + Duration::from_secs_f64(args.wait_for_subscribers_s);
+        for (topic, p) in &pubs {
+            let wait = async {
+                match p {
+                    AnyPublisher::Imu(p) => p.wait_for_subscription(&node).await,
+                    AnyPublisher::Pose(p) => p.wait_for_subscription(&node).await,
+                    AnyPublisher::Odom(p) => p.wait_for_subscription(&node).await,
+                    AnyPublisher::Temp(p) => p.wait_for_subscription(&node).await,
+                    AnyPublisher::Vec3(p) => p.wait_for_subscription(&node).await,
+                    AnyPublisher::Diag(p) => p.wait_for_subscription(&node).await,
+                }
+            };
+            if tokio::time::timeout(deadline.saturating_duration_since(Instant::now()), wait).await.is_err() {
+                tracing::warn!("no subscriber on {topic} after {} s; playing anyway", args.wait_for_subscribers_s);
+            }
+        }
+        // Matching is not the end of discovery on the other side: give it a moment.
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+
+    let start = Instant::now();
+    let mut first_log: Option<u64> = None;
+    let mut sent = 0u64;
+    for m in BagReader::open(&args.input)? {
+        let m = m?;
+        let Some(p) = pubs.get(&*m.topic) else { continue };
+        let t0 = *first_log.get_or_insert(m.log_time_ns);
+        if args.rate > 0.0 {
+            let due = Duration::from_secs_f64((m.log_time_ns.saturating_sub(t0)) as f64 * 1e-9 / args.rate);
+            let now = start.elapsed();
+            if due > now {
+                tokio::time::sleep(due - now).await;
+            }
+        }
+        if let Some(c) = &clock_pub {
+            let _ = c.async_publish(Clock { clock: Time::from_ns(m.log_time_ns as i64) }).await;
+        }
+        p.publish(&m.data).await.with_context(|| format!("{} message at {} ns", m.topic, m.log_time_ns))?;
+        sent += 1;
+    }
+    // Let reliable writers flush before the participant goes away.
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    node.stop_spinner();
+    spin.abort();
+    println!("played {sent} messages from {} in {:.2} s", args.input.display(), start.elapsed().as_secs_f64());
+    Ok(())
+}

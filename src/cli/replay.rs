@@ -1,0 +1,147 @@
+//! `imu-fsda replay IN.mcap -o OUT.mcap`: the node's pipeline over a bag, offline. Every
+//! input message is copied through; `/imu/denoised`, `/imu/gyro_correction` and
+//! `/diagnostics` are added, exactly as the live node would publish them.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use imu_fsda::bag::{BagReader, BagWriter};
+use imu_fsda::infer::Pipeline;
+use imu_fsda::msg::{DiagnosticArray, Imu, RosMessage, Time, Vector3Stamped};
+use imu_fsda::node::{diagnostics_message, fill_denoised, NodeStats};
+
+use super::corrector::load_corrector;
+use super::node::load_params;
+
+#[derive(Debug, clap::Args)]
+pub struct ReplayArgs {
+    /// Input bag with raw IMU.
+    pub input: PathBuf,
+    /// Output bag: the input plus the node's topics.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// ROS 2 parameter file of the node.
+    #[arg(long)]
+    pub params: Option<PathBuf>,
+    /// Node name (section of the parameter file).
+    #[arg(long, default_value = "imu_fsda")]
+    pub node_name: String,
+    /// Topic remapping `from:=to` (repeatable).
+    #[arg(short = 'r', long = "remap")]
+    pub remaps: Vec<String>,
+    /// Model file, overriding the parameter `model` ("" = none).
+    #[arg(long)]
+    pub model: Option<String>,
+    /// Raw IMU topic in the bag; default: the node's input topic if the bag has it, else /imu/data.
+    #[arg(long)]
+    pub input_topic: Option<String>,
+}
+
+pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
+    let params = load_params(args.params.as_ref(), &args.node_name, &args.remaps, args.model.as_ref())?;
+    let (corrector, status) = load_corrector(&params.model)?;
+    let mut pipeline = Pipeline::new(corrector, params.pipeline.clone());
+    let input_topic = match &args.input_topic {
+        Some(t) => t.clone(),
+        None => {
+            let (topics, _) = imu_fsda::bag::bag_info(&args.input);
+            let has = |t: &str| topics.iter().any(|i| i.topic == t && i.type_name == Imu::TYPE_NAME);
+            if has(&params.input_topic) {
+                params.input_topic.clone()
+            } else if has(imu_fsda::bag::IMU_TOPIC) {
+                imu_fsda::bag::IMU_TOPIC.to_string()
+            } else {
+                anyhow::bail!(
+                    "{}: neither {} nor {} holds sensor_msgs/msg/Imu (topics: {}); pass --input-topic",
+                    args.input.display(),
+                    params.input_topic,
+                    imu_fsda::bag::IMU_TOPIC,
+                    topics.iter().map(|t| format!("{} [{}]", t.topic, t.type_name)).collect::<Vec<_>>().join(", ")
+                );
+            }
+        }
+    };
+    let mut writer = BagWriter::create(&args.output)?;
+    let out_ch = writer.channel::<Imu>(&params.output_topic)?;
+    let corr_ch = writer.channel::<Vector3Stamped>(&params.correction_topic)?;
+    let diag_ch = writer.channel::<DiagnosticArray>(&params.diagnostics_topic)?;
+    let mut channels = std::collections::HashMap::new();
+    let mut stats =
+        NodeStats { model: pipeline.corrector_name().to_string(), window: pipeline.window(), model_status: status, ..Default::default() };
+    let period_ns = (params.diagnostics_period * 1e9) as u64;
+    let mut next_diag: Option<u64> = None;
+    let mut last_frame: Option<String> = None;
+    let mut decode_errors = 0u64;
+    let mut last_log = 0u64;
+    for m in BagReader::open(&args.input)? {
+        let m = m?;
+        let ch = match channels.get(&m.topic) {
+            Some(c) => *c,
+            None => {
+                let c = writer.channel_like(&m.topic, m.schema.as_deref())?;
+                channels.insert(m.topic.clone(), c);
+                c
+            }
+        };
+        writer.write_raw(ch, m.log_time_ns as i64, &m.data)?;
+        last_log = m.log_time_ns;
+        if *m.topic != *input_topic {
+            continue;
+        }
+        let mut msg = match Imu::decode(&m.data) {
+            Ok(x) => x,
+            Err(e) => {
+                decode_errors += 1;
+                tracing::warn!("{}: {e}", args.input.display());
+                continue;
+            }
+        };
+        if last_frame.as_deref() != Some(msg.header.frame_id.as_str()) {
+            if last_frame.is_some() {
+                stats.frame_changes += 1;
+            }
+            last_frame = Some(msg.header.frame_id.clone());
+        }
+        if let Ok(c) = pipeline.push(&msg.sample()) {
+            let correction = Vector3Stamped { header: msg.header.clone(), vector: c.correction.into() };
+            fill_denoised(&mut msg, &c);
+            writer.write(out_ch, m.log_time_ns as i64, &msg)?;
+            writer.write(corr_ch, m.log_time_ns as i64, &correction)?;
+            stats.warming_up = c.warming_up;
+        }
+        let due = *next_diag.get_or_insert(m.log_time_ns + period_ns);
+        if m.log_time_ns >= due {
+            stats.counters = pipeline.counters().clone();
+            stats.decode_errors = decode_errors;
+            stats.rate_off_nominal = pipeline.rate_off_nominal();
+            stats.frame_id = last_frame.clone().unwrap_or_default();
+            writer.write(
+                diag_ch,
+                m.log_time_ns as i64,
+                &diagnostics_message(&stats, &args.node_name, Time::from_ns(m.log_time_ns as i64)),
+            )?;
+            next_diag = Some(due + period_ns);
+        }
+    }
+    stats.counters = pipeline.counters().clone();
+    stats.decode_errors = decode_errors;
+    stats.frame_id = last_frame.unwrap_or_default();
+    writer.write(diag_ch, last_log as i64, &diagnostics_message(&stats, &args.node_name, Time::from_ns(last_log as i64)))?;
+    writer.finish().with_context(|| format!("finishing {}", args.output.display()))?;
+    let c = &stats.counters;
+    println!(
+        "replayed {} {} messages through {} → {} ({} published on {}, dropped: {} non-finite, {} duplicate, {} backwards stamps; {} gaps; {} decode errors)",
+        c.received,
+        input_topic,
+        stats.model,
+        args.output.display(),
+        c.processed,
+        params.output_topic,
+        c.dropped_non_finite,
+        c.dropped_duplicate_stamp,
+        c.dropped_backwards_stamp,
+        c.gaps,
+        decode_errors
+    );
+    Ok(())
+}

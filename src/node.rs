@@ -1,0 +1,560 @@
+//! The ROS 2 node: ros2-client + tokio around [`Pipeline`]. Subscribes to raw IMU
+//! (sensor-data QoS), publishes `/imu/denoised` (sensor_msgs/Imu: corrected angular velocity,
+//! integrated orientation, accel passed through, header unchanged), `/imu/gyro_correction`
+//! (geometry_msgs/Vector3Stamped) and `/diagnostics` (diagnostic_msgs/DiagnosticArray).
+//! Nothing below this module knows about DDS.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use futures::StreamExt;
+use ros2_client::{Context, MessageTypeName, Name, NodeName, NodeOptions, ParameterValue, QosProfile};
+use serde::{Deserialize, Serialize};
+
+use crate::infer::{CorrectedImu, Counters, Pipeline, PipelineConfig};
+use crate::msg::{DiagnosticArray, DiagnosticStatus, Header, Imu, KeyValue, RosMessage, Time, Vector3Stamped};
+
+impl ros2_client::Message for Imu {}
+impl ros2_client::Message for Vector3Stamped {}
+impl ros2_client::Message for DiagnosticArray {}
+impl ros2_client::Message for crate::msg::PoseStamped {}
+impl ros2_client::Message for crate::msg::Odometry {}
+impl ros2_client::Message for crate::msg::Temperature {}
+
+#[derive(Debug, thiserror::Error)]
+pub enum NodeError {
+    #[error("{path}: {source}")]
+    Params {
+        path: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    #[error("{path}: no `{node}: ros__parameters:` section (sections: {found})")]
+    NoSection { path: String, node: String, found: String },
+    #[error("invalid topic name {name:?}: {why}")]
+    TopicName { name: String, why: String },
+    #[error("DDS: {0}")]
+    Dds(String),
+    #[error("invalid environment: {0}")]
+    Environment(String),
+}
+
+/// The node's parameters, as in `params/imu_fsda.yaml` (`imu_fsda: ros__parameters: …`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NodeParams {
+    /// Raw IMU input (sensor_msgs/Imu), sensor-data QoS: best effort, keep last `queue_depth`.
+    pub input_topic: String,
+    /// Corrected output (sensor_msgs/Imu), reliable, keep last `queue_depth`.
+    pub output_topic: String,
+    /// The estimated gyro correction ω̂ − ω (geometry_msgs/Vector3Stamped).
+    pub correction_topic: String,
+    /// diagnostic_msgs/DiagnosticArray, once per `diagnostics_period`.
+    pub diagnostics_topic: String,
+    /// TorchScript model exported by `imu-fsda train` (`.pt`, with its `.json` and `.ot`
+    /// beside it); empty: no model, the gyro passes through (a loud warning).
+    pub model: String,
+    /// DDS history depth of the input and output topics.
+    pub queue_depth: usize,
+    /// Seconds between /diagnostics messages.
+    pub diagnostics_period: f64,
+    /// Take time from /clock (replays); ROS's standard parameter.
+    pub use_sim_time: bool,
+    /// The per-sample pipeline: gaps, rate checks, covariances, initial attitude.
+    pub pipeline: PipelineConfig,
+}
+
+impl Default for NodeParams {
+    fn default() -> Self {
+        NodeParams {
+            input_topic: "/imu/data_raw".into(),
+            output_topic: "/imu/denoised".into(),
+            correction_topic: "/imu/gyro_correction".into(),
+            diagnostics_topic: "/diagnostics".into(),
+            model: String::new(),
+            queue_depth: 10,
+            diagnostics_period: 1.0,
+            use_sim_time: false,
+            pipeline: PipelineConfig::default(),
+        }
+    }
+}
+
+impl NodeParams {
+    /// Read the `node_name: ros__parameters:` section of a ROS 2 parameter file. `/**` (any
+    /// node) is accepted too, as ROS 2 does.
+    pub fn from_yaml_file(path: &Path, node_name: &str) -> Result<Self, NodeError> {
+        let text =
+            std::fs::read_to_string(path).map_err(|e| NodeError::Params { path: path.display().to_string(), source: Box::new(e) })?;
+        Self::from_yaml_str(&text, node_name).map_err(|e| match e {
+            NodeError::Params { source, .. } => NodeError::Params { path: path.display().to_string(), source },
+            NodeError::NoSection { node, found, .. } => NodeError::NoSection { path: path.display().to_string(), node, found },
+            other => other,
+        })
+    }
+
+    pub fn from_yaml_str(text: &str, node_name: &str) -> Result<Self, NodeError> {
+        let doc: BTreeMap<String, serde_yaml::Value> =
+            serde_yaml::from_str(text).map_err(|e| NodeError::Params { path: "<yaml>".into(), source: Box::new(e) })?;
+        let slashed = format!("/{node_name}");
+        let key = [node_name, slashed.as_str(), "/**"].into_iter().find(|k| doc.contains_key(*k));
+        let Some(key) = key else {
+            return Err(NodeError::NoSection {
+                path: "<yaml>".into(),
+                node: node_name.into(),
+                found: doc.keys().cloned().collect::<Vec<_>>().join(", "),
+            });
+        };
+        let params = doc[key].get("ros__parameters").cloned().unwrap_or(serde_yaml::Value::Null);
+        serde_yaml::from_value(params).map_err(|e| NodeError::Params { path: "<yaml>".into(), source: Box::new(e) })
+    }
+
+    /// Apply `from:=to` topic remappings (as `--ros-args -r`).
+    pub fn remap(&mut self, rule: &str) -> Result<(), NodeError> {
+        let (from, to) =
+            rule.split_once(":=").ok_or_else(|| NodeError::TopicName { name: rule.into(), why: "a remapping is from:=to".into() })?;
+        let norm = |t: &str| if t.starts_with('/') { t.to_string() } else { format!("/{t}") };
+        let (from, to) = (norm(from), norm(to));
+        let mut hit = false;
+        for t in [&mut self.input_topic, &mut self.output_topic, &mut self.correction_topic, &mut self.diagnostics_topic] {
+            if *t == from {
+                *t = to.clone();
+                hit = true;
+            }
+        }
+        if !hit {
+            tracing::warn!("remapping {rule}: no topic of this node is named {from}");
+        }
+        Ok(())
+    }
+}
+
+/// Which DDS domain and network the environment asks for: `ROS_DOMAIN_ID`, and
+/// `ROS_LOCALHOST_ONLY=1` or `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST|OFF` for loopback only.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RosEnvironment {
+    pub domain_id: u16,
+    pub localhost_only: bool,
+}
+
+impl RosEnvironment {
+    pub fn from_env() -> Result<Self, NodeError> {
+        Self::from_vars(|k| std::env::var(k).ok())
+    }
+
+    pub fn from_vars(get: impl Fn(&str) -> Option<String>) -> Result<Self, NodeError> {
+        let domain_id = match get("ROS_DOMAIN_ID").filter(|s| !s.trim().is_empty()) {
+            None => 0,
+            Some(s) => s
+                .trim()
+                .parse::<u16>()
+                .ok()
+                .filter(|d| *d <= 232)
+                .ok_or_else(|| NodeError::Environment(format!("ROS_DOMAIN_ID={s} is not a domain id 0–232")))?,
+        };
+        let localhost_only = get("ROS_LOCALHOST_ONLY").is_some_and(|v| v.trim() == "1")
+            || get("ROS_AUTOMATIC_DISCOVERY_RANGE").is_some_and(|v| matches!(v.trim().to_ascii_uppercase().as_str(), "LOCALHOST" | "OFF"));
+        Ok(RosEnvironment { domain_id, localhost_only })
+    }
+
+    /// A ros2-client context on this domain (loopback only when asked).
+    pub fn context(&self) -> Result<Context, NodeError> {
+        let mut b = ros2_client::dds::rustdds::DomainParticipantBuilder::new(self.domain_id);
+        if self.localhost_only {
+            b = b.with_only_networks([std::net::IpAddr::from([127, 0, 0, 1])]);
+        }
+        let dp = b.build().map_err(|e| NodeError::Dds(format!("domain participant: {e:?}")))?;
+        Context::from_domain_participant(dp).map_err(|e| NodeError::Dds(format!("context: {e:?}")))
+    }
+}
+
+/// The sensor-data QoS profile of ROS 2 (rmw_qos_profile_sensor_data): best effort, volatile,
+/// keep last `depth`.
+pub fn sensor_data_qos(depth: usize) -> QosProfile {
+    QosProfile::subscription_default().history(ros2_client::qos::History::KeepLast { depth })
+}
+
+/// Fill an output Imu from the input message (header kept) and a corrected sample.
+pub fn fill_denoised(msg: &mut Imu, c: &CorrectedImu) {
+    msg.angular_velocity = c.gyro.into();
+    msg.angular_velocity_covariance.0 = [c.gyro_variance, 0.0, 0.0, 0.0, c.gyro_variance, 0.0, 0.0, 0.0, c.gyro_variance];
+    msg.linear_acceleration = c.accel.into();
+    match &c.orientation {
+        Some((q, cov)) => {
+            msg.orientation = (*q).into();
+            // Row-major, about world x, y, z (REP 145).
+            for r in 0..3 {
+                for k in 0..3 {
+                    msg.orientation_covariance.0[3 * r + k] = cov[(r, k)];
+                }
+            }
+        }
+        None => {
+            msg.orientation = crate::msg::Quaternion::default();
+            msg.orientation_covariance.0 = [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        }
+    }
+}
+
+/// Latency histogram in fixed 10 µs bins up to 100 ms (no allocation per sample).
+#[derive(Debug, Clone)]
+pub struct LatencyHistogram {
+    bins: Vec<u64>,
+    count: u64,
+    max_us: f64,
+}
+
+impl Default for LatencyHistogram {
+    fn default() -> Self {
+        LatencyHistogram { bins: vec![0; 10_001], count: 0, max_us: 0.0 }
+    }
+}
+
+impl LatencyHistogram {
+    const BIN_US: f64 = 10.0;
+    pub fn record(&mut self, d: Duration) {
+        let us = d.as_secs_f64() * 1e6;
+        let i = ((us / Self::BIN_US) as usize).min(self.bins.len() - 1);
+        self.bins[i] += 1;
+        self.count += 1;
+        self.max_us = self.max_us.max(us);
+    }
+    /// Quantile in µs (upper edge of the bin), 0 when empty.
+    pub fn quantile_us(&self, q: f64) -> f64 {
+        if self.count == 0 {
+            return 0.0;
+        }
+        let target = (q * self.count as f64).ceil().max(1.0) as u64;
+        let mut seen = 0;
+        for (i, b) in self.bins.iter().enumerate() {
+            seen += b;
+            if seen >= target {
+                return ((i + 1) as f64 * Self::BIN_US).min(self.max_us.max(Self::BIN_US));
+            }
+        }
+        self.max_us
+    }
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+}
+
+/// What the diagnostics report (shared between the processing and diagnostics tasks).
+#[derive(Debug, Default)]
+pub struct NodeStats {
+    pub counters: Counters,
+    pub latency: LatencyHistogram,
+    pub frame_changes: u64,
+    pub decode_errors: u64,
+    pub frame_id: String,
+    pub last_stamp_ns: i64,
+    pub input_rate_hz: f64,
+    pub warming_up: bool,
+    pub rate_off_nominal: bool,
+    pub model: String,
+    pub window: usize,
+    pub model_status: String,
+}
+
+/// Build the /diagnostics message from the stats.
+pub fn diagnostics_message(stats: &NodeStats, node_name: &str, stamp: Time) -> DiagnosticArray {
+    let c = &stats.counters;
+    let dropped = c.dropped_non_finite + c.dropped_duplicate_stamp + c.dropped_backwards_stamp;
+    let (level, message) = if stats.model_status != "ok" {
+        (DiagnosticStatus::WARN, stats.model_status.clone())
+    } else if c.received == 0 {
+        (DiagnosticStatus::STALE, "no input yet".to_string())
+    } else if stats.rate_off_nominal {
+        (DiagnosticStatus::WARN, "input rate off nominal".to_string())
+    } else if stats.warming_up {
+        (DiagnosticStatus::OK, "warming up".to_string())
+    } else if dropped > 0 || c.gaps > 0 {
+        (DiagnosticStatus::WARN, format!("running; {dropped} inputs dropped, {} gaps", c.gaps))
+    } else {
+        (DiagnosticStatus::OK, "running".to_string())
+    };
+    let kv = |k: &str, v: String| KeyValue { key: k.into(), value: v };
+    let values = vec![
+        kv("model", stats.model.clone()),
+        kv("window_samples", stats.window.to_string()),
+        kv("input_rate_hz", format!("{:.2}", stats.input_rate_hz)),
+        kv("latency_p50_us", format!("{:.0}", stats.latency.quantile_us(0.5))),
+        kv("latency_p99_us", format!("{:.0}", stats.latency.quantile_us(0.99))),
+        kv("received", c.received.to_string()),
+        kv("published", c.processed.to_string()),
+        kv("dropped_non_finite", c.dropped_non_finite.to_string()),
+        kv("dropped_duplicate_stamp", c.dropped_duplicate_stamp.to_string()),
+        kv("dropped_backwards_stamp", c.dropped_backwards_stamp.to_string()),
+        kv("decode_errors", stats.decode_errors.to_string()),
+        kv("gaps_reset", c.gaps.to_string()),
+        kv("rate_changes", c.rate_changes.to_string()),
+        kv("frame_id_changes", stats.frame_changes.to_string()),
+        kv("warmup_samples", c.warmup_samples.to_string()),
+    ];
+    DiagnosticArray {
+        header: Header { stamp, frame_id: String::new() },
+        status: vec![DiagnosticStatus {
+            level,
+            name: format!("{node_name}: gyro denoiser"),
+            message,
+            hardware_id: stats.frame_id.clone(),
+            values,
+        }],
+    }
+}
+
+fn topic_name(name: &str) -> Result<Name, NodeError> {
+    Name::parse(name).map_err(|e| NodeError::TopicName { name: name.into(), why: format!("{e:?}") })
+}
+
+fn type_name<M: RosMessage>() -> MessageTypeName {
+    ros_type_name(M::TYPE_NAME)
+}
+
+/// `pkg/msg/Name` → ros2-client's type name.
+pub fn ros_type_name(ros: &str) -> MessageTypeName {
+    let pkg = ros.split('/').next().unwrap_or("");
+    let name = ros.rsplit('/').next().unwrap_or("");
+    MessageTypeName::new(pkg, name)
+}
+
+/// How the node ends: at Ctrl-C / SIGTERM, or (for tests and benchmarks) after a number of
+/// published messages or an idle time.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RunLimits {
+    pub max_messages: Option<u64>,
+    pub idle_exit: Option<Duration>,
+}
+
+/// Run the node until a signal (or a limit). Returns the final statistics.
+pub async fn run_node(
+    node_name: &str,
+    params: NodeParams,
+    env: RosEnvironment,
+    pipeline: Pipeline,
+    model_status: String,
+    limits: RunLimits,
+) -> Result<NodeStats, NodeError> {
+    let context = env.context()?;
+    let mut options = NodeOptions::new().enable_rosout(false);
+    if params.use_sim_time {
+        options = options.declare_parameter("use_sim_time", ParameterValue::Boolean(true));
+    }
+    let mut node = context
+        .new_node(
+            NodeName::new("/", node_name).map_err(|e| NodeError::TopicName { name: node_name.into(), why: format!("{e:?}") })?,
+            options,
+        )
+        .map_err(|e| NodeError::Dds(format!("node: {e:?}")))?;
+
+    let depth = params.queue_depth.max(1);
+    let sensor_qos = sensor_data_qos(depth);
+    let reliable_qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth });
+    let dds = |e: ros2_client::CreateError| NodeError::Dds(format!("{e:?}"));
+    let input_topic = node.create_topic(&topic_name(&params.input_topic)?, type_name::<Imu>(), &sensor_qos).map_err(dds)?;
+    let output_topic = node.create_topic(&topic_name(&params.output_topic)?, type_name::<Imu>(), &reliable_qos).map_err(dds)?;
+    let correction_topic =
+        node.create_topic(&topic_name(&params.correction_topic)?, type_name::<Vector3Stamped>(), &reliable_qos).map_err(dds)?;
+    let diag_topic =
+        node.create_topic(&topic_name(&params.diagnostics_topic)?, type_name::<DiagnosticArray>(), &reliable_qos).map_err(dds)?;
+    let subscription = node.create_subscription::<Imu>(&input_topic, Some(sensor_qos.clone())).map_err(dds)?;
+    let out_pub = node.create_publisher::<Imu>(&output_topic, Some(reliable_qos.clone())).map_err(dds)?;
+    let corr_pub = node.create_publisher::<Vector3Stamped>(&correction_topic, Some(reliable_qos.clone())).map_err(dds)?;
+    let diag_pub = node.create_publisher::<DiagnosticArray>(&diag_topic, Some(reliable_qos)).map_err(dds)?;
+    let spinner = node.spinner().map_err(dds)?;
+
+    let stats = Arc::new(Mutex::new(NodeStats {
+        model: pipeline.corrector_name().to_string(),
+        window: pipeline.window(),
+        model_status,
+        warming_up: true,
+        ..Default::default()
+    }));
+    tracing::info!(input = %params.input_topic, output = %params.output_topic, domain = env.domain_id, localhost_only = env.localhost_only, "node {node_name} up");
+
+    let spin = tokio::spawn(async move {
+        if let Err(e) = spinner.spin().await {
+            tracing::error!("spinner: {e:?}");
+        }
+    });
+
+    let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits);
+    let diag_stats = stats.clone();
+    let node_name_owned = node_name.to_string();
+    let period = Duration::from_secs_f64(params.diagnostics_period.max(0.01));
+    let node_ref = &node;
+    let diagnostics = async move {
+        let mut tick = tokio::time::interval(period);
+        loop {
+            tick.tick().await;
+            let stamp = Time::from_ns(node_ref.time_now().to_nanos());
+            let msg = {
+                let s = diag_stats.lock().expect("stats lock");
+                diagnostics_message(&s, &node_name_owned, stamp)
+            };
+            if let Err(e) = diag_pub.async_publish(msg).await {
+                tracing::warn!("diagnostics publish: {e:?}");
+            }
+        }
+    };
+    let shutdown = async {
+        #[cfg(unix)]
+        {
+            let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
+            }
+        }
+        #[cfg(not(unix))]
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    tokio::select! {
+        _ = processing => {}
+        _ = diagnostics => {}
+        _ = shutdown => tracing::info!("shutting down"),
+    }
+    // Stop the spinner before the node is dropped so peers hear it leave.
+    node.stop_spinner();
+    spin.abort();
+    let s = std::mem::take(&mut *stats.lock().expect("stats lock"));
+    Ok(s)
+}
+
+async fn process_loop(
+    subscription: &ros2_client::Subscription<Imu>,
+    out_pub: &ros2_client::Publisher<Imu>,
+    corr_pub: &ros2_client::Publisher<Vector3Stamped>,
+    mut pipeline: Pipeline,
+    stats: Arc<Mutex<NodeStats>>,
+    limits: RunLimits,
+) {
+    let stream = subscription.async_stream();
+    futures::pin_mut!(stream);
+    let mut published = 0u64;
+    let mut last_frame: Option<String> = None;
+    let mut rate_t0: Option<(Instant, u64)> = None;
+    loop {
+        let next = match limits.idle_exit {
+            Some(idle) if published > 0 => match tokio::time::timeout(idle, stream.next()).await {
+                Ok(x) => x,
+                Err(_) => return,
+            },
+            _ => stream.next().await,
+        };
+        let Some(item) = next else { return };
+        let arrived = Instant::now();
+        let mut msg = match item {
+            Ok((m, _info)) => m,
+            Err(e) => {
+                tracing::warn!("input decode error: {e:?}");
+                stats.lock().expect("stats lock").decode_errors += 1;
+                continue;
+            }
+        };
+        let sample = msg.sample();
+        let result = pipeline.push(&sample);
+        let mut frame_changed = false;
+        if last_frame.as_deref() != Some(msg.header.frame_id.as_str()) {
+            frame_changed = last_frame.is_some();
+            if frame_changed {
+                tracing::warn!("input frame_id changed from {:?} to {:?}; passed through", last_frame, msg.header.frame_id);
+            }
+            last_frame = Some(msg.header.frame_id.clone());
+        }
+        if let Ok(c) = &result {
+            let correction = Vector3Stamped { header: msg.header.clone(), vector: c.correction.into() };
+            fill_denoised(&mut msg, c);
+            if let Err(e) = out_pub.async_publish(msg).await {
+                tracing::warn!("publish: {e:?}");
+            }
+            if let Err(e) = corr_pub.async_publish(correction).await {
+                tracing::warn!("publish correction: {e:?}");
+            }
+            published += 1;
+        } else if let Err(why) = result {
+            tracing::debug!("input at {} ns dropped: {why:?}", sample.stamp_ns);
+        }
+        {
+            let mut s = stats.lock().expect("stats lock");
+            s.latency.record(arrived.elapsed());
+            s.counters = pipeline.counters().clone();
+            if frame_changed {
+                s.frame_changes += 1;
+            }
+            if let Some(f) = &last_frame {
+                if s.frame_id != *f {
+                    s.frame_id.clone_from(f);
+                }
+            }
+            s.last_stamp_ns = sample.stamp_ns;
+            s.warming_up = result.as_ref().is_ok_and(|c| c.warming_up);
+            s.rate_off_nominal = pipeline.rate_off_nominal();
+            let (t0, n0) = *rate_t0.get_or_insert((arrived, s.counters.received));
+            let dt = arrived.duration_since(t0).as_secs_f64();
+            if dt >= 1.0 {
+                s.input_rate_hz = (s.counters.received - n0) as f64 / dt;
+                rate_t0 = Some((arrived, s.counters.received));
+            }
+        }
+        if limits.max_messages.is_some_and(|m| published >= m) {
+            return;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn params_from_ros2_yaml() {
+        let yaml =
+            "imu_fsda:\n  ros__parameters:\n    input_topic: /robot/imu\n    queue_depth: 5\n    pipeline:\n      gap_periods: 3.0\n";
+        let p = NodeParams::from_yaml_str(yaml, "imu_fsda").unwrap();
+        assert_eq!(p.input_topic, "/robot/imu");
+        assert_eq!(p.queue_depth, 5);
+        assert_eq!(p.pipeline.gap_periods, 3.0);
+        assert_eq!(p.output_topic, "/imu/denoised");
+        let any = NodeParams::from_yaml_str("/**:\n  ros__parameters:\n    use_sim_time: true\n", "imu_fsda").unwrap();
+        assert!(any.use_sim_time);
+        assert!(matches!(NodeParams::from_yaml_str("other:\n  ros__parameters: {}\n", "imu_fsda"), Err(NodeError::NoSection { .. })));
+        assert!(NodeParams::from_yaml_str("imu_fsda:\n  ros__parameters:\n    input_topik: /x\n", "imu_fsda").is_err(), "typos are errors");
+    }
+
+    #[test]
+    fn remapping() {
+        let mut p = NodeParams::default();
+        p.remap("/imu/data_raw:=/vectornav/imu").unwrap();
+        p.remap("imu/denoised:=imu/clean").unwrap();
+        assert_eq!(p.input_topic, "/vectornav/imu");
+        assert_eq!(p.output_topic, "/imu/clean");
+        assert!(p.remap("nonsense").is_err());
+    }
+
+    #[test]
+    fn environment() {
+        let env =
+            |pairs: &'static [(&'static str, &'static str)]| move |k: &str| pairs.iter().find(|(a, _)| *a == k).map(|(_, v)| v.to_string());
+        assert_eq!(RosEnvironment::from_vars(env(&[])).unwrap(), RosEnvironment { domain_id: 0, localhost_only: false });
+        assert_eq!(
+            RosEnvironment::from_vars(env(&[("ROS_DOMAIN_ID", "42"), ("ROS_LOCALHOST_ONLY", "1")])).unwrap(),
+            RosEnvironment { domain_id: 42, localhost_only: true }
+        );
+        assert!(RosEnvironment::from_vars(env(&[("ROS_AUTOMATIC_DISCOVERY_RANGE", "localhost")])).unwrap().localhost_only);
+        assert!(RosEnvironment::from_vars(env(&[("ROS_DOMAIN_ID", "abc")])).is_err());
+        assert!(RosEnvironment::from_vars(env(&[("ROS_DOMAIN_ID", "300")])).is_err());
+    }
+
+    #[test]
+    fn latency_quantiles() {
+        let mut h = LatencyHistogram::default();
+        for us in 1..=100 {
+            h.record(Duration::from_micros(us * 10));
+        }
+        assert!((h.quantile_us(0.5) - 500.0).abs() <= 10.0, "{}", h.quantile_us(0.5));
+        assert!((h.quantile_us(0.99) - 990.0).abs() <= 10.0);
+    }
+}
