@@ -1,0 +1,319 @@
+//! Export and loading of trained models (the deployment side of §III; DIGDL ships
+//! `weights.pt` + `net_params.yaml` the same way). One model is three files in one
+//! directory:
+//!
+//! - `<name>.pt` — TorchScript, traced from [`InferenceNet`] (eval mode, BatchNorm folded,
+//!   f32): `forward(u: [B, T, 6] raw IMU) → [B, T, 3]` corrected gyro, rad/s; normalisation,
+//!   Ĉ_ω and σ inside. Traced modules keep weights as constants: it runs anywhere
+//!   (`torch.jit.load`, `tch::CModule::load`) but cannot be fine-tuned.
+//! - `<name>.ot` — the VarStore (every variable of [`Net`], Restructor and BatchNorm
+//!   statistics included) in libtorch's named-tensor format, for fine-tuning / adaptation
+//!   and for building the [`StreamingDenoiser`].
+//! - `<name>.json` — [`ModelMetadata`]: mode, window N, rate, normalisation, the full
+//!   [`Config`], parameter counts, training data, code revision, metrics.
+//!
+//! Loading checks everything it can and returns a [`ModelError`], never panics: missing
+//! file, undecodable file, weights that do not fit the metadata's config (names, shapes,
+//! normalisation, σ), a TorchScript file that does not produce `[B, T, 3]`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use tch::nn::VarStore;
+use tch::{CModule, Device, Kind, Tensor};
+
+use super::net::{InferenceNet, Net, ParameterCounts};
+use super::streaming::StreamingDenoiser;
+use super::{Config, Mode, ModelError, INPUT_CHANNELS, OUTPUT_CHANNELS};
+
+/// Version of the file layout written by [`export_model`].
+pub const FORMAT_VERSION: u32 = 1;
+
+/// The input normalisation, per channel (gyro x, y, z in rad/s; accel x, y, z in m/s²).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Normalization {
+    pub mean: [f64; 6],
+    pub std: [f64; 6],
+}
+
+/// File names of one exported model, relative to the metadata's directory.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ExportFiles {
+    pub torchscript: String,
+    pub weights: String,
+}
+
+/// `<name>.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelMetadata {
+    /// [`FORMAT_VERSION`] of the writer.
+    pub format_version: u32,
+    pub name: String,
+    pub mode: Mode,
+    /// Receptive field N, samples: the output at n depends on inputs n−N+1 … n.
+    pub window_n: i64,
+    /// IMU rate the model was trained for, Hz.
+    pub rate_hz: f64,
+    pub normalization: Normalization,
+    /// Human-readable I/O contract of the TorchScript file.
+    pub input: String,
+    pub output: String,
+    pub config: Config,
+    pub parameter_counts: ParameterCounts,
+    /// Sequences / bags the model was trained on (filled by the trainer).
+    pub training_data: Vec<String>,
+    /// Evaluation figures (filled by the trainer), e.g. `"MH_04_difficult/aoe_deg"`.
+    pub metrics: BTreeMap<String, f64>,
+    /// Git revision of the code that wrote the model, when known.
+    pub code_revision: Option<String>,
+    pub crate_version: String,
+    /// Seconds since the Unix epoch.
+    pub created_unix_s: u64,
+    pub files: ExportFiles,
+}
+
+/// What the trainer adds to the metadata.
+#[derive(Debug, Clone, Default)]
+pub struct ExportInfo {
+    pub training_data: Vec<String>,
+    pub metrics: BTreeMap<String, f64>,
+    /// Overrides the revision found at build time (`IMU_FSDA_GIT_REV`) or from `git`.
+    pub code_revision: Option<String>,
+}
+
+/// The three paths of a model `name` in `dir`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ExportPaths {
+    pub torchscript: PathBuf,
+    pub weights: PathBuf,
+    pub metadata: PathBuf,
+}
+
+impl ExportPaths {
+    pub fn new(dir: &Path, name: &str) -> Self {
+        Self {
+            torchscript: dir.join(format!("{name}.pt")),
+            weights: dir.join(format!("{name}.ot")),
+            metadata: dir.join(format!("{name}.json")),
+        }
+    }
+}
+
+const INPUT_CONTRACT: &str =
+    "[B, T, 6] f32, raw IMU: gyro x, y, z (rad/s), accel x, y, z (m/s^2); causal, first sample replicated to the left";
+const OUTPUT_CONTRACT: &str = "[B, T, 3] f32, corrected gyro x, y, z (rad/s)";
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ModelError + '_ {
+    move |source| ModelError::Io { path: path.to_path_buf(), source }
+}
+
+/// Writes through `write(tmp)` then renames, so a reader never sees a half-written file.
+fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<(), ModelError>) -> Result<(), ModelError> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    write(&tmp)?;
+    std::fs::rename(&tmp, path).map_err(io_err(path))
+}
+
+/// The code revision: `IMU_FSDA_GIT_REV` at build time, else `git rev-parse HEAD` in the
+/// crate's source tree (`-dirty` when tracked files changed), else None.
+pub fn code_revision() -> Option<String> {
+    if let Some(rev) = option_env!("IMU_FSDA_GIT_REV") {
+        return Some(rev.to_string());
+    }
+    let git = |args: &[&str]| {
+        std::process::Command::new("git")
+            .arg("-C")
+            .arg(env!("CARGO_MANIFEST_DIR"))
+            .args(args)
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+    };
+    let rev = git(&["rev-parse", "HEAD"])?;
+    let dirty = git(&["status", "--porcelain", "--untracked-files=no"]).is_some_and(|s| !s.is_empty());
+    Some(if dirty { format!("{rev}-dirty") } else { rev })
+}
+
+/// Traces the eval-mode model (f32) to TorchScript.
+pub fn trace(inference: &InferenceNet) -> Result<CModule, ModelError> {
+    let model = inference.to_kind(Kind::Float);
+    let example = Tensor::zeros([1, model.receptive_field(), INPUT_CHANNELS], (Kind::Float, Device::Cpu));
+    let module = tch::no_grad(|| CModule::create_by_tracing("ImuDenoiser", "forward", &[example], &mut |xs| vec![model.forward(&xs[0])]))?;
+    Ok(module)
+}
+
+/// Writes `<name>.pt`, `<name>.ot` and `<name>.json` into `dir` (created if needed).
+/// `vs` must be the VarStore `net` was built in. The training VarStore is left as it was
+/// (the traced copy is detached; no `freeze` needed).
+pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &ExportInfo) -> Result<ExportPaths, ModelError> {
+    std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+    let paths = ExportPaths::new(dir, name);
+    let module = trace(&net.inference())?;
+    write_atomically(&paths.torchscript, |tmp| Ok(module.save(tmp)?))?;
+    write_atomically(&paths.weights, |tmp| Ok(vs.save(tmp)?))?;
+    let (mean, std) = net.normalization();
+    let cfg = net.config().clone();
+    let file_name = |p: &Path| p.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
+    let metadata = ModelMetadata {
+        format_version: FORMAT_VERSION,
+        name: name.to_string(),
+        mode: cfg.mode,
+        window_n: net.receptive_field(),
+        rate_hz: cfg.rate_hz,
+        normalization: Normalization { mean, std },
+        input: INPUT_CONTRACT.into(),
+        output: OUTPUT_CONTRACT.into(),
+        config: cfg,
+        parameter_counts: net.parameter_counts(),
+        training_data: info.training_data.clone(),
+        metrics: info.metrics.clone(),
+        code_revision: info.code_revision.clone().or_else(code_revision),
+        crate_version: env!("CARGO_PKG_VERSION").into(),
+        created_unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0),
+        files: ExportFiles { torchscript: file_name(&paths.torchscript), weights: file_name(&paths.weights) },
+    };
+    write_metadata(&paths.metadata, &metadata)?;
+    Ok(paths)
+}
+
+/// Writes (or rewrites, e.g. to add metrics) a metadata file.
+pub fn write_metadata(path: &Path, metadata: &ModelMetadata) -> Result<(), ModelError> {
+    let json =
+        serde_json::to_string_pretty(metadata).map_err(|e| ModelError::CorruptFile { path: path.to_path_buf(), reason: e.to_string() })?;
+    write_atomically(path, |tmp| std::fs::write(tmp, json + "\n").map_err(io_err(tmp)))
+}
+
+fn require_file(path: &Path) -> Result<(), ModelError> {
+    if path.is_file() {
+        Ok(())
+    } else {
+        Err(ModelError::MissingFile { path: path.to_path_buf() })
+    }
+}
+
+/// Reads `<name>.json`.
+pub fn load_metadata(path: &Path) -> Result<ModelMetadata, ModelError> {
+    require_file(path)?;
+    let text = std::fs::read_to_string(path).map_err(io_err(path))?;
+    let metadata: ModelMetadata =
+        serde_json::from_str(&text).map_err(|e| ModelError::CorruptFile { path: path.to_path_buf(), reason: e.to_string() })?;
+    let mismatch = |detail: String| Err(ModelError::Mismatch { path: path.to_path_buf(), detail });
+    if metadata.format_version != FORMAT_VERSION {
+        return mismatch(format!("format_version {} (this build reads {FORMAT_VERSION})", metadata.format_version));
+    }
+    if metadata.mode != metadata.config.mode {
+        return mismatch(format!("mode {:?} but config.mode {:?}", metadata.mode, metadata.config.mode));
+    }
+    metadata.config.validate()?;
+    if metadata.window_n != metadata.config.receptive_field() {
+        return mismatch(format!(
+            "window_n {} but the config's receptive field is {}",
+            metadata.window_n,
+            metadata.config.receptive_field()
+        ));
+    }
+    Ok(metadata)
+}
+
+fn sibling(metadata_path: &Path, file: &str) -> PathBuf {
+    metadata_path.parent().unwrap_or(Path::new(".")).join(file)
+}
+
+/// A model rebuilt for fine-tuning or adaptation: its VarStore, the [`Net`] and the metadata.
+#[derive(Debug)]
+pub struct LoadedNet {
+    pub vs: VarStore,
+    pub net: Net,
+    pub metadata: ModelMetadata,
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-6 * (1.0 + b.abs())
+}
+
+/// Loads `<name>.json` + `<name>.ot` into a fresh VarStore on `device` (f32, trainable).
+pub fn load_net(metadata_path: &Path, device: Device) -> Result<LoadedNet, ModelError> {
+    let metadata = load_metadata(metadata_path)?;
+    let weights_path = sibling(metadata_path, &metadata.files.weights);
+    require_file(&weights_path)?;
+    let loaded = Tensor::load_multi_with_device(&weights_path, device)
+        .map_err(|e| ModelError::CorruptFile { path: weights_path.clone(), reason: e.to_string() })?;
+    let loaded: BTreeMap<String, Tensor> = loaded.into_iter().collect();
+    let vs = VarStore::new(device);
+    let net = Net::new(&metadata.config, &vs.root())?;
+    let mismatch = |detail: String| ModelError::Mismatch { path: weights_path.clone(), detail };
+    let variables = vs.variables();
+    for (name, var) in &variables {
+        let src = loaded.get(name).ok_or_else(|| mismatch(format!("no variable `{name}` (the config expects it)")))?;
+        if src.size() != var.size() {
+            return Err(mismatch(format!("`{name}` has shape {:?}, the config expects {:?}", src.size(), var.size())));
+        }
+        if !src.is_floating_point() {
+            return Err(mismatch(format!("`{name}` is {:?}, not floating point", src.kind())));
+        }
+        if !bool::try_from(src.isfinite().all()).map_err(ModelError::from)? {
+            return Err(ModelError::CorruptFile { path: weights_path.clone(), reason: format!("`{name}` has non-finite values") });
+        }
+        tch::no_grad(|| var.shallow_clone().f_copy_(&src.to_kind(var.kind())))?;
+    }
+    if let Some(extra) = loaded.keys().find(|k| !variables.contains_key(*k)) {
+        return Err(mismatch(format!("unexpected variable `{extra}` (not in a {:?} model with this config)", metadata.mode)));
+    }
+    let (mean, std) = net.normalization();
+    let norm = &metadata.normalization;
+    if !(mean.iter().zip(&norm.mean).all(|(a, b)| close(*a, *b)) && std.iter().zip(&norm.std).all(|(a, b)| close(*a, *b))) {
+        return Err(mismatch(format!("normalisation in the weights (mean {mean:?}, std {std:?}) differs from the metadata ({norm:?})")));
+    }
+    let sigma = Vec::<f64>::try_from(&variables["output_scale.sigma"].to_kind(Kind::Double))?;
+    if !sigma.iter().zip(metadata.config.output_scale_rad_s()).all(|(a, b)| close(*a, b)) {
+        return Err(mismatch(format!(
+            "σ in the weights {sigma:?} rad/s differs from the config's {:?} deg/s",
+            metadata.config.output_scale_deg_s
+        )));
+    }
+    Ok(LoadedNet { vs, net, metadata })
+}
+
+/// Loads the streaming form (f64, no tch at run time) from `<name>.json` + `<name>.ot`.
+pub fn load_streaming(metadata_path: &Path) -> Result<(StreamingDenoiser, ModelMetadata), ModelError> {
+    let LoadedNet { net, metadata, .. } = load_net(metadata_path, Device::Cpu)?;
+    Ok((StreamingDenoiser::from_net(&net)?, metadata))
+}
+
+/// The TorchScript model with its metadata and an input check.
+#[derive(Debug)]
+pub struct TorchScriptModel {
+    module: CModule,
+    pub metadata: ModelMetadata,
+}
+
+impl TorchScriptModel {
+    /// `u: [B, T, 6]` f32 raw IMU → `[B, T, 3]` corrected gyro, rad/s.
+    pub fn forward(&self, u: &Tensor) -> Result<Tensor, ModelError> {
+        let size = u.size();
+        if size.len() != 3 || size[2] != INPUT_CHANNELS || size[0] < 1 || size[1] < 1 || u.kind() != Kind::Float {
+            return Err(ModelError::InputShape { expected: INPUT_CONTRACT.into(), got: size, kind: format!("{:?}", u.kind()) });
+        }
+        Ok(tch::no_grad(|| self.module.forward_ts(&[u]))?)
+    }
+}
+
+/// Loads `<name>.json` + `<name>.pt` (CPU) and checks the module maps `[1, 8, 6]` to `[1, 8, 3]`.
+pub fn load_torchscript(metadata_path: &Path) -> Result<TorchScriptModel, ModelError> {
+    let metadata = load_metadata(metadata_path)?;
+    let path = sibling(metadata_path, &metadata.files.torchscript);
+    require_file(&path)?;
+    let module = CModule::load(&path).map_err(|e| ModelError::CorruptFile { path: path.clone(), reason: e.to_string() })?;
+    let model = TorchScriptModel { module, metadata };
+    let probe = Tensor::zeros([1, 8, INPUT_CHANNELS], (Kind::Float, Device::Cpu));
+    let out =
+        model.forward(&probe).map_err(|e| ModelError::CorruptFile { path: path.clone(), reason: format!("probe forward failed: {e}") })?;
+    if out.size() != [1, 8, OUTPUT_CHANNELS] {
+        return Err(ModelError::Mismatch { path, detail: format!("maps [1, 8, 6] to {:?}, expected [1, 8, 3]", out.size()) });
+    }
+    Ok(model)
+}

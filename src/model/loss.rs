@@ -1,0 +1,248 @@
+//! Losses (paper §III-A "Loss function" and §III-B: `L = L^R + γ L^D`):
+//!
+//! - `L^R = mean ‖R(E(norm(u)) + noise) − norm(u)‖²`, the Restructor's reconstruction MSE on the
+//!   normalised input (gyro and accel on one scale);
+//! - `L^D = Σ_j w_j · s · mean_{valid m, axes} ρ_δ(Log(δR^gt_{m,j} δR̂_{m,j}ᵀ))`, over
+//!   non-overlapping increments of `j` samples (`m·j … (m+1)·j`), `ρ_δ` the Huber function.
+//!   DIGDL's settings are the defaults: j ∈ {16, 32} with weights 1 and ½, δ = 0.005 rad,
+//!   s = 10⁶, the first 5 increments of each sequence skipped (they see the padding).
+//!
+//! `δR̂` integrates the corrected gyro with the real per-sample `dt` (`dt_k = t_{k+1} − t_k`),
+//! never a fixed period. `δR^gt = R_{mj}ᵀ R_{(m+1)j}` from the ground-truth attitudes at the
+//! IMU stamps; an increment counts only if every sample it spans has a valid ground truth
+//! (the mask, e.g. false where the mocap had a gap) and a finite `dt > 0`.
+
+use serde::{Deserialize, Serialize};
+use tch::{Kind, Reduction, Tensor};
+
+use super::net::NetOutput;
+use super::so3_tensor::{
+    increment_residual, increments_from_attitudes, increments_from_gyro, num_increments, quat_identity_like, so3_kind,
+};
+
+/// One term of `L^D`: increments over `samples` IMU samples, weighted by `weight`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IncrementTerm {
+    /// j, samples (16 ≈ 80 ms at 200 Hz).
+    pub samples: i64,
+    /// w_j.
+    pub weight: f64,
+}
+
+/// Loss hyper-parameters.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LossConfig {
+    /// The increment lengths and their weights (DIGDL: 16 → 1, 32 → ½).
+    pub increments: Vec<IncrementTerm>,
+    /// Huber threshold δ, rad (DIGDL: 0.005).
+    pub huber_delta_rad: f64,
+    /// Scale s of `L^D` (DIGDL: 10⁶).
+    pub scale: f64,
+    /// Increments skipped at the start of each sequence, whose window is mostly padding
+    /// (DIGDL: 5).
+    pub skip_first_increments: i64,
+    /// γ in `L = L^R + γ L^D`.
+    pub gamma: f64,
+    /// Run the SO(3) part in f64 (as DIGDL does) whatever the network's kind.
+    pub so3_f64: bool,
+}
+
+impl Default for LossConfig {
+    fn default() -> Self {
+        Self {
+            increments: vec![IncrementTerm { samples: 16, weight: 1.0 }, IncrementTerm { samples: 32, weight: 0.5 }],
+            huber_delta_rad: 0.005,
+            scale: 1e6,
+            skip_first_increments: 5,
+            gamma: 1.0,
+            so3_f64: true,
+        }
+    }
+}
+
+/// The loss and its parts (scalars).
+#[derive(Debug)]
+pub struct LossTerms {
+    /// `L^R + γ L^D` (just `γ L^D` without a reconstruction).
+    pub total: Tensor,
+    /// `L^R`, when the forward ran the Restructor.
+    pub reconstruction: Option<Tensor>,
+    /// `L^D` (before γ).
+    pub increment: Tensor,
+}
+
+/// `L^R`: mean squared error over all elements.
+pub fn reconstruction_loss(reconstruction: &Tensor, target: &Tensor) -> Tensor {
+    (reconstruction - target).square().mean(None)
+}
+
+/// `L^D` for corrected gyro `gyro_hat: [B, T, 3]` (rad/s), `dt: [B, T]` (s), ground-truth
+/// attitudes `gt_attitude: [B, T, 4]` (w, x, y, z; `world_from_body` at the IMU stamps;
+/// non-finite entries count as invalid) and an optional validity mask `gt_valid: [B, T]`
+/// (bool or 0/1). Returns a scalar of `gyro_hat`'s kind.
+pub fn increment_loss(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attitude: &Tensor, gt_valid: Option<&Tensor>) -> Tensor {
+    let kind = so3_kind(gyro_hat.kind(), cfg.so3_f64);
+    let omega = gyro_hat.to_kind(kind);
+    let gt = gt_attitude.to_kind(kind);
+    let dt = dt.to_kind(kind);
+    let (b, t) = (omega.size()[0], omega.size()[1]);
+    let mut sample_ok = gt.isfinite().all_dim(-1, false);
+    if let Some(mask) = gt_valid {
+        sample_ok = sample_ok.logical_and(&mask.to_kind(Kind::Bool));
+    }
+    let dt_ok = dt.isfinite().logical_and(&dt.gt(0.0));
+    // Sanitised inputs: invalid entries get harmless values (and are masked below), so no
+    // NaN reaches the graph.
+    let gt = gt.where_self(&sample_ok.unsqueeze(-1), &quat_identity_like(&gt));
+    let dt = dt.where_self(&dt_ok, &dt.zeros_like());
+    let sample_bad = sample_ok.logical_not().to_kind(kind).unsqueeze(1); // [B, 1, T]
+    let dt_bad = dt_ok.logical_not().to_kind(kind).unsqueeze(1);
+
+    let mut terms = Vec::with_capacity(cfg.increments.len());
+    for term in &cfg.increments {
+        let j = term.samples;
+        assert!(j >= 1, "increment length must be ≥ 1");
+        let m = num_increments(t, j);
+        if m <= cfg.skip_first_increments {
+            continue;
+        }
+        let estimate = increments_from_gyro(&omega, &dt, j);
+        let truth = increments_from_attitudes(&gt, j);
+        let residual = increment_residual(&truth, &estimate); // [B, M, 3]
+                                                              // Increment m is valid when samples mj … (m+1)j have ground truth and mj … (m+1)j − 1 a good dt.
+        let gt_gap = sample_bad.narrow(2, 0, m * j + 1).max_pool1d([j + 1], [j], [0], [1], false).squeeze_dim(1);
+        let dt_gap = dt_bad.narrow(2, 0, m * j).max_pool1d([j], [j], [0], [1], false).squeeze_dim(1);
+        let not_skipped =
+            Tensor::arange(m, (kind, omega.device())).ge(cfg.skip_first_increments as f64).to_kind(kind).expand([b, m], false);
+        let valid = (gt_gap.maximum(&dt_gap) * -1.0 + 1.0) * not_skipped; // [B, M]
+        let valid3 = valid.unsqueeze(-1).expand([b, m, 3], false);
+        let residual = residual.where_self(&valid3.gt(0.5), &residual.zeros_like());
+        let huber = residual.huber_loss(&residual.zeros_like(), Reduction::None, cfg.huber_delta_rad);
+        let count = valid3.sum(kind).clamp_min(1.0);
+        terms.push((huber * &valid3).sum(kind) / count * (cfg.scale * term.weight));
+    }
+    let total = terms.into_iter().fold(Tensor::zeros([], (kind, omega.device())), |acc, t| acc + t);
+    total.to_kind(gyro_hat.kind())
+}
+
+/// `L = L^R + γ L^D` from a forward's output.
+pub fn total_loss(cfg: &LossConfig, out: &NetOutput, dt: &Tensor, gt_attitude: &Tensor, gt_valid: Option<&Tensor>) -> LossTerms {
+    let increment = increment_loss(cfg, &out.gyro, dt, gt_attitude, gt_valid);
+    let reconstruction = out.reconstruction.as_ref().map(|r| reconstruction_loss(r, &out.input_normalised));
+    let total = match &reconstruction {
+        Some(r) => r + &increment * cfg.gamma,
+        None => &increment * cfg.gamma,
+    };
+    LossTerms { total, reconstruction, increment }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::so3_tensor::{prefix_products, quat_exp};
+    use tch::Device;
+
+    const F64: (Kind, Device) = (Kind::Double, Device::Cpu);
+
+    /// Attitudes integrated from `omega` with `dt` (R_{n+1} = R_n Exp(ω_n dt_n)), `[B, T, 4]`.
+    fn integrate(omega: &Tensor, dt: &Tensor) -> Tensor {
+        let t = omega.size()[1];
+        let steps = quat_exp(&(omega.narrow(1, 0, t - 1) * dt.narrow(1, 0, t - 1).unsqueeze(-1)));
+        let id = quat_identity_like(&steps.narrow(1, 0, 1));
+        prefix_products(&Tensor::cat(&[id, steps], 1))
+    }
+
+    fn small_cfg() -> LossConfig {
+        LossConfig {
+            increments: vec![IncrementTerm { samples: 4, weight: 1.0 }, IncrementTerm { samples: 8, weight: 0.5 }],
+            skip_first_increments: 1,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn zero_for_the_true_gyro_and_positive_otherwise() {
+        tch::manual_seed(3);
+        let omega = Tensor::randn([2, 41, 3], F64);
+        let dt = Tensor::rand([2, 41], F64) * 0.002 + 0.004;
+        let gt = integrate(&omega, &dt);
+        let cfg = small_cfg();
+        assert!(increment_loss(&cfg, &omega, &dt, &gt, None).double_value(&[]) < 1e-12);
+        let biased = &omega + 0.01;
+        assert!(increment_loss(&cfg, &biased, &dt, &gt, None).double_value(&[]) > 1e-3);
+        // The real dt matters: a fixed 5 ms is wrong here.
+        let fixed = dt.full_like(0.005);
+        assert!(increment_loss(&cfg, &omega, &fixed, &gt, None).double_value(&[]) > 1e-3);
+    }
+
+    #[test]
+    fn gaps_are_masked_and_never_nan() {
+        tch::manual_seed(4);
+        let omega = Tensor::randn([1, 33, 3], F64);
+        let dt = Tensor::full([1, 33], 0.005, F64);
+        let gt = integrate(&omega, &dt);
+        // Corrupt the ground truth in the 3rd 4-sample increment (samples 8…12) and mark it.
+        let _ = gt.narrow(1, 10, 1).fill_(f64::NAN);
+        let cfg =
+            LossConfig { increments: vec![IncrementTerm { samples: 4, weight: 1.0 }], skip_first_increments: 0, ..Default::default() };
+        let wrong = omega.copy();
+        let _ = wrong.narrow(1, 9, 1).fill_(5.0); // a wrong estimate inside the gap only
+        let w = wrong.set_requires_grad(true);
+        let loss = increment_loss(&cfg, &w, &dt, &gt, None);
+        assert!(loss.double_value(&[]) < 1e-12, "the gap must be masked: {}", loss.double_value(&[]));
+        let g = Tensor::run_backward(&[&loss], &[&w], false, false).pop().unwrap();
+        assert!(bool::try_from(g.isfinite().all()).unwrap());
+        // An explicit mask does the same.
+        let gt_clean = integrate(&omega, &dt);
+        let mask = Tensor::ones([1, 33], F64);
+        let _ = mask.narrow(1, 10, 1).fill_(0.0);
+        assert!(increment_loss(&cfg, &wrong, &dt, &gt_clean, Some(&mask)).double_value(&[]) < 1e-12);
+        assert!(increment_loss(&cfg, &wrong, &dt, &gt_clean, None).double_value(&[]) > 1.0);
+    }
+
+    #[test]
+    fn gradient_matches_finite_differences() {
+        tch::manual_seed(5);
+        let truth = Tensor::randn([1, 25, 3], F64) * 0.5;
+        let dt = Tensor::rand([1, 25], F64) * 0.002 + 0.004;
+        let gt = integrate(&truth, &dt);
+        // Errors on both sides of δ: quadratic and linear Huber branches.
+        let estimate = &truth + Tensor::randn([1, 25, 3], F64) * 0.3;
+        let cfg = LossConfig { scale: 1.0, skip_first_increments: 0, ..small_cfg() };
+        let x = estimate.detach().set_requires_grad(true);
+        let loss = increment_loss(&cfg, &x, &dt, &gt, None);
+        let g = Vec::<f64>::try_from(&Tensor::run_backward(&[&loss], &[&x], false, false)[0].flatten(0, -1)).unwrap();
+        let base = Vec::<f64>::try_from(&estimate.flatten(0, -1)).unwrap();
+        let h = 1e-6;
+        for (i, gi) in g.iter().enumerate() {
+            let at = |d: f64| {
+                let mut v = base.clone();
+                v[i] += d;
+                increment_loss(&cfg, &Tensor::from_slice(&v).reshape([1, 25, 3]), &dt, &gt, None).double_value(&[])
+            };
+            let fd = (at(h) - at(-h)) / (2.0 * h);
+            assert!((fd - gi).abs() < 1e-7 * (1.0 + fd.abs()), "[{i}]: autograd {gi} vs fd {fd}");
+        }
+    }
+
+    #[test]
+    fn finite_gradient_at_zero_rotation() {
+        let omega = Tensor::zeros([1, 40, 3], F64).set_requires_grad(true);
+        let dt = Tensor::full([1, 40], 0.005, F64);
+        let gt = quat_identity_like(&Tensor::zeros([1, 40, 4], F64));
+        let loss = increment_loss(&LossConfig { skip_first_increments: 0, ..small_cfg() }, &omega, &dt, &gt, None);
+        assert_eq!(loss.double_value(&[]), 0.0);
+        let g = Tensor::run_backward(&[&loss], &[&omega], false, false).pop().unwrap();
+        assert!(bool::try_from(g.isfinite().all()).unwrap());
+        assert_eq!(g.abs().max().double_value(&[]), 0.0);
+    }
+
+    #[test]
+    fn defaults_are_digdl() {
+        let cfg = LossConfig::default();
+        assert_eq!(cfg.increments, [IncrementTerm { samples: 16, weight: 1.0 }, IncrementTerm { samples: 32, weight: 0.5 }]);
+        assert_eq!((cfg.huber_delta_rad, cfg.scale, cfg.skip_first_increments), (0.005, 1e6, 5));
+    }
+}

@@ -1,0 +1,284 @@
+//! The denoising networks (paper §III "Few-shot domain adaptation", and DIGDL, Brossard et
+//! al. RA-L 2020, as the baseline), in tch, with a pure-Rust streaming form for the node.
+//!
+//! Every mode maps a window of raw IMU samples `u_n = [ω_n; a_n]` (rad/s, m/s²) to a
+//! corrected angular velocity `ω̂_n = Ĉ_ω ω_n + ω'_n` (rad/s), causally: `ω̂_n` depends on
+//! `u_{n−N+1} … u_n` only, `N` the receptive field ([`Config::receptive_field`]).
+//!
+//! | mode | correction `ω'_n` | extra training-only branch |
+//! |---|---|---|
+//! | [`Mode::Digdl`] | `σ ⊙ CNN(norm(u))` (DIGDL's GyroNet) | — |
+//! | [`Mode::Fsda`], [`Mode::FsdaF`] | `σ ⊙ Generator(Embedding(norm(u)))` | Restructor reconstructs `norm(u)` |
+//!
+//! FSDA and FSDA-F share the network; they differ in training only (FSDA-F adapts the
+//! Embedding with MAML, see `src/train/`).
+//!
+//! Files, bottom to top: [`cnn`] (the shared dilated causal CNN), [`embedding`],
+//! [`restructor`], [`generator`], [`digdl`], [`net`] (the whole model, batch `forward`),
+//! [`so3_tensor`], [`loss`], [`export`] (TorchScript / weights / metadata, and loading),
+//! [`streaming`] (per-sample `step`, no tch).
+//!
+//! ```no_run
+//! use imu_fsda::model::{export, Config, Mode, Net};
+//! use tch::{nn::VarStore, Device, Kind, Tensor};
+//!
+//! let cfg = Config::for_mode(Mode::FsdaF);
+//! let vs = VarStore::new(Device::Cpu);
+//! let net = Net::new(&cfg, &vs.root()).unwrap();
+//! let u = Tensor::zeros([1, 2000, 6], (Kind::Float, Device::Cpu)); // raw IMU, [B, T, 6]
+//! let omega_hat = net.try_forward(&u).unwrap(); // [B, T, 3], rad/s
+//! # let _ = omega_hat;
+//! let files = export::export_model(std::path::Path::new("models"), "demo", &vs, &net, &export::ExportInfo::default()).unwrap();
+//! let (mut denoiser, _meta) = export::load_streaming(&files.metadata).unwrap();
+//! let w = denoiser.step(&nalgebra::Vector3::zeros(), &nalgebra::Vector3::new(9.81, 0.0, 0.0));
+//! # let _ = w;
+//! ```
+
+pub mod cnn;
+pub mod digdl;
+pub mod embedding;
+pub mod export;
+pub mod generator;
+pub mod loss;
+pub mod net;
+pub mod restructor;
+pub mod so3_tensor;
+pub mod streaming;
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+pub use export::{ExportInfo, ExportPaths, LoadedNet, ModelMetadata, TorchScriptModel};
+pub use loss::{LossConfig, LossTerms};
+pub use net::{ForwardOptions, InferenceNet, Net, NetOutput, ParameterCounts};
+pub use streaming::StreamingDenoiser;
+
+/// Number of input channels: gyro x, y, z (rad/s), then accel x, y, z (m/s²).
+pub const INPUT_CHANNELS: i64 = 6;
+/// Number of output channels: corrected gyro x, y, z (rad/s).
+pub const OUTPUT_CHANNELS: i64 = 3;
+
+/// Which model (and, for the trainer, which training strategy).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// DIGDL (Brossard et al. 2020): one dilated CNN on the normalised IMU.
+    Digdl,
+    /// The paper's framework (Embedding + Restructor + Generator), trained without MAML.
+    Fsda,
+    /// The same network, trained with the few-shot (MAML) strategy on the Embedding.
+    #[default]
+    FsdaF,
+}
+
+impl Mode {
+    /// True for the two modes with Embedding, Restructor and Generator.
+    pub fn has_embedding(self) -> bool {
+        !matches!(self, Mode::Digdl)
+    }
+}
+
+/// Shape of one dilated causal CNN: `kernel_sizes.len()` conv layers; every layer but the
+/// last is followed by (BatchNorm,) GELU and Dropout.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CnnConfig {
+    /// Output channels of the hidden layers; one entry fewer than `kernel_sizes`.
+    pub hidden_channels: Vec<i64>,
+    /// Kernel size of each layer (samples).
+    pub kernel_sizes: Vec<i64>,
+    /// Dilation of each layer (samples).
+    pub dilations: Vec<i64>,
+}
+
+impl CnnConfig {
+    /// DIGDL's CNN: 16, 32, 64, 128 channels, kernels 7,7,7,7 and a 1×1 output layer,
+    /// dilations 1, 4, 16, 64 (receptive field 511).
+    pub fn digdl() -> Self {
+        Self { hidden_channels: vec![16, 32, 64, 128], kernel_sizes: vec![7, 7, 7, 7, 1], dilations: vec![1, 4, 16, 64, 1] }
+    }
+
+    /// The paper's Generator / Restructor: five layers, all kernel 7, dilations 1, 4, 16, 64, 1
+    /// (receptive field 517); DIGDL's widths for the hidden layers.
+    pub fn fsda() -> Self {
+        Self { hidden_channels: vec![16, 32, 64, 128], kernel_sizes: vec![7; 5], dilations: vec![1, 4, 16, 64, 1] }
+    }
+
+    /// Receptive field in samples: `1 + Σ_l (k_l − 1) d_l`.
+    pub fn receptive_field(&self) -> i64 {
+        1 + self.kernel_sizes.iter().zip(&self.dilations).map(|(k, d)| (k - 1) * d).sum::<i64>()
+    }
+
+    fn validate(&self, what: &str) -> Result<(), ModelError> {
+        let bad = |msg: String| Err(ModelError::InvalidConfig(format!("{what}: {msg}")));
+        if self.kernel_sizes.is_empty() {
+            return bad("no layers".into());
+        }
+        if self.dilations.len() != self.kernel_sizes.len() {
+            return bad(format!("{} dilations for {} layers", self.dilations.len(), self.kernel_sizes.len()));
+        }
+        if self.hidden_channels.len() + 1 != self.kernel_sizes.len() {
+            return bad(format!("{} hidden widths for {} layers (need one fewer)", self.hidden_channels.len(), self.kernel_sizes.len()));
+        }
+        if self.kernel_sizes.iter().chain(&self.dilations).chain(&self.hidden_channels).any(|&v| v < 1) {
+            return bad("kernel sizes, dilations and widths must be ≥ 1".into());
+        }
+        Ok(())
+    }
+}
+
+impl Default for CnnConfig {
+    fn default() -> Self {
+        Self::fsda()
+    }
+}
+
+/// The per-sample Embedding MLP.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EmbeddingConfig {
+    /// Widths of the hidden layers (GELU after each).
+    pub hidden: Vec<i64>,
+    /// Size of the embedding (tanh output, so each component is in (−1, 1)).
+    pub dim: i64,
+}
+
+impl Default for EmbeddingConfig {
+    fn default() -> Self {
+        Self { hidden: vec![32, 32], dim: 16 }
+    }
+}
+
+/// The model's hyper-parameters: everything needed to rebuild the network from its weights.
+/// Travels in the exported metadata.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Config {
+    /// Which network.
+    pub mode: Mode,
+    /// IMU rate the model is trained for, Hz. The network sees sample indices, not time: a
+    /// model is only valid at (about) this rate. EuRoC: 200 Hz.
+    pub rate_hz: f64,
+    /// σ: fixed per-axis scale of the learned correction, deg/s (DIGDL: 1, 2, 5 on EuRoC,
+    /// 0.2 on TUM-VI). Stored in the weights as rad/s.
+    pub output_scale_deg_s: [f64; 3],
+    /// Std of the random initialisation of `Ĉ_ω − I` (0: Ĉ_ω starts at identity as in the
+    /// paper; DIGDL starts from 0.05·N(0, 1)).
+    pub gyro_calib_init_std: f64,
+    /// BatchNorm after each hidden conv (DIGDL: yes). Folded into the convs for inference.
+    pub batch_norm: bool,
+    /// Dropout probability after each hidden conv (training only; DIGDL: 0.1).
+    pub dropout: f64,
+    /// The CNN of [`Mode::Digdl`].
+    #[serde(default = "CnnConfig::digdl")]
+    pub digdl: CnnConfig,
+    /// The Embedding of the FSDA modes.
+    pub embedding: EmbeddingConfig,
+    /// The Generator of the FSDA modes (its receptive field is the model's window N).
+    pub generator: CnnConfig,
+    /// The Restructor of the FSDA modes (training only).
+    pub restructor: CnnConfig,
+    /// Std of the Gaussian noise added to the embedding before the Restructor (training
+    /// only; embedding units, the embedding lies in (−1, 1)).
+    pub restructor_noise_std: f64,
+}
+
+impl Config {
+    /// The defaults of one mode (DIGDL's published settings for [`Mode::Digdl`]).
+    pub fn for_mode(mode: Mode) -> Self {
+        let fsda = Self {
+            mode,
+            rate_hz: 200.0,
+            output_scale_deg_s: [1.0, 2.0, 5.0],
+            gyro_calib_init_std: 0.0,
+            batch_norm: true,
+            dropout: 0.1,
+            digdl: CnnConfig::digdl(),
+            embedding: EmbeddingConfig::default(),
+            generator: CnnConfig::fsda(),
+            restructor: CnnConfig::fsda(),
+            restructor_noise_std: 0.1,
+        };
+        match mode {
+            Mode::Digdl => Self { gyro_calib_init_std: 0.05, ..fsda },
+            Mode::Fsda | Mode::FsdaF => fsda,
+        }
+    }
+
+    /// Receptive field N in samples: the output at n depends on inputs n−N+1 … n.
+    /// 511 for DIGDL's CNN, 517 for the paper's Generator.
+    pub fn receptive_field(&self) -> i64 {
+        match self.mode {
+            Mode::Digdl => self.digdl.receptive_field(),
+            Mode::Fsda | Mode::FsdaF => self.generator.receptive_field(),
+        }
+    }
+
+    /// σ in rad/s.
+    pub fn output_scale_rad_s(&self) -> [f64; 3] {
+        self.output_scale_deg_s.map(f64::to_radians)
+    }
+
+    /// Checks the shapes and ranges; every constructor calls it.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        if !(self.rate_hz.is_finite() && self.rate_hz > 0.0) {
+            return Err(ModelError::InvalidConfig(format!("rate_hz must be > 0, got {}", self.rate_hz)));
+        }
+        if !(0.0..1.0).contains(&self.dropout) {
+            return Err(ModelError::InvalidConfig(format!("dropout must be in [0, 1), got {}", self.dropout)));
+        }
+        if self.output_scale_deg_s.iter().any(|s| !s.is_finite() || *s <= 0.0) {
+            return Err(ModelError::InvalidConfig("output_scale_deg_s must be > 0".into()));
+        }
+        if !(self.gyro_calib_init_std >= 0.0 && self.restructor_noise_std >= 0.0) {
+            return Err(ModelError::InvalidConfig("standard deviations must be ≥ 0".into()));
+        }
+        match self.mode {
+            Mode::Digdl => self.digdl.validate("digdl"),
+            Mode::Fsda | Mode::FsdaF => {
+                if self.embedding.dim < 1 || self.embedding.hidden.iter().any(|&w| w < 1) {
+                    return Err(ModelError::InvalidConfig("embedding widths must be ≥ 1".into()));
+                }
+                self.generator.validate("generator")?;
+                self.restructor.validate("restructor")
+            }
+        }
+    }
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self::for_mode(Mode::default())
+    }
+}
+
+/// Errors at the model boundary: configs, inputs, and the exported files.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// The hyper-parameters do not describe a buildable network.
+    #[error("invalid model config: {0}")]
+    InvalidConfig(String),
+    /// A tensor handed to the model has the wrong shape or kind.
+    #[error("input of shape {got:?} and kind {kind} does not fit the model: expected {expected}")]
+    InputShape { expected: String, got: Vec<i64>, kind: String },
+    /// A model file does not exist.
+    #[error("model file {} is missing", path.display())]
+    MissingFile { path: PathBuf },
+    /// Reading or writing a file failed.
+    #[error("cannot access {}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file exists but cannot be decoded.
+    #[error("model file {} is corrupt or not in the expected format: {reason}", path.display())]
+    CorruptFile { path: PathBuf, reason: String },
+    /// The metadata and the weights (or the TorchScript file) disagree.
+    #[error("{} does not match its metadata: {detail}", path.display())]
+    Mismatch { path: PathBuf, detail: String },
+    /// Any other libtorch error.
+    #[error("libtorch: {0}")]
+    Torch(#[from] tch::TchError),
+}
