@@ -14,3 +14,4 @@ pub mod node;
 pub mod physics;
 pub mod sim;
 pub mod so3;
+pub mod train;

@@ -8,6 +8,7 @@ mod node;
 mod play;
 mod replay;
 mod simulate;
+mod train;
 
 use clap::{Parser, Subcommand};
 
@@ -33,6 +34,8 @@ pub enum Command {
     Eval(eval::EvalArgs),
     /// Simulate an IMU on a trajectory and write a bag with ground truth.
     Simulate(simulate::SimulateArgs),
+    /// Train a denoising model (FSDA-F, FSDA or DIGDL) and export it to TorchScript.
+    Train(train::TrainArgs),
     /// Run the ROS 2 denoising node (subscribes raw IMU, publishes /imu/denoised).
     Node(node::NodeArgs),
     /// Run the node's pipeline over a bag and write its topics beside the input.
@@ -59,6 +62,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Import(a) => import::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Simulate(a) => simulate::run(a),
+        Command::Train(a) => train::run(a),
         Command::Node(a) => node::run(a),
         Command::Replay(a) => replay::run(a),
         Command::Play(a) => play::run(a),

@@ -41,6 +41,7 @@ pub mod export;
 pub mod generator;
 pub mod loss;
 pub mod net;
+pub mod predict;
 pub mod restructor;
 pub mod so3_tensor;
 pub mod streaming;

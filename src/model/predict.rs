@@ -1,0 +1,56 @@
+//! Offline, full-sequence inference: the corrected gyro of a whole recording in one batch
+//! forward (what training-time evaluation and `imu-fsda eval --model` use). The node's
+//! streaming form must reproduce it sample for sample.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::Vector3;
+use tch::{Device, Kind, Tensor};
+
+use super::export::{load_net, load_torchscript, ModelMetadata};
+use super::net::InferenceNet;
+use super::ModelError;
+use crate::core::ImuSample;
+
+/// `[1, T, 6]` tensor of raw IMU (gyro, accel) in `kind`.
+pub fn imu_tensor(imu: &[ImuSample], kind: Kind) -> Tensor {
+    let flat: Vec<f64> = imu.iter().flat_map(|s| [s.gyro.x, s.gyro.y, s.gyro.z, s.accel.x, s.accel.y, s.accel.z]).collect();
+    Tensor::from_slice(&flat).reshape([1, imu.len() as i64, 6]).to_kind(kind)
+}
+
+fn to_vectors(t: &Tensor) -> Result<Vec<Vector3<f64>>, ModelError> {
+    let v = Vec::<f64>::try_from(t.to_kind(Kind::Double).reshape([-1]))?;
+    Ok(v.chunks_exact(3).map(|c| Vector3::new(c[0], c[1], c[2])).collect())
+}
+
+/// Corrected gyro for every sample with an eval-mode net (f64 weights give the reference
+/// the streaming denoiser is compared with).
+pub fn correct_with_net(net: &InferenceNet, imu: &[ImuSample]) -> Result<Vec<Vector3<f64>>, ModelError> {
+    if imu.is_empty() {
+        return Ok(Vec::new());
+    }
+    let out = net.try_forward(&imu_tensor(imu, net.kind()))?;
+    to_vectors(&out)
+}
+
+/// A model file given as `.pt`, `.ot` or `.json`: the metadata path beside it.
+pub fn metadata_path(model: &Path) -> PathBuf {
+    model.with_extension("json")
+}
+
+/// Corrected gyro from an exported model's TorchScript file (f32, as deployed).
+pub fn correct_with_torchscript(model: &Path, imu: &[ImuSample]) -> Result<(Vec<Vector3<f64>>, ModelMetadata), ModelError> {
+    let ts = load_torchscript(&metadata_path(model))?;
+    if imu.is_empty() {
+        return Ok((Vec::new(), ts.metadata));
+    }
+    let out = ts.forward(&imu_tensor(imu, Kind::Float))?;
+    Ok((to_vectors(&out)?, ts.metadata))
+}
+
+/// Corrected gyro from an exported model's weights, in f64 (the exact reference).
+pub fn correct_with_weights_f64(model: &Path, imu: &[ImuSample]) -> Result<(Vec<Vector3<f64>>, ModelMetadata), ModelError> {
+    let loaded = load_net(&metadata_path(model), Device::Cpu)?;
+    let net = loaded.net.inference().to_kind(Kind::Double);
+    Ok((correct_with_net(&net, imu)?, loaded.metadata))
+}
