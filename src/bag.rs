@@ -176,7 +176,11 @@ impl BagReader {
     pub fn open(path: impl AsRef<Path>) -> Result<Self, BagError> {
         let path = path.as_ref().to_path_buf();
         let file = File::open(&path).map_err(io_err(&path))?;
-        let inner = mcap::io::MessageReader::new(BufReader::with_capacity(1 << 16, file));
+        // A corrupt length field must not make the reader allocate it (no record can be
+        // longer than the file), and a damaged chunk must be an error, not altered data.
+        let file_len = file.metadata().map(|m| m.len()).unwrap_or(0) as usize;
+        let options = mcap::sans_io::LinearReaderOptions::default().with_record_length_limit(file_len.max(1 << 26)).with_validate_chunk_crcs(true);
+        let inner = mcap::io::MessageReader::new_with_options(BufReader::with_capacity(1 << 16, file), options);
         Ok(BagReader { path, inner, topics: BTreeMap::new(), count: 0 })
     }
 

@@ -44,6 +44,39 @@ impl GyroCorrector for BiasCorrector {
     }
 }
 
+/// A trained model in its streaming form (pure Rust, f64, constant cost per sample).
+pub struct ModelCorrector {
+    pub denoiser: crate::model::StreamingDenoiser,
+    pub name: String,
+    pub rate_hz: f64,
+}
+
+impl ModelCorrector {
+    /// Load `<model>.json` + `<model>.ot` (the `.pt` beside them is the TorchScript form).
+    pub fn load(model: &std::path::Path) -> Result<Self, crate::model::ModelError> {
+        let (denoiser, meta) = crate::model::export::load_streaming(&crate::model::predict::metadata_path(model))?;
+        Ok(ModelCorrector { denoiser, name: meta.name, rate_hz: meta.rate_hz })
+    }
+}
+
+impl GyroCorrector for ModelCorrector {
+    fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64> {
+        self.denoiser.step(gyro, accel)
+    }
+    fn reset(&mut self) {
+        self.denoiser.reset();
+    }
+    fn window(&self) -> usize {
+        self.denoiser.receptive_field()
+    }
+    fn rate_hz(&self) -> Option<f64> {
+        (self.rate_hz > 0.0).then_some(self.rate_hz)
+    }
+    fn name(&self) -> &str {
+        &self.name
+    }
+}
+
 /// Pipeline settings (the node reads them from its ROS parameters).
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 #[serde(default)]

@@ -1,13 +1,49 @@
 //! Which gyro corrector the node and `replay` run: the model named by the `model`
 //! parameter, or (empty) a pass-through with a loud warning.
 
-use imu_fsda::infer::{BiasCorrector, GyroCorrector};
+use std::path::Path;
+
+use anyhow::Context;
+use imu_fsda::core::ImuSample;
+use imu_fsda::infer::{BiasCorrector, GyroCorrector, ModelCorrector};
+use imu_fsda::model::predict::{correct_with_torchscript, metadata_path};
+
+/// Largest difference allowed between the deployed TorchScript file and the streaming form
+/// at start-up (f32 vs f64 arithmetic), rad/s.
+const SELF_CHECK_TOLERANCE: f64 = 1e-5;
 
 /// The corrector and a status line for /diagnostics ("ok" when the model is loaded).
+/// A missing, corrupt or inconsistent model is an error here, before any input is read.
 pub fn load_corrector(model: &str) -> anyhow::Result<(Box<dyn GyroCorrector>, String)> {
     if model.is_empty() {
         tracing::warn!("no model configured: the gyro is passed through uncorrected");
         return Ok((Box::new(BiasCorrector { bias: nalgebra::Vector3::zeros() }), "no model: pass-through".into()));
     }
-    anyhow::bail!("{model}: loading models is not built yet")
+    let path = Path::new(model);
+    let mut corrector = ModelCorrector::load(path).with_context(|| format!("loading model {model} (metadata {})", metadata_path(path).display()))?;
+    self_check(path, &mut corrector).with_context(|| format!("model {model} failed its start-up check"))?;
+    tracing::info!("model {} loaded: window N = {}, {} Hz", corrector.name, corrector.window(), corrector.rate_hz);
+    Ok((Box::new(corrector), "ok".into()))
+}
+
+/// Run the TorchScript file and the streaming form on the same synthetic input (longer
+/// than the window) and require the same output: the `.pt` users deploy elsewhere and the
+/// weights the node streams must be one model.
+fn self_check(path: &Path, corrector: &mut ModelCorrector) -> anyhow::Result<()> {
+    let n = corrector.window() + 64;
+    let imu: Vec<ImuSample> = (0..n)
+        .map(|k| {
+            let t = k as f64 * 0.005;
+            ImuSample {
+                stamp_ns: k as i64 * 5_000_000,
+                gyro: nalgebra::Vector3::new(0.3 * (1.3 * t).sin(), -0.2 * (0.7 * t).cos(), 0.1 * (2.1 * t).sin()),
+                accel: nalgebra::Vector3::new(0.5 * (0.9 * t).sin(), 0.3 * (1.7 * t).cos(), 9.81),
+            }
+        })
+        .collect();
+    let (reference, _) = correct_with_torchscript(path, &imu)?;
+    let worst = imu.iter().zip(&reference).map(|(s, r)| (corrector.step(&s.gyro, &s.accel) - r).amax()).fold(0.0, f64::max);
+    corrector.reset();
+    anyhow::ensure!(worst < SELF_CHECK_TOLERANCE, "TorchScript and streaming outputs differ by {worst:.2e} rad/s (> {SELF_CHECK_TOLERANCE:e})");
+    Ok(())
 }
