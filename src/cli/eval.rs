@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
 use imu_fsda::eval::{evaluate, BaselineMethod, EvalOptions, OrientationErrors, RestDetector};
+use imu_fsda::model::predict::correct_with_torchscript;
 
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
@@ -14,6 +15,10 @@ pub struct EvalArgs {
     /// Methods to evaluate (repeat the flag); default: raw and static-bias.
     #[arg(short, long = "method", value_enum)]
     pub methods: Vec<BaselineMethod>,
+    /// Exported models to evaluate too (`.pt`/`.json`; repeatable): the TorchScript file is
+    /// run over the whole sequence, as deployed.
+    #[arg(long = "model")]
+    pub models: Vec<PathBuf>,
     /// IMU topic (sensor_msgs/Imu).
     #[arg(long, default_value = imu_fsda::bag::IMU_TOPIC)]
     pub imu_topic: String,
@@ -42,7 +47,11 @@ pub struct Row {
 }
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
-    let methods = if args.methods.is_empty() { vec![BaselineMethod::Raw, BaselineMethod::StaticBias] } else { args.methods.clone() };
+    let methods = if args.methods.is_empty() && args.models.is_empty() {
+        vec![BaselineMethod::Raw, BaselineMethod::StaticBias]
+    } else {
+        args.methods.clone()
+    };
     let opts = EvalOptions { max_gap_ns: (args.max_gap_ms * 1e6) as i64 };
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let detector = RestDetector::default();
@@ -61,7 +70,16 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                     }
                     Row { bag: name.clone(), method: m.name().into(), errors: Some(e), note }
                 }
+                Err(imu_fsda::eval::EvalError::Method { why, .. }) => Row { bag: name.clone(), method: m.name().into(), errors: None, note: why },
                 Err(e) => Row { bag: name.clone(), method: m.name().into(), errors: None, note: e.to_string() },
+            };
+            rows.push(row);
+        }
+        for model in &args.models {
+            let (gyro, meta) = correct_with_torchscript(model, &rec.imu).with_context(|| format!("model {}", model.display()))?;
+            let row = match evaluate(&rec, &gyro, &opts) {
+                Ok(e) => Row { bag: name.clone(), method: meta.name.clone(), errors: Some(e), note: format!("{:?}, N = {}", meta.mode, meta.window_n) },
+                Err(e) => Row { bag: name.clone(), method: meta.name.clone(), errors: None, note: e.to_string() },
             };
             rows.push(row);
         }

@@ -1,0 +1,130 @@
+//! The node's pipeline on a real bag (`imu-fsda replay`) against the offline full-sequence
+//! evaluation of the same model: online = offline. Also: bad model files are clear errors
+//! at start, never panics.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use imu_fsda::bag::{read_recording, BagReader, RecordingTopics};
+use imu_fsda::model::export::{export_model, ExportInfo};
+use imu_fsda::model::predict::{correct_with_torchscript, correct_with_weights_f64};
+use imu_fsda::model::{Config, Mode, Net};
+use imu_fsda::msg::{Imu, RosMessage, Vector3Stamped};
+use imu_fsda::so3::integrate_gyro;
+use tch::nn::VarStore;
+use tch::{Device, Kind, Tensor};
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_imu-fsda")
+}
+
+/// A seeded model with random weights and EuRoC-like normalisation, exported to `dir`.
+fn export_random_model(dir: &Path, mode: Mode, seed: i64) -> PathBuf {
+    tch::manual_seed(seed);
+    let vs = VarStore::new(Device::Cpu);
+    let net = Net::new(&Config::for_mode(mode), &vs.root()).unwrap();
+    net.set_normalization(&[0.0, 0.02, 0.08, 9.0, 0.0, -3.0], &[0.3, 0.3, 0.3, 1.0, 1.0, 1.0]).unwrap();
+    for _ in 0..2 {
+        let _ = net.forward_t(&(Tensor::randn([2, 600, 6], (Kind::Float, Device::Cpu)) * 0.5), true);
+    }
+    let paths = export_model(dir, "random", &vs, &net, &ExportInfo::default()).unwrap();
+    paths.torchscript
+}
+
+fn euroc_bag(dir: &Path) -> Option<PathBuf> {
+    let seq = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/euroc/V1_01_easy");
+    if !seq.is_dir() {
+        assert!(std::env::var_os("CI").is_none(), "../shared/data missing in CI");
+        eprintln!("SKIPPED: ../shared/data not found");
+        return None;
+    }
+    let bag = dir.join("v101.mcap");
+    let out = Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    Some(bag)
+}
+
+#[test]
+fn replay_equals_offline_full_sequence_evaluation() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(bag) = euroc_bag(dir.path()) else { return };
+    for (mode, seed) in [(Mode::FsdaF, 3), (Mode::Digdl, 4)] {
+        let model = export_random_model(dir.path(), mode, seed);
+        let out_bag = dir.path().join(format!("replayed-{mode:?}.mcap"));
+        let out = Command::new(bin()).args(["replay", "--model"]).arg(&model).arg(&bag).arg("-o").arg(&out_bag).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+
+        let (rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
+        let mut online = Vec::new();
+        let mut orientation = Vec::new();
+        let mut corrections = Vec::new();
+        for m in BagReader::open(&out_bag).unwrap() {
+            let m = m.unwrap();
+            match &*m.topic {
+                "/imu/denoised" => {
+                    let msg = Imu::decode(&m.data).unwrap();
+                    assert_eq!(msg.header.frame_id, "imu_link");
+                    online.push((msg.header.stamp.to_ns(), nalgebra::Vector3::from(msg.angular_velocity)));
+                    orientation.push(msg.orientation);
+                }
+                "/imu/gyro_correction" => corrections.push(nalgebra::Vector3::from(Vector3Stamped::decode(&m.data).unwrap().vector)),
+                _ => {}
+            }
+        }
+        assert_eq!(online.len(), rec.imu.len(), "one output per input");
+        assert!(online.iter().zip(&rec.imu).all(|((t, _), s)| *t == s.stamp_ns), "stamps passed through");
+
+        let (f32_ref, _) = correct_with_torchscript(&model, &rec.imu).unwrap();
+        let (f64_ref, _) = correct_with_weights_f64(&model, &rec.imu).unwrap();
+        let max_f32 = online.iter().zip(&f32_ref).map(|((_, w), r)| (w - r).amax()).fold(0.0, f64::max);
+        let max_f64 = online.iter().zip(&f64_ref).map(|((_, w), r)| (w - r).amax()).fold(0.0, f64::max);
+        eprintln!("{mode:?}: online vs offline TorchScript (f32) max |Δω| = {max_f32:.2e} rad/s; vs f64 weights {max_f64:.2e} rad/s");
+        assert!(max_f32 < 1e-5, "{max_f32}");
+        assert!(max_f64 < 1e-9, "{max_f64}");
+        let max_corr = corrections.iter().zip(&online).zip(&rec.imu).map(|((c, (_, w)), s)| (c - (w - s.gyro)).amax()).fold(0.0, f64::max);
+        assert!(max_corr < 1e-12);
+
+        // The published orientation is the open-loop integral of the published gyro from the
+        // node's initial attitude (gravity after 0.5 s), with the real dt.
+        let k0 = orientation.iter().position(|q| q.w != 1.0 || q.x != 0.0).unwrap();
+        let q0 = orientation[k0].to_unit().unwrap();
+        let gyro: Vec<_> = online.iter().map(|(_, w)| *w).collect();
+        let path = integrate_gyro(&rec.imu[k0..], q0, |n| gyro[k0 + n]);
+        let worst = path.iter().zip(&orientation[k0..]).map(|(a, b)| a.angle_to(&b.to_unit().unwrap())).fold(0.0, f64::max);
+        assert!(worst < 1e-9, "orientation differs from offline integration by {worst} rad");
+    }
+}
+
+#[test]
+fn bad_model_files_are_clear_errors_at_start() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("tiny.mcap");
+    let rec = imu_fsda::core::Recording {
+        name: "tiny".into(),
+        imu: (0..50).map(|k| imu_fsda::core::ImuSample { stamp_ns: k * 5_000_000, gyro: Default::default(), accel: nalgebra::Vector3::new(0.0, 0.0, 9.81) }).collect(),
+        ..Default::default()
+    };
+    imu_fsda::bag::write_recording(&bag, &rec).unwrap();
+    let run = |model: &Path| {
+        let out = Command::new(bin()).args(["replay", "--model"]).arg(model).arg(&bag).arg("-o").arg(dir.path().join("o.mcap")).output().unwrap();
+        assert!(!out.status.success());
+        assert_eq!(out.status.code(), Some(1), "an error exit, not a crash");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = run(&dir.path().join("missing.pt"));
+    assert!(err.contains("missing"), "{err}");
+
+    let model = export_random_model(dir.path(), Mode::Fsda, 5);
+    std::fs::write(model.with_extension("ot"), b"garbage").unwrap();
+    let err = run(&model);
+    assert!(err.contains("random"), "{err}");
+
+    // Weights of one architecture under the metadata of another: a shape mismatch.
+    let model = export_random_model(dir.path(), Mode::Digdl, 6);
+    let meta_path = model.with_extension("json");
+    let mut meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&meta_path).unwrap()).unwrap();
+    meta["config"]["digdl"]["hidden_channels"] = serde_json::json!([8, 16, 32, 64]);
+    std::fs::write(&meta_path, serde_json::to_string(&meta).unwrap()).unwrap();
+    let err = run(&model);
+    assert!(err.contains("loading model"), "{err}");
+}
