@@ -77,6 +77,56 @@ impl GyroCorrector for ModelCorrector {
     }
 }
 
+/// The naive approach, for benchmarks: keep the last N samples and run the whole window
+/// through the network (tch) for every new sample, keeping only the last output. Same
+/// outputs as the streaming form (up to f32), cost proportional to N.
+pub struct FullWindowCorrector {
+    net: crate::model::InferenceNet,
+    window: Vec<ImuSample>,
+    n: usize,
+    name: String,
+}
+
+impl FullWindowCorrector {
+    pub fn new(net: crate::model::InferenceNet, name: &str) -> Self {
+        let n = net.receptive_field() as usize;
+        FullWindowCorrector { net, window: Vec::with_capacity(n), n, name: format!("{name} (naive full window)") }
+    }
+}
+
+impl GyroCorrector for FullWindowCorrector {
+    fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64> {
+        let s = ImuSample { stamp_ns: 0, gyro: *gyro, accel: *accel };
+        if self.window.is_empty() {
+            // The model's causal padding: the first sample replicated to the left.
+            self.window.resize(self.n, s);
+        }
+        self.window.rotate_left(1);
+        if let Some(last) = self.window.last_mut() {
+            *last = s;
+        }
+        let input = crate::model::predict::imu_tensor(&self.window, tch::Kind::Float);
+        let out = tch::no_grad(|| self.net.forward(&input));
+        let last = out.select(1, self.n as i64 - 1).reshape([3]).to_kind(tch::Kind::Double);
+        match Vec::<f64>::try_from(last) {
+            Ok(v) => Vector3::new(v[0], v[1], v[2]),
+            Err(_) => *gyro,
+        }
+    }
+    fn reset(&mut self) {
+        self.window.clear();
+    }
+    fn window(&self) -> usize {
+        self.n
+    }
+    fn rate_hz(&self) -> Option<f64> {
+        None
+    }
+    fn name(&self) -> &str {
+        &self.name
+    }
+}
+
 /// Pipeline settings (the node reads them from its ROS parameters).
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 #[serde(default)]

@@ -1,6 +1,7 @@
 //! Subcommands of `imu-fsda`, one file each.
 
 mod bag;
+mod bench;
 mod corrector;
 mod eval;
 mod import;
@@ -42,6 +43,8 @@ pub enum Command {
     Replay(replay::ReplayArgs),
     /// Publish a bag onto DDS at its recorded rate, like `ros2 bag play`.
     Play(play::PlayArgs),
+    /// Measure the node's per-sample cost (incremental vs naive) and memory.
+    Bench(bench::BenchArgs),
 }
 
 pub fn init_tracing(verbose: u8) {
@@ -66,5 +69,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Node(a) => node::run(a),
         Command::Replay(a) => replay::run(a),
         Command::Play(a) => play::run(a),
+        Command::Bench(a) => bench::run(a),
     }
 }

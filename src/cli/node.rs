@@ -32,6 +32,10 @@ pub struct NodeArgs {
     /// Print the final statistics as JSON on exit.
     #[arg(long)]
     pub stats_json: bool,
+    /// Benchmarks only: run the naive full-window forward per sample instead of the
+    /// incremental model (same outputs up to f32, cost proportional to N).
+    #[arg(long)]
+    pub naive_full_window: bool,
 }
 
 pub fn load_params(path: Option<&PathBuf>, node_name: &str, remaps: &[String], model: Option<&String>) -> anyhow::Result<NodeParams> {
@@ -51,7 +55,18 @@ pub fn load_params(path: Option<&PathBuf>, node_name: &str, remaps: &[String], m
 pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     let params = load_params(args.params.as_ref(), &args.node_name, &args.remaps, args.model.as_ref())?;
     let env = RosEnvironment::from_env()?;
-    let (corrector, status) = load_corrector(&params.model)?;
+    let (corrector, status) = if args.naive_full_window {
+        anyhow::ensure!(!params.model.is_empty(), "--naive-full-window needs a model");
+        let loaded = imu_fsda::model::export::load_net(
+            &imu_fsda::model::predict::metadata_path(std::path::Path::new(&params.model)),
+            tch::Device::Cpu,
+        )?;
+        let c: Box<dyn imu_fsda::infer::GyroCorrector> =
+            Box::new(imu_fsda::infer::FullWindowCorrector::new(loaded.net.inference(), &loaded.metadata.name));
+        (c, "ok".to_string())
+    } else {
+        load_corrector(&params.model)?
+    };
     let pipeline = Pipeline::new(corrector, params.pipeline.clone());
     let limits = RunLimits { max_messages: args.max_messages, idle_exit: args.idle_exit_s.map(Duration::from_secs_f64) };
     // Inference beside an async runtime: one intra-op thread (toolchain.md: sporadic 10–20×

@@ -3,12 +3,13 @@
 
 use std::collections::HashMap;
 use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use imu_fsda::bag::BagReader;
 use imu_fsda::msg::{DiagnosticArray, Imu, Odometry, PoseStamped, RosMessage, Temperature, Time, Vector3Stamped};
-use imu_fsda::node::{ros_type_name, RosEnvironment};
+use imu_fsda::node::{ros_type_name, LatencyHistogram, RosEnvironment};
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile};
 
 #[derive(Debug, clap::Args)]
@@ -33,6 +34,11 @@ pub struct PlayArgs {
     /// DDS history depth of the publishers (reliable).
     #[arg(long, default_value_t = 1000)]
     pub queue_depth: usize,
+    /// Measure end-to-end latency: subscribe to this sensor_msgs/Imu topic (e.g. the node's
+    /// /imu/denoised) and time each output from the moment its input was published,
+    /// matched by header stamp. Prints p50/p99 at the end.
+    #[arg(long)]
+    pub latency_topic: Option<String>,
 }
 
 enum AnyPublisher {
@@ -135,6 +141,17 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     } else {
         None
     };
+    let sent_at: Arc<Mutex<HashMap<i64, Instant>>> = Arc::default();
+    let latency: Arc<Mutex<(LatencyHistogram, u64)>> = Arc::default();
+    let latency_sub = match &args.latency_topic {
+        Some(t) => {
+            let name = Name::parse(t).map_err(|e| anyhow::anyhow!("topic {t}: {e:?}"))?;
+            let reliable = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 1000 });
+            let topic = node.create_topic(&name, ros_type_name(Imu::TYPE_NAME), &reliable).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            Some(node.create_subscription::<Imu>(&topic, Some(reliable)).map_err(|e| anyhow::anyhow!("{e:?}"))?)
+        }
+        None => None,
+    };
     let spinner = node.spinner().map_err(|e| anyhow::anyhow!("{e:?}"))?;
     let spin = tokio::spawn(async move {
         let _ = spinner.spin().await;
@@ -160,6 +177,22 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
         tokio::time::sleep(Duration::from_millis(300)).await;
     }
 
+    let measuring = latency_sub.map(|sub| {
+        let (sent_at, latency) = (sent_at.clone(), latency.clone());
+        tokio::spawn(async move {
+            let stream = sub.async_stream();
+            futures::pin_mut!(stream);
+            while let Some(item) = futures::StreamExt::next(&mut stream).await {
+                let Ok((msg, _)) = item else { continue };
+                let now = Instant::now();
+                if let Some(t) = sent_at.lock().expect("lock").remove(&msg.header.stamp.to_ns()) {
+                    let mut l = latency.lock().expect("lock");
+                    l.0.record(now.duration_since(t));
+                    l.1 += 1;
+                }
+            }
+        })
+    });
     let start = Instant::now();
     let mut first_log: Option<u64> = None;
     let mut sent = 0u64;
@@ -177,13 +210,32 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
         if let Some(c) = &clock_pub {
             let _ = c.async_publish(Clock { clock: Time::from_ns(m.log_time_ns as i64) }).await;
         }
+        if measuring.is_some() && matches!(p, AnyPublisher::Imu(_)) {
+            if let Ok(msg) = Imu::decode(&m.data) {
+                sent_at.lock().expect("lock").insert(msg.header.stamp.to_ns(), Instant::now());
+            }
+        }
         p.publish(&m.data).await.with_context(|| format!("{} message at {} ns", m.topic, m.log_time_ns))?;
         sent += 1;
     }
-    // Let reliable writers flush before the participant goes away.
-    tokio::time::sleep(Duration::from_millis(500)).await;
+    let elapsed = start.elapsed().as_secs_f64();
+    // Let reliable writers flush (and late outputs arrive) before the participant goes away.
+    tokio::time::sleep(Duration::from_millis(if measuring.is_some() { 1500 } else { 500 })).await;
+    if let Some(task) = measuring {
+        task.abort();
+    }
     node.stop_spinner();
     spin.abort();
-    println!("played {sent} messages from {} in {:.2} s", args.input.display(), start.elapsed().as_secs_f64());
+    println!("played {sent} messages from {} in {elapsed:.2} s", args.input.display());
+    if let Some(t) = &args.latency_topic {
+        let l = latency.lock().expect("lock");
+        let missing = sent_at.lock().expect("lock").len();
+        println!(
+            "latency publish → {t}: {} outputs matched, {missing} inputs without output; p50 {:.0} µs, p99 {:.0} µs",
+            l.1,
+            l.0.quantile_us(0.5),
+            l.0.quantile_us(0.99)
+        );
+    }
     Ok(())
 }

@@ -1,0 +1,174 @@
+//! `imu-fsda bench`: per-sample cost of the node's path, printed as figures.
+//!
+//! Measures, on one core and in the same run: sustained throughput of
+//! decode (CDR) → correct → integrate → encode (CDR) with the incremental (streaming)
+//! model and with the naive approach (a full-window tch forward per sample), and the
+//! resident memory over an hour of simulated 200 Hz input.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Context;
+use imu_fsda::core::ImuSample;
+use imu_fsda::infer::{FullWindowCorrector, GyroCorrector, ModelCorrector, Pipeline, PipelineConfig};
+use imu_fsda::model::export::{export_model, ExportInfo};
+use imu_fsda::model::{Config, Mode, Net};
+use imu_fsda::msg::{Imu, RosMessage};
+use imu_fsda::node::fill_denoised;
+use nalgebra::Vector3;
+
+#[derive(Debug, clap::Args)]
+pub struct BenchArgs {
+    /// Model to benchmark (`.pt`/`.json`); default: a seeded FSDA-F model of the paper's shape.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Samples for the incremental throughput run.
+    #[arg(long, default_value_t = 50_000)]
+    pub samples: usize,
+    /// Samples for the naive full-window run (it is slow).
+    #[arg(long, default_value_t = 400)]
+    pub naive_samples: usize,
+    /// Hours of simulated 200 Hz input for the memory run (0 = skip).
+    #[arg(long, default_value_t = 1.0)]
+    pub memory_hours: f64,
+    /// Write the figures as JSON here too.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Also save the seeded default model here (for the DDS latency script).
+    #[arg(long)]
+    pub save_model: Option<PathBuf>,
+}
+
+/// A synthetic 200 Hz stream (motion + gravity), encoded as the node receives it.
+fn encoded_stream(n: usize) -> Vec<Vec<u8>> {
+    (0..n)
+        .map(|k| {
+            let t = k as f64 * 0.005;
+            let s = ImuSample {
+                stamp_ns: 1_000_000_000 + k as i64 * 5_000_000,
+                gyro: Vector3::new(0.3 * (1.3 * t).sin(), -0.2 * (0.7 * t).cos(), 0.1 * (2.1 * t).sin() + 0.08),
+                accel: Vector3::new(0.5 * (0.9 * t).sin(), 0.3 * (1.7 * t).cos(), 9.81),
+            };
+            Imu::from_sample(&s, "imu_link").encode().expect("encode")
+        })
+        .collect()
+}
+
+/// decode → push → fill → encode for every message; samples/s.
+fn throughput(pipeline: &mut Pipeline, input: &[Vec<u8>]) -> anyhow::Result<f64> {
+    let mut out = Vec::with_capacity(512);
+    let start = Instant::now();
+    for bytes in input {
+        let mut msg = Imu::decode(bytes)?;
+        if let Ok(c) = pipeline.push(&msg.sample()) {
+            fill_denoised(&mut msg, &c);
+            msg.encode_into(&mut out)?;
+        }
+        std::hint::black_box(&out);
+    }
+    Ok(input.len() as f64 / start.elapsed().as_secs_f64())
+}
+
+fn rss_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| s.lines().find(|l| l.starts_with("VmRSS:")).and_then(|l| l.split_whitespace().nth(1)).and_then(|v| v.parse().ok()))
+        .unwrap_or(0)
+}
+
+pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    tch::set_num_threads(1);
+    let tmp = tempfile::tempdir()?;
+    let model = match &args.model {
+        Some(m) => m.clone(),
+        None => {
+            tch::manual_seed(0);
+            let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+            let net = Net::new(&Config::for_mode(Mode::FsdaF), &vs.root())?;
+            net.set_normalization(&[0.0, 0.02, 0.08, 9.0, 0.0, -3.0], &[0.3, 0.3, 0.3, 1.0, 1.0, 1.0])?;
+            let dir = args.save_model.clone().unwrap_or_else(|| tmp.path().to_path_buf());
+            export_model(&dir, "bench-fsda-f", &vs, &net, &ExportInfo::default())?.torchscript
+        }
+    };
+    let loaded = imu_fsda::model::export::load_net(&imu_fsda::model::predict::metadata_path(&model), tch::Device::Cpu)
+        .context("loading the model")?;
+    let n = loaded.net.receptive_field() as usize;
+    let cfg = PipelineConfig { nominal_rate_hz: 200.0, ..Default::default() };
+
+    let input = encoded_stream(args.samples.max(1));
+    let mut incremental = Pipeline::new(Box::new(ModelCorrector::load(&model)?), cfg.clone());
+    // Warm the caches and the window first.
+    throughput(&mut incremental, &input[..input.len().min(2 * n)])?;
+    let inc = throughput(&mut incremental, &input)?;
+
+    let naive_in = &input[..args.naive_samples.max(1).min(input.len())];
+    let mut naive = Pipeline::new(Box::new(FullWindowCorrector::new(loaded.net.inference(), &loaded.metadata.name)), cfg.clone());
+    throughput(&mut naive, &naive_in[..naive_in.len().min(20)])?;
+    let nai = throughput(&mut naive, naive_in)?;
+
+    println!("model: {} ({:?}), window N = {n}", loaded.metadata.name, loaded.metadata.mode);
+    println!("decode → correct → integrate → encode, one thread:");
+    println!("  incremental (streaming) : {inc:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / inc, input.len());
+    println!("  naive full-window (tch) : {nai:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / nai, naive_in.len());
+    println!("  speed-up                : {:>12.1}×", inc / nai);
+    println!("  target ≥ 20,000 samples/s: {}", if inc >= 20_000.0 { "met" } else { "NOT met" });
+
+    let mut memory = Vec::new();
+    if args.memory_hours > 0.0 {
+        let total = (args.memory_hours * 3600.0 * 200.0) as usize;
+        let mut p = Pipeline::new(Box::new(StreamingDenoiserCorrector(ModelCorrector::load(&model)?)), cfg);
+        let chunk = encoded_stream(20_000);
+        let mut done = 0usize;
+        let mut stamp_offset = 0i64;
+        memory.push((0.0, rss_kib()));
+        while done < total {
+            for bytes in &chunk {
+                let mut msg = Imu::decode(bytes)?;
+                let mut s = msg.sample();
+                s.stamp_ns += stamp_offset;
+                if let Ok(c) = p.push(&s) {
+                    fill_denoised(&mut msg, &c);
+                }
+            }
+            done += chunk.len();
+            stamp_offset += chunk.len() as i64 * 5_000_000;
+            if done % 144_000 < chunk.len() || done >= total {
+                memory.push((done as f64 / 200.0 / 3600.0, rss_kib()));
+            }
+        }
+        println!("resident memory over {:.2} h of simulated 200 Hz input ({} samples):", args.memory_hours, total);
+        for (h, kib) in &memory {
+            println!("  after {h:>5.2} h: {:>8.1} MiB", *kib as f64 / 1024.0);
+        }
+    }
+    if let Some(path) = &args.json {
+        let v = serde_json::json!({
+            "model": loaded.metadata.name, "window_n": n,
+            "incremental_samples_per_s": inc, "naive_samples_per_s": nai,
+            "memory_kib": memory.iter().map(|(h, k)| serde_json::json!({"hours": h, "rss_kib": k})).collect::<Vec<_>>(),
+        });
+        std::fs::write(path, serde_json::to_string_pretty(&v)?)?;
+    }
+    Ok(())
+}
+
+/// The model corrector, by value (the memory run owns its own).
+struct StreamingDenoiserCorrector(ModelCorrector);
+
+impl GyroCorrector for StreamingDenoiserCorrector {
+    fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64> {
+        self.0.step(gyro, accel)
+    }
+    fn reset(&mut self) {
+        self.0.reset()
+    }
+    fn window(&self) -> usize {
+        self.0.window()
+    }
+    fn rate_hz(&self) -> Option<f64> {
+        self.0.rate_hz()
+    }
+    fn name(&self) -> &str {
+        self.0.name()
+    }
+}
