@@ -179,7 +179,8 @@ impl BagReader {
         // A corrupt length field must not make the reader allocate it (no record can be
         // longer than the file), and a damaged chunk must be an error, not altered data.
         let file_len = file.metadata().map(|m| m.len()).unwrap_or(0) as usize;
-        let options = mcap::sans_io::LinearReaderOptions::default().with_record_length_limit(file_len.max(1 << 26)).with_validate_chunk_crcs(true);
+        let options =
+            mcap::sans_io::LinearReaderOptions::default().with_record_length_limit(file_len.max(1 << 26)).with_validate_chunk_crcs(true);
         let inner = mcap::io::MessageReader::new_with_options(BufReader::with_capacity(1 << 16, file), options);
         Ok(BagReader { path, inner, topics: BTreeMap::new(), count: 0 })
     }

@@ -101,12 +101,19 @@ fn bad_model_files_are_clear_errors_at_start() {
     let bag = dir.path().join("tiny.mcap");
     let rec = imu_fsda::core::Recording {
         name: "tiny".into(),
-        imu: (0..50).map(|k| imu_fsda::core::ImuSample { stamp_ns: k * 5_000_000, gyro: Default::default(), accel: nalgebra::Vector3::new(0.0, 0.0, 9.81) }).collect(),
+        imu: (0..50)
+            .map(|k| imu_fsda::core::ImuSample {
+                stamp_ns: k * 5_000_000,
+                gyro: Default::default(),
+                accel: nalgebra::Vector3::new(0.0, 0.0, 9.81),
+            })
+            .collect(),
         ..Default::default()
     };
     imu_fsda::bag::write_recording(&bag, &rec).unwrap();
     let run = |model: &Path| {
-        let out = Command::new(bin()).args(["replay", "--model"]).arg(model).arg(&bag).arg("-o").arg(dir.path().join("o.mcap")).output().unwrap();
+        let out =
+            Command::new(bin()).args(["replay", "--model"]).arg(model).arg(&bag).arg("-o").arg(dir.path().join("o.mcap")).output().unwrap();
         assert!(!out.status.success());
         assert_eq!(out.status.code(), Some(1), "an error exit, not a crash");
         String::from_utf8_lossy(&out.stderr).into_owned()

@@ -20,7 +20,8 @@ pub fn load_corrector(model: &str) -> anyhow::Result<(Box<dyn GyroCorrector>, St
         return Ok((Box::new(BiasCorrector { bias: nalgebra::Vector3::zeros() }), "no model: pass-through".into()));
     }
     let path = Path::new(model);
-    let mut corrector = ModelCorrector::load(path).with_context(|| format!("loading model {model} (metadata {})", metadata_path(path).display()))?;
+    let mut corrector =
+        ModelCorrector::load(path).with_context(|| format!("loading model {model} (metadata {})", metadata_path(path).display()))?;
     self_check(path, &mut corrector).with_context(|| format!("model {model} failed its start-up check"))?;
     tracing::info!("model {} loaded: window N = {}, {} Hz", corrector.name, corrector.window(), corrector.rate_hz);
     Ok((Box::new(corrector), "ok".into()))
@@ -44,6 +45,9 @@ fn self_check(path: &Path, corrector: &mut ModelCorrector) -> anyhow::Result<()>
     let (reference, _) = correct_with_torchscript(path, &imu)?;
     let worst = imu.iter().zip(&reference).map(|(s, r)| (corrector.step(&s.gyro, &s.accel) - r).amax()).fold(0.0, f64::max);
     corrector.reset();
-    anyhow::ensure!(worst < SELF_CHECK_TOLERANCE, "TorchScript and streaming outputs differ by {worst:.2e} rad/s (> {SELF_CHECK_TOLERANCE:e})");
+    anyhow::ensure!(
+        worst < SELF_CHECK_TOLERANCE,
+        "TorchScript and streaming outputs differ by {worst:.2e} rad/s (> {SELF_CHECK_TOLERANCE:e})"
+    );
     Ok(())
 }

@@ -70,7 +70,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                     }
                     Row { bag: name.clone(), method: m.name().into(), errors: Some(e), note }
                 }
-                Err(imu_fsda::eval::EvalError::Method { why, .. }) => Row { bag: name.clone(), method: m.name().into(), errors: None, note: why },
+                Err(imu_fsda::eval::EvalError::Method { why, .. }) => {
+                    Row { bag: name.clone(), method: m.name().into(), errors: None, note: why }
+                }
                 Err(e) => Row { bag: name.clone(), method: m.name().into(), errors: None, note: e.to_string() },
             };
             rows.push(row);
@@ -78,7 +80,12 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         for model in &args.models {
             let (gyro, meta) = correct_with_torchscript(model, &rec.imu).with_context(|| format!("model {}", model.display()))?;
             let row = match evaluate(&rec, &gyro, &opts) {
-                Ok(e) => Row { bag: name.clone(), method: meta.name.clone(), errors: Some(e), note: format!("{:?}, N = {}", meta.mode, meta.window_n) },
+                Ok(e) => Row {
+                    bag: name.clone(),
+                    method: meta.name.clone(),
+                    errors: Some(e),
+                    note: format!("{:?}, N = {}", meta.mode, meta.window_n),
+                },
                 Err(e) => Row { bag: name.clone(), method: meta.name.clone(), errors: None, note: e.to_string() },
             };
             rows.push(row);
