@@ -967,3 +967,35 @@ fn corrupted_bags_are_clean_errors() {
         sweep(&files[source], "flip", source.starts_with("mcap_ros2"));
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// 5. The simulator's committed bags and a replay output, read by the independent libraries.
+
+#[test]
+fn simulator_and_replay_bags_match_independent_readers() {
+    let Some(py) = python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let bags: Vec<PathBuf> = std::fs::read_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    assert!(bags.len() >= 4, "test_bags/ should hold one bag per profile");
+    // A replay adds /imu/denoised, /imu/gyro_correction and /diagnostics beside the inputs.
+    let replayed = dir.path().join("replayed.mcap");
+    let out = Command::new(env!("CARGO_BIN_EXE_imu-fsda"))
+        .args(["replay", "--model", ""])
+        .arg(&bags[0])
+        .arg("-o")
+        .arg(&replayed)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for bag in bags.iter().chain([&replayed]) {
+        let report = run_py(&py, "check_bag.py", &[bag]);
+        assert_eq!(report["header"]["profile"], "ros2", "{}", bag.display());
+        let n = report["statistics"]["message_count"].as_u64().unwrap();
+        assert!(n > 1000, "{}: {n} messages", bag.display());
+        assert_eq!(report["rosbags_checked"], n, "{}", bag.display());
+    }
+}
