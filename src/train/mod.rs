@@ -1,1 +1,17 @@
-//! Training (in progress).
+//! The offline trainer (`imu-fsda train`): the paper's FSDA-F (MAML on the Embedding), FSDA
+//! (the framework without meta-learning) and the DIGDL baseline, on EuRoC / TUM-VI sequence
+//! folders or MCAP bags, with TorchScript export. See docs/training.md.
+//!
+//! Files: [`config`] (the YAML), [`data`] (recordings → checked tasks, windows,
+//! normalisation), [`optim`] (Adam with saveable state), [`checkpoint`], [`report`] (the
+//! run's JSON), [`fit`] (the loop).
+
+pub mod checkpoint;
+pub mod config;
+pub mod data;
+pub mod fit;
+pub mod optim;
+pub mod report;
+
+pub use config::TrainConfig;
+pub use fit::{train, RunOptions};

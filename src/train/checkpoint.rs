@@ -1,0 +1,112 @@
+//! Checkpoints: `<out>/<name>.ckpt.ot` (every VarStore variable as `vs.<path>`, Adam's
+//! moments as `adam.{m,v}.<path>`, and, when a best model is being kept, its variables as
+//! `best.<path>`) plus `<name>.ckpt.json` ([`CheckpointMeta`]: the epoch reached, Adam's step
+//! count, the seed, the config, the loss history and evaluations so far).
+//!
+//! What resumes exactly: weights, BatchNorm statistics, Adam's moments and step count, the
+//! learning-rate schedule position (a function of the epoch), and the random streams — every
+//! epoch reseeds tch and the window sampler from (seed, epoch), so epoch k draws the same
+//! windows, noise and dropout masks whether or not the run was interrupted before it. Not
+//! bit-exact: libtorch's multi-threaded reductions may sum in another order.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use tch::{nn::VarStore, Tensor};
+
+use super::config::TrainConfig;
+use super::optim::Adam;
+use super::report::{EpochRecord, SequenceEvals};
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CheckpointMeta {
+    pub format_version: u32,
+    /// Epochs completed (the next epoch to run).
+    pub epoch: usize,
+    pub adam_step: i64,
+    pub seed: u64,
+    pub config: TrainConfig,
+    pub history: Vec<EpochRecord>,
+    pub validation: Vec<SequenceEvals>,
+    /// Epoch and mean validation AOE of the best model kept so far.
+    pub best: Option<(usize, f64)>,
+    /// Seconds of training before this checkpoint (for the time per epoch).
+    pub train_seconds: f64,
+}
+
+pub fn paths(out_dir: &Path, name: &str) -> (PathBuf, PathBuf) {
+    (out_dir.join(format!("{name}.ckpt.ot")), out_dir.join(format!("{name}.ckpt.json")))
+}
+
+/// Writes both files (each through a temporary and a rename).
+pub fn save(
+    out_dir: &Path,
+    name: &str,
+    vs: &VarStore,
+    adam: &Adam,
+    best: Option<&BTreeMap<String, Tensor>>,
+    meta: &CheckpointMeta,
+) -> anyhow::Result<PathBuf> {
+    std::fs::create_dir_all(out_dir)?;
+    let (ot, json) = paths(out_dir, name);
+    let mut named: Vec<(String, Tensor)> = vs.variables().into_iter().map(|(n, t)| (format!("vs.{n}"), t)).collect();
+    named.extend(adam.state());
+    if let Some(best) = best {
+        named.extend(best.iter().map(|(n, t)| (format!("best.{n}"), t.shallow_clone())));
+    }
+    let tmp = ot.with_extension("ot.tmp");
+    Tensor::save_multi(&named, &tmp)?;
+    std::fs::rename(&tmp, &ot)?;
+    let tmp = json.with_extension("json.tmp");
+    std::fs::write(&tmp, serde_json::to_string_pretty(meta)?)?;
+    std::fs::rename(&tmp, &json)?;
+    Ok(json)
+}
+
+/// Everything a checkpoint holds.
+pub struct Loaded {
+    pub meta: CheckpointMeta,
+    pub tensors: BTreeMap<String, Tensor>,
+}
+
+/// Reads a checkpoint given its `.ckpt.json` or `.ckpt.ot` path.
+pub fn load(path: &Path) -> anyhow::Result<Loaded> {
+    let s = path.to_string_lossy();
+    let stem = s.trim_end_matches(".json").trim_end_matches(".ot").to_string();
+    let json = PathBuf::from(format!("{stem}.json"));
+    let ot = PathBuf::from(format!("{stem}.ot"));
+    let meta: CheckpointMeta = serde_json::from_str(
+        &std::fs::read_to_string(&json).map_err(|e| anyhow::anyhow!("{}: {e} (resume takes the .ckpt.json path)", json.display()))?,
+    )
+    .map_err(|e| anyhow::anyhow!("{}: not a checkpoint: {e}", json.display()))?;
+    if meta.format_version != 1 {
+        anyhow::bail!("{}: checkpoint format {} (expected 1)", json.display(), meta.format_version);
+    }
+    let tensors = Tensor::load_multi(&ot).map_err(|e| anyhow::anyhow!("{}: {e}", ot.display()))?.into_iter().collect();
+    Ok(Loaded { meta, tensors })
+}
+
+/// Copies the `prefix.`-named tensors into `vs`; every variable must be present.
+pub fn restore_vars(vs: &VarStore, tensors: &BTreeMap<String, Tensor>, prefix: &str) -> anyhow::Result<()> {
+    for (n, mut t) in vs.variables() {
+        let key = format!("{prefix}.{n}");
+        let src = tensors.get(&key).ok_or_else(|| anyhow::anyhow!("checkpoint lacks {key}"))?;
+        if src.size() != t.size() {
+            anyhow::bail!("{key}: shape {:?} in the checkpoint, {:?} in the model", src.size(), t.size());
+        }
+        tch::no_grad(|| t.copy_(src));
+    }
+    Ok(())
+}
+
+/// Detached copies of every variable (for keeping the best model).
+pub fn snapshot(vs: &VarStore) -> BTreeMap<String, Tensor> {
+    vs.variables().into_iter().map(|(n, t)| (n, t.detach().copy())).collect()
+}
+
+/// Puts a snapshot back.
+pub fn restore_snapshot(vs: &VarStore, snap: &BTreeMap<String, Tensor>) -> anyhow::Result<()> {
+    let prefixed: BTreeMap<String, Tensor> = snap.iter().map(|(n, t)| (format!("s.{n}"), t.shallow_clone())).collect();
+    restore_vars(vs, &prefixed, "s")
+}

@@ -1,0 +1,392 @@
+//! The trainer's typed configuration: one YAML file with three sections,
+//! `model` (a [`crate::model::Config`], starting from the mode's defaults), `dataset`
+//! (where the recordings are and how they are split) and `train` (optimiser, schedule,
+//! windows, augmentation, loss, MAML). Unknown keys are errors.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::model::{Config as ModelConfig, LossConfig, Mode};
+
+/// The whole file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    /// The network (`mode: digdl | fsda | fsda_f` picks the training strategy too).
+    pub model: ModelConfig,
+    pub dataset: DatasetConfig,
+    pub train: TrainSettings,
+}
+
+/// One recording: an ASL sequence folder (EuRoC / TUM-VI) or an MCAP bag.
+#[derive(Debug, Clone, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct SourceConfig {
+    /// ASL sequence folder (`<seq>/mav0/imu0/data.csv` …), relative to `dataset.root`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sequence: Option<String>,
+    /// MCAP bag, relative to `dataset.root`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bag: Option<String>,
+    /// IMU topic of a bag (default `/imu/data`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub imu_topic: Option<String>,
+    /// Ground-truth topic of a bag (default `/ground_truth/pose`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ground_truth_topic: Option<String>,
+    /// Keep only IMU samples from this many seconds after the first ground-truth-covered one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_s: Option<f64>,
+    /// … up to this many seconds after it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub end_s: Option<f64>,
+    /// Display name (default: the folder or file name, with the crop appended).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+}
+
+impl SourceConfig {
+    pub fn describe(&self) -> String {
+        let what = self.sequence.as_deref().or(self.bag.as_deref()).unwrap_or("?");
+        match (self.start_s, self.end_s) {
+            (None, None) => what.to_string(),
+            (a, b) => format!("{what} [{}–{} s]", a.unwrap_or(0.0), b.map_or("end".to_string(), |b| b.to_string())),
+        }
+    }
+}
+
+/// Where the data is and how it is split.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetConfig {
+    /// Base of relative source paths; relative to the config file's folder.
+    #[serde(default = "default_root")]
+    pub root: PathBuf,
+    /// Training tasks (one per recording; the paper's tasks are sequences / domains).
+    pub train: Vec<SourceConfig>,
+    /// Held out, evaluated every `train.eval_every` epochs (and used to pick the best model
+    /// when `train.select_best`).
+    #[serde(default)]
+    pub validation: Vec<SourceConfig>,
+    /// Evaluated once, with the final (exported) model.
+    #[serde(default)]
+    pub test: Vec<SourceConfig>,
+    /// Support set: the first this-many seconds of each training task (the paper: ~60 s);
+    /// the rest is the query set. Only FSDA-F splits; the other modes train on everything.
+    #[serde(default = "default_support_s")]
+    pub support_seconds: f64,
+    /// Ground truth is interpolated between poses at most this far apart, ms.
+    #[serde(default = "default_interp_gap")]
+    pub max_interpolation_gap_ms: f64,
+    /// An IMU sample's ground truth counts (in the loss) only if the nearest ground-truth
+    /// pose is at most this far away, ms (DIGDL on TUM-VI: 10 ms).
+    #[serde(default = "default_nearest")]
+    pub max_nearest_gt_ms: f64,
+}
+
+fn default_root() -> PathBuf {
+    PathBuf::from(".")
+}
+fn default_support_s() -> f64 {
+    60.0
+}
+fn default_interp_gap() -> f64 {
+    50.0
+}
+fn default_nearest() -> f64 {
+    10.0
+}
+
+/// Learning-rate schedule, stepped once per epoch.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Schedule {
+    Constant,
+    /// PyTorch's `CosineAnnealingWarmRestarts(T_0, T_mult, eta_min)` (DIGDL: 600, 2, 0).
+    CosineWarmRestarts {
+        t0: usize,
+        t_mult: usize,
+        #[serde(default)]
+        eta_min: f64,
+    },
+}
+
+impl Schedule {
+    /// Learning rate for `epoch` (0-based) from base rate `lr`.
+    pub fn lr(&self, lr: f64, epoch: usize) -> f64 {
+        match *self {
+            Schedule::Constant => lr,
+            Schedule::CosineWarmRestarts { t0, t_mult, eta_min } => {
+                let (mut t_i, mut t_cur) = (t0.max(1), epoch);
+                while t_cur >= t_i {
+                    t_cur -= t_i;
+                    t_i *= t_mult.max(1);
+                }
+                eta_min + (lr - eta_min) * (1.0 + (std::f64::consts::PI * t_cur as f64 / t_i as f64).cos()) / 2.0
+            }
+        }
+    }
+}
+
+/// Noise added to the training inputs (DIGDL's augmentation).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Augment {
+    /// White noise on the gyro, rad/s (std).
+    pub gyro_noise_std: f64,
+    /// White noise on the accelerometer, m/s² (std).
+    pub accel_noise_std: f64,
+    /// A constant gyro offset per window, uniform in ±this, rad/s.
+    pub gyro_offset: f64,
+}
+
+impl Default for Augment {
+    fn default() -> Self {
+        Self { gyro_noise_std: 8e-5, accel_noise_std: 1e-3, gyro_offset: 1e-3 }
+    }
+}
+
+/// The few-shot (MAML) strategy of FSDA-F.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MamlConfig {
+    /// α: inner (task) learning rate of plain gradient descent on θ_e.
+    pub inner_lr: f64,
+    /// Inner gradient steps per task.
+    pub inner_steps: usize,
+    /// First-order MAML (no gradient through the inner gradient).
+    pub first_order: bool,
+    /// Windows drawn from each task's support set per epoch, and their length (samples).
+    pub support_windows: usize,
+    pub support_window_samples: usize,
+    /// Windows drawn from each task's query set per epoch, and their length (samples).
+    pub query_windows: usize,
+    pub query_window_samples: usize,
+}
+
+impl Default for MamlConfig {
+    fn default() -> Self {
+        Self {
+            inner_lr: 1e-3,
+            inner_steps: 1,
+            first_order: false,
+            support_windows: 1,
+            support_window_samples: 4000,
+            query_windows: 1,
+            query_window_samples: 4000,
+        }
+    }
+}
+
+/// Optimisation.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainSettings {
+    /// Seed of everything random (tch and the window sampler); `--seed` overrides.
+    #[serde(default)]
+    pub seed: u64,
+    /// Epochs; one epoch = one optimiser step on one batch (DIGDL's definition).
+    pub epochs: usize,
+    /// Adam (PyTorch semantics: L2 weight decay added to the gradient).
+    #[serde(default = "default_lr")]
+    pub lr: f64,
+    #[serde(default = "default_wd")]
+    pub weight_decay: f64,
+    #[serde(default = "default_schedule")]
+    pub schedule: Schedule,
+    /// Windows per training sequence per epoch (DIGDL and FSDA), and their length (DIGDL:
+    /// 16000 samples, one window per sequence, all sequences in one batch).
+    #[serde(default = "default_one")]
+    pub windows_per_sequence: usize,
+    #[serde(default = "default_window")]
+    pub window_samples: usize,
+    #[serde(default)]
+    pub augment: Augment,
+    #[serde(default)]
+    pub loss: LossConfig,
+    #[serde(default)]
+    pub maml: MamlConfig,
+    /// Held-out evaluation period, epochs (0: only at the end).
+    #[serde(default)]
+    pub eval_every: usize,
+    /// Checkpoint period, epochs (0: only at the end).
+    #[serde(default)]
+    pub checkpoint_every: usize,
+    /// Export the epoch with the lowest mean validation AOE instead of the last one.
+    #[serde(default)]
+    pub select_best: bool,
+    /// libtorch intra-op threads.
+    #[serde(default = "default_threads")]
+    pub threads: i32,
+}
+
+fn default_lr() -> f64 {
+    0.01
+}
+fn default_wd() -> f64 {
+    0.1
+}
+fn default_schedule() -> Schedule {
+    Schedule::CosineWarmRestarts { t0: 600, t_mult: 2, eta_min: 0.0 }
+}
+fn default_one() -> usize {
+    1
+}
+fn default_window() -> usize {
+    16000
+}
+fn default_threads() -> i32 {
+    2
+}
+
+/// A config file that could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: {msg}")]
+    Parse { path: PathBuf, msg: String },
+    #[error("{path}: {msg}")]
+    Invalid { path: PathBuf, msg: String },
+}
+
+impl TrainConfig {
+    /// Reads and checks a config file; `dataset.root` is made absolute against the file's
+    /// folder. The `model` section starts from [`ModelConfig::for_mode`] of its `mode`, so
+    /// `model: {mode: digdl}` gets all of DIGDL's published settings.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io { path: path.into(), source })?;
+        let mut cfg = Self::parse(&text).map_err(|msg| ConfigError::Parse { path: path.into(), msg })?;
+        if cfg.dataset.root.is_relative() {
+            let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+            cfg.dataset.root = base.join(&cfg.dataset.root);
+        }
+        cfg.validate().map_err(|msg| ConfigError::Invalid { path: path.into(), msg })?;
+        Ok(cfg)
+    }
+
+    /// Parses YAML text (no path resolution).
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let mut doc: serde_yaml::Value = serde_yaml::from_str(text).map_err(|e| e.to_string())?;
+        let map = doc.as_mapping_mut().ok_or("expected a mapping with model, dataset and train")?;
+        let mut model = map.get("model").cloned().unwrap_or(serde_yaml::Value::Mapping(Default::default()));
+        // The CLI spelling `fsda-f` is accepted beside serde's `fsda_f`.
+        if let Some(m) = model.as_mapping_mut().and_then(|m| m.get_mut("mode")) {
+            if m.as_str() == Some("fsda-f") {
+                *m = "fsda_f".into();
+            }
+        }
+        let mode: Mode = match model.get("mode") {
+            Some(m) => serde_yaml::from_value(m.clone()).map_err(|e| format!("model.mode: {e}"))?,
+            None => Mode::FsdaF,
+        };
+        let mut merged = serde_yaml::to_value(ModelConfig::for_mode(mode)).map_err(|e| e.to_string())?;
+        if let (Some(base), Some(over)) = (merged.as_mapping_mut(), model.as_mapping()) {
+            for (k, v) in over {
+                if base.get(k).is_none() {
+                    return Err(format!("model: unknown key {k:?}"));
+                }
+                base.insert(k.clone(), v.clone());
+            }
+        }
+        map.insert("model".into(), merged);
+        serde_yaml::from_value(doc).map_err(|e| e.to_string())
+    }
+
+    /// Checks values that serde cannot.
+    pub fn validate(&self) -> Result<(), String> {
+        self.model.validate().map_err(|e| format!("model: {e}"))?;
+        let t = &self.train;
+        if self.dataset.train.is_empty() {
+            return Err("dataset.train is empty".into());
+        }
+        for (what, list) in [("train", &self.dataset.train), ("validation", &self.dataset.validation), ("test", &self.dataset.test)] {
+            for (i, s) in list.iter().enumerate() {
+                if s.sequence.is_some() == s.bag.is_some() {
+                    return Err(format!("dataset.{what}[{i}]: give exactly one of `sequence` or `bag`"));
+                }
+                if let (Some(a), Some(b)) = (s.start_s, s.end_s) {
+                    if !is_after(a, b) {
+                        return Err(format!("dataset.{what}[{i}]: end_s {b} must be after start_s {a}"));
+                    }
+                }
+            }
+        }
+        if t.epochs == 0 {
+            return Err("train.epochs must be ≥ 1".into());
+        }
+        if !positive(t.lr) || !non_negative(t.weight_decay) {
+            return Err("train.lr must be > 0 and train.weight_decay ≥ 0".into());
+        }
+        if t.windows_per_sequence == 0 || t.maml.support_windows == 0 || t.maml.query_windows == 0 {
+            return Err("window counts must be ≥ 1".into());
+        }
+        let min_window = self.train.loss.increments.iter().map(|i| i.samples).max().unwrap_or(1) as usize
+            * (self.train.loss.skip_first_increments as usize + 1);
+        for (what, w) in [
+            ("train.window_samples", t.window_samples),
+            ("train.maml.support_window_samples", t.maml.support_window_samples),
+            ("train.maml.query_window_samples", t.maml.query_window_samples),
+        ] {
+            if w <= min_window {
+                return Err(format!("{what} = {w}: must exceed {min_window} samples (the longest increment × (skipped increments + 1))"));
+            }
+        }
+        if self.model.mode == Mode::FsdaF && !positive(self.dataset.support_seconds) {
+            return Err("dataset.support_seconds must be > 0 for fsda_f".into());
+        }
+        if !non_negative(t.maml.inner_lr) || t.maml.inner_steps == 0 {
+            return Err("train.maml.inner_lr must be ≥ 0 and inner_steps ≥ 1".into());
+        }
+        if t.threads < 1 {
+            return Err("train.threads must be ≥ 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// Finite and > 0 (NaN is not).
+fn positive(x: f64) -> bool {
+    x.is_finite() && x > 0.0
+}
+
+/// Finite and ≥ 0 (NaN is not).
+fn non_negative(x: f64) -> bool {
+    x.is_finite() && x >= 0.0
+}
+
+/// `b` strictly after `a`, both finite.
+fn is_after(a: f64, b: f64) -> bool {
+    a.is_finite() && b.is_finite() && b > a
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cosine_warm_restarts_match_pytorch() {
+        let s = Schedule::CosineWarmRestarts { t0: 600, t_mult: 2, eta_min: 0.0 };
+        assert_eq!(s.lr(0.01, 0), 0.01);
+        assert!((s.lr(0.01, 300) - 0.005).abs() < 1e-12);
+        assert_eq!(s.lr(0.01, 600), 0.01); // restart
+        assert!((s.lr(0.01, 600 + 600) - 0.005).abs() < 1e-12); // half of the 1200-epoch cycle
+        assert_eq!(s.lr(0.01, 1800), 0.01);
+    }
+
+    #[test]
+    fn model_section_starts_from_mode_defaults() {
+        let text = "model: {mode: digdl}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3}\n";
+        let cfg = TrainConfig::parse(text).unwrap();
+        assert_eq!(cfg.model, ModelConfig::for_mode(Mode::Digdl));
+        assert!(TrainConfig::parse("model: {mode: digdl, nope: 1}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3}\n").is_err());
+        assert!(TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3, bogus: 1}\n").is_err());
+        let both = TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a, bag: b}]}\ntrain: {epochs: 3}\n").unwrap();
+        assert!(both.validate().unwrap_err().contains("exactly one"));
+    }
+}

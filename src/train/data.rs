@@ -1,0 +1,312 @@
+//! Training data: recordings (ASL sequence folders or MCAP bags) turned into tasks.
+//!
+//! Each recording is checked before any training starts (ground truth present, overlapping
+//! the IMU in time, every sample finite, long enough for the window / support set), cropped
+//! to the span its ground truth covers, and kept as tensors:
+//! - `imu [T, 6]` f32 raw (rad/s, m/s²);
+//! - `dt [T]` f64 from the real stamps, `dt_k = t_{k+1} − t_k` (the last entry repeats the
+//!   previous one; the loss never uses it);
+//! - `gt [T, 4]` f64 (w, x, y, z) `world_from_body` slerped at the IMU stamps (never across a
+//!   gap longer than `max_interpolation_gap_ms`), NaN where there is none;
+//! - `valid [T]`: ground truth present and the nearest pose ≤ `max_nearest_gt_ms` away (DIGDL's
+//!   TUM-VI rule, 10 ms); the loss drops every increment spanning an invalid sample.
+//!
+//! A task's support set is its first `support_seconds`, the query set the rest (paper §III-B).
+
+use std::path::{Path, PathBuf};
+
+use rand::Rng;
+use tch::Tensor;
+
+use super::config::{DatasetConfig, SourceConfig};
+use crate::bag::{read_recording, RecordingTopics, GROUND_TRUTH_TOPIC, IMU_TOPIC};
+use crate::core::Recording;
+use crate::dataset::load_sequence;
+use crate::so3::slerp_at;
+
+/// Why a recording cannot be used; every one is reported before training starts.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("{source_name}: {msg}")]
+    Load { source_name: String, msg: String },
+    #[error("{0}: no ground truth (a bag needs a ground-truth topic such as {GROUND_TRUTH_TOPIC}; training and evaluation need it)")]
+    NoGroundTruth(String),
+    #[error("{name}: ground truth ({gt_start:.3}–{gt_end:.3} s) does not overlap the IMU ({imu_start:.3}–{imu_end:.3} s) in time")]
+    NoOverlap { name: String, imu_start: f64, imu_end: f64, gt_start: f64, gt_end: f64 },
+    #[error("{name}: {count} non-finite (NaN/inf) {what} in the data; fix or drop them before training")]
+    NonFinite { name: String, what: &'static str, count: u64 },
+    #[error("{name}: {samples} IMU samples ({seconds:.1} s) with ground truth, shorter than {needed}")]
+    TooShort { name: String, samples: usize, seconds: f64, needed: String },
+    #[error("{name}: crop start_s {start} s is past the end of the ground-truth-covered data ({seconds:.1} s)")]
+    EmptyCrop { name: String, start: f64, seconds: f64 },
+}
+
+/// One recording ready for training or evaluation.
+#[derive(Debug)]
+pub struct Task {
+    pub name: String,
+    /// Where it came from (config spelling).
+    pub source: String,
+    /// The cropped recording (IMU over the ground-truth span, all ground truth kept), for
+    /// [`crate::eval::evaluate`].
+    pub rec: Recording,
+    pub imu: Tensor,
+    pub dt: Tensor,
+    pub gt: Tensor,
+    pub valid: Tensor,
+    /// First index of the query set (= the support set's length).
+    pub support_end: usize,
+    /// Fraction of samples with valid ground truth.
+    pub valid_fraction: f64,
+}
+
+impl Task {
+    pub fn len(&self) -> usize {
+        self.rec.imu.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rec.imu.is_empty()
+    }
+
+    pub fn seconds(&self) -> f64 {
+        self.rec.imu_seconds()
+    }
+}
+
+/// A batch of windows, `[B, W, …]`.
+#[derive(Debug)]
+pub struct Batch {
+    pub imu: Tensor,
+    pub dt: Tensor,
+    pub gt: Tensor,
+    pub valid: Tensor,
+}
+
+fn resolve(root: &Path, rel: &str) -> PathBuf {
+    let p = Path::new(rel);
+    if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        root.join(p)
+    }
+}
+
+/// Reads one source as it is on disk (no cropping), with the input checks.
+pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataError> {
+    let described = src.describe();
+    let load_err = |msg: String| DataError::Load { source_name: described.clone(), msg };
+    let (mut rec, report) = if let Some(seq) = &src.sequence {
+        let (_, rec, report) = load_sequence(&resolve(root, seq)).map_err(|e| load_err(e.to_string()))?;
+        (rec, report)
+    } else {
+        let bag = src.bag.as_deref().expect("validated: sequence or bag");
+        let topics = RecordingTopics {
+            imu: src.imu_topic.clone().unwrap_or_else(|| IMU_TOPIC.into()),
+            ground_truth: Some(src.ground_truth_topic.clone().unwrap_or_else(|| GROUND_TRUTH_TOPIC.into())),
+            temperature: None,
+        };
+        read_recording(resolve(root, bag), &topics).map_err(|e| load_err(e.to_string()))?
+    };
+    let name = src.name.clone().unwrap_or_else(|| {
+        let base = src.sequence.as_deref().or(src.bag.as_deref()).unwrap_or("?");
+        let stem = Path::new(base).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| base.to_string());
+        let stem = stem.trim_start_matches("dataset-").trim_end_matches("_512_16").to_string();
+        match (src.start_s, src.end_s) {
+            (None, None) => stem,
+            (a, b) => format!("{stem}@{}-{}s", a.unwrap_or(0.0), b.map_or("end".into(), |b| b.to_string())),
+        }
+    });
+    rec.name = name.clone();
+    if report.imu_non_finite > 0 {
+        return Err(DataError::NonFinite { name, what: "IMU samples", count: report.imu_non_finite });
+    }
+    if report.ground_truth_invalid > 0 {
+        return Err(DataError::NonFinite { name, what: "ground-truth poses", count: report.ground_truth_invalid });
+    }
+    if rec.ground_truth.is_empty() {
+        return Err(DataError::NoGroundTruth(name));
+    }
+    Ok(rec)
+}
+
+/// Ground truth at the IMU stamps and its validity (see the module doc).
+pub fn ground_truth_at_imu(rec: &Recording, cfg: &DatasetConfig) -> (Vec<Option<nalgebra::UnitQuaternion<f64>>>, Vec<bool>) {
+    let stamps: Vec<i64> = rec.imu.iter().map(|s| s.stamp_ns).collect();
+    let gt = slerp_at(&rec.ground_truth, stamps.iter().copied(), (cfg.max_interpolation_gap_ms * 1e6) as i64);
+    let nearest_max = (cfg.max_nearest_gt_ms * 1e6) as i64;
+    let mut valid = Vec::with_capacity(stamps.len());
+    let mut j = 0usize;
+    let poses = &rec.ground_truth;
+    for (t, g) in stamps.iter().zip(&gt) {
+        while j + 1 < poses.len() && poses[j + 1].stamp_ns <= *t {
+            j += 1;
+        }
+        let mut d = (poses[j].stamp_ns - t).abs();
+        if j + 1 < poses.len() {
+            d = d.min((poses[j + 1].stamp_ns - t).abs());
+        }
+        valid.push(g.is_some() && d <= nearest_max);
+    }
+    (gt, valid)
+}
+
+/// Loads, checks and crops one source into a task. `min_samples` (with its description)
+/// is the shortest usable length.
+pub fn load_task(root: &Path, src: &SourceConfig, cfg: &DatasetConfig, support_seconds: Option<f64>) -> Result<Task, DataError> {
+    let rec = read_source(root, src)?;
+    let (gt, valid) = ground_truth_at_imu(&rec, cfg);
+    let first = gt.iter().position(Option::is_some);
+    let last = gt.iter().rposition(Option::is_some);
+    let (Some(first), Some(last)) = (first, last) else {
+        let (i0, i1) = (rec.imu[0].stamp_ns, rec.imu[rec.imu.len() - 1].stamp_ns);
+        let (g0, g1) = (rec.ground_truth[0].stamp_ns, rec.ground_truth[rec.ground_truth.len() - 1].stamp_ns);
+        return Err(DataError::NoOverlap {
+            name: rec.name.clone(),
+            imu_start: i0 as f64 * 1e-9,
+            imu_end: i1 as f64 * 1e-9,
+            gt_start: g0 as f64 * 1e-9,
+            gt_end: g1 as f64 * 1e-9,
+        });
+    };
+    // Optional crop, in seconds from the first covered sample.
+    let t0 = rec.imu[first].stamp_ns;
+    let covered_s = (rec.imu[last].stamp_ns - t0) as f64 * 1e-9;
+    let in_crop = |i: usize| {
+        let s = (rec.imu[i].stamp_ns - t0) as f64 * 1e-9;
+        src.start_s.is_none_or(|a| s >= a) && src.end_s.is_none_or(|b| s <= b)
+    };
+    let Some(a) = (first..=last).find(|&i| in_crop(i)) else {
+        return Err(DataError::EmptyCrop { name: rec.name.clone(), start: src.start_s.unwrap_or(0.0), seconds: covered_s });
+    };
+    let b = (a..=last).rev().find(|&i| in_crop(i)).unwrap_or(a);
+    let imu = rec.imu[a..=b].to_vec();
+    let gt = &gt[a..=b];
+    let valid = &valid[a..=b];
+    let n = imu.len();
+    let cropped = Recording { name: rec.name.clone(), imu, ground_truth: rec.ground_truth, temperature: Vec::new() };
+
+    let flat: Vec<f32> =
+        cropped.imu.iter().flat_map(|s| [s.gyro.x, s.gyro.y, s.gyro.z, s.accel.x, s.accel.y, s.accel.z]).map(|v| v as f32).collect();
+    let mut dt: Vec<f64> = cropped.imu.windows(2).map(|w| (w[1].stamp_ns - w[0].stamp_ns) as f64 * 1e-9).collect();
+    dt.push(dt.last().copied().unwrap_or(0.005));
+    let gt_flat: Vec<f64> = gt
+        .iter()
+        .flat_map(|q| match q {
+            Some(q) => [q.w, q.i, q.j, q.k],
+            None => [f64::NAN; 4],
+        })
+        .collect();
+    let valid_count = valid.iter().filter(|v| **v).count();
+    let support_end = match support_seconds {
+        Some(s) => {
+            let t0 = cropped.imu[0].stamp_ns;
+            cropped.imu.iter().position(|x| (x.stamp_ns - t0) as f64 * 1e-9 >= s).unwrap_or(n)
+        }
+        None => 0,
+    };
+    Ok(Task {
+        name: cropped.name.clone(),
+        source: src.describe(),
+        imu: Tensor::from_slice(&flat).reshape([n as i64, 6]),
+        dt: Tensor::from_slice(&dt),
+        gt: Tensor::from_slice(&gt_flat).reshape([n as i64, 4]),
+        valid: Tensor::from_slice(valid),
+        support_end,
+        valid_fraction: valid_count as f64 / n.max(1) as f64,
+        rec: cropped,
+    })
+}
+
+/// Per-channel mean and std over every IMU sample of the tasks (f64).
+pub fn normalization(tasks: &[Task]) -> ([f64; 6], [f64; 6]) {
+    let mut sum = [0.0f64; 6];
+    let mut sq = [0.0f64; 6];
+    let mut n = 0.0f64;
+    for t in tasks {
+        for s in &t.rec.imu {
+            let v = [s.gyro.x, s.gyro.y, s.gyro.z, s.accel.x, s.accel.y, s.accel.z];
+            for c in 0..6 {
+                sum[c] += v[c];
+                sq[c] += v[c] * v[c];
+            }
+            n += 1.0;
+        }
+    }
+    let mean = sum.map(|s| s / n.max(1.0));
+    let mut std = [0.0; 6];
+    for c in 0..6 {
+        std[c] = ((sq[c] / n.max(1.0) - mean[c] * mean[c]).max(0.0)).sqrt().max(1e-9);
+    }
+    (mean, std)
+}
+
+/// `count` random windows of `len` samples from index range `range` of each task, stacked
+/// into one batch (order: task-major).
+pub fn sample_windows<R: Rng>(tasks: &[&Task], range: impl Fn(&Task) -> (usize, usize), count: usize, len: usize, rng: &mut R) -> Batch {
+    let mut imu = Vec::new();
+    let mut dt = Vec::new();
+    let mut gt = Vec::new();
+    let mut valid = Vec::new();
+    for t in tasks {
+        let (a, b) = range(t);
+        assert!(b >= a + len, "{}: range {a}..{b} shorter than window {len} (checked at load)", t.name);
+        for _ in 0..count {
+            let start = rng.gen_range(a..=b - len) as i64;
+            imu.push(t.imu.narrow(0, start, len as i64));
+            dt.push(t.dt.narrow(0, start, len as i64));
+            gt.push(t.gt.narrow(0, start, len as i64));
+            valid.push(t.valid.narrow(0, start, len as i64));
+        }
+    }
+    Batch { imu: Tensor::stack(&imu, 0), dt: Tensor::stack(&dt, 0), gt: Tensor::stack(&gt, 0), valid: Tensor::stack(&valid, 0) }
+}
+
+/// Minimum length checks for a training task.
+pub fn check_length(task: &Task, needed: usize, what: &str, available: usize) -> Result<(), DataError> {
+    if available < needed {
+        return Err(DataError::TooShort {
+            name: task.name.clone(),
+            samples: available,
+            seconds: available as f64 / task.rec.imu_rate_hz().max(1e-9),
+            needed: format!("{what} ({needed} samples)"),
+        });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::{ImuSample, PoseSample};
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    fn dcfg() -> DatasetConfig {
+        DatasetConfig {
+            root: ".".into(),
+            train: vec![],
+            validation: vec![],
+            test: vec![],
+            support_seconds: 60.0,
+            max_interpolation_gap_ms: 50.0,
+            max_nearest_gt_ms: 10.0,
+        }
+    }
+
+    #[test]
+    fn gt_gaps_are_masked_by_nearest_pose() {
+        let imu: Vec<ImuSample> =
+            (0..100).map(|i| ImuSample { stamp_ns: i * 5_000_000, gyro: Vector3::zeros(), accel: Vector3::zeros() }).collect();
+        // Poses every 8 ms, with a 40 ms hole between 200 and 240 ms.
+        let ground_truth: Vec<PoseSample> = (0..70)
+            .map(|i| i * 8_000_000)
+            .filter(|t| !(*t > 200_000_000 && *t < 240_000_000))
+            .map(|t| PoseSample { stamp_ns: t, position_in_world: Vector3::zeros(), world_from_body: UnitQuaternion::identity() })
+            .collect();
+        let rec = Recording { name: "x".into(), imu, ground_truth, temperature: vec![] };
+        let (gt, valid) = ground_truth_at_imu(&rec, &dcfg());
+        assert!(gt[44].is_some()); // 220 ms: interpolated across the 40 ms hole …
+        assert!(!valid[44]); // … but 20 ms from the nearest pose: masked
+        assert!(valid[10] && valid[60]);
+    }
+}

@@ -1,0 +1,498 @@
+//! The training loop: data checks, normalisation, the three strategies, schedule,
+//! held-out evaluation, checkpoints, best-model selection and export.
+//!
+//! One epoch = one optimiser step (DIGDL's definition):
+//! - `digdl`, `fsda`: one batch of `windows_per_sequence` random `window_samples`-sample
+//!   windows from every training recording; `L = L^R + γ L^D` (`L^R` only for FSDA).
+//! - `fsda_f` (paper Alg. 1): for every task i, windows from its support set (first
+//!   `support_seconds`), `inner_steps` steps θ_e' = θ_e − α ∇_{θ_e} L_support (second order:
+//!   the gradient is part of the graph; `first_order` detaches it); then windows from its query
+//!   set give L_query(θ_e', θ_r, θ_g). The mean over tasks is back-propagated into θ_e, θ_r,
+//!   θ_g (and Ĉ_ω) and Adam steps them with the outer rate β (`train.lr`).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use tch::{nn::VarStore, Device, Kind, Tensor};
+
+use super::checkpoint::{self, CheckpointMeta};
+use super::config::{Augment, TrainConfig};
+use super::data::{self, Batch, Task};
+use super::optim::Adam;
+use super::report::{EpochRecord, SequenceEvals, TaskInfo, TestResult, TrainSummary};
+use crate::eval::{evaluate, EvalOptions, OrientationErrors};
+use crate::model::export::{export_model, ExportInfo};
+use crate::model::loss::total_loss;
+use crate::model::predict::correct_with_net;
+use crate::model::{ForwardOptions, Mode, Net};
+
+/// How to run (the CLI's flags).
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    pub seed: Option<u64>,
+    pub resume: Option<PathBuf>,
+    pub out_dir: PathBuf,
+    pub name: String,
+    /// Override `train.epochs`.
+    pub epochs: Option<usize>,
+    /// Draw the progress bar (on stderr, only when it is a terminal).
+    pub progress: bool,
+}
+
+/// All recordings of a run, loaded and checked.
+pub struct Datasets {
+    pub train: Vec<Task>,
+    pub validation: Vec<Task>,
+    pub test: Vec<Task>,
+}
+
+/// Loads every source and runs every check that can fail, before anything is trained.
+pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
+    let d = &cfg.dataset;
+    let t = &cfg.train;
+    let maml = cfg.model.mode == Mode::FsdaF;
+    let mut train = Vec::new();
+    for src in &d.train {
+        let task = data::load_task(&d.root, src, d, maml.then_some(d.support_seconds))?;
+        if maml {
+            if task.support_end >= task.len() {
+                let needed = format!("the support set ({} s) plus a query set", d.support_seconds);
+                data::check_length(&task, task.len() + 1, &needed, task.len())?;
+            }
+            data::check_length(&task, t.maml.support_window_samples, "the support window", task.support_end)?;
+            data::check_length(
+                &task,
+                t.maml.query_window_samples,
+                "the query window (after the support set)",
+                task.len() - task.support_end,
+            )?;
+        } else {
+            data::check_length(&task, t.window_samples, "the training window", task.len())?;
+        }
+        tracing::info!(
+            "train {}: {} samples, {:.1} s, support {} samples, {:.1}% with ground truth",
+            task.name,
+            task.len(),
+            task.seconds(),
+            task.support_end,
+            100.0 * task.valid_fraction
+        );
+        train.push(task);
+    }
+    let load_eval = |list: &[super::config::SourceConfig]| -> anyhow::Result<Vec<Task>> {
+        list.iter().map(|src| Ok(data::load_task(&d.root, src, d, None)?)).collect()
+    };
+    Ok(Datasets { train, validation: load_eval(&d.validation)?, test: load_eval(&d.test)? })
+}
+
+fn eval_opts(cfg: &TrainConfig) -> EvalOptions {
+    EvalOptions { max_gap_ns: (cfg.dataset.max_interpolation_gap_ms * 1e6) as i64 }
+}
+
+/// Raw-gyro errors of a recording.
+pub fn evaluate_raw(task: &Task, opts: &EvalOptions) -> anyhow::Result<OrientationErrors> {
+    let gyro: Vec<_> = task.rec.imu.iter().map(|s| s.gyro).collect();
+    Ok(evaluate(&task.rec, &gyro, opts)?)
+}
+
+/// Errors of the model (eval mode, BatchNorm folded, the meta-learned θ_e as exported).
+pub fn evaluate_net(net: &Net, task: &Task, opts: &EvalOptions) -> anyhow::Result<OrientationErrors> {
+    let inf = net.inference();
+    let gyro = correct_with_net(&inf, &task.rec.imu)?;
+    Ok(evaluate(&task.rec, &gyro, opts)?)
+}
+
+fn augment(u: &Tensor, a: &Augment) -> Tensor {
+    let (b, t) = (u.size()[0], u.size()[1]);
+    let opts = (Kind::Float, Device::Cpu);
+    let mut noise_std = Tensor::from_slice(&[
+        a.gyro_noise_std,
+        a.gyro_noise_std,
+        a.gyro_noise_std,
+        a.accel_noise_std,
+        a.accel_noise_std,
+        a.accel_noise_std,
+    ])
+    .to_kind(Kind::Float);
+    noise_std = noise_std.reshape([1, 1, 6]);
+    let noise = Tensor::randn([b, t, 6], opts) * noise_std;
+    let offset = (Tensor::rand([b, 1, 3], opts) * 2.0 - 1.0) * a.gyro_offset;
+    let offset = Tensor::cat(&[offset, Tensor::zeros([b, 1, 3], opts)], 2);
+    u + noise + offset
+}
+
+struct StepLosses {
+    loss: f64,
+    increment: f64,
+    reconstruction: Option<f64>,
+    support: Option<f64>,
+}
+
+fn scalar(t: &Tensor) -> f64 {
+    t.double_value(&[])
+}
+
+/// DIGDL / FSDA: one batch from all recordings, gradients accumulated into the variables.
+fn plain_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
+    let t = &cfg.train;
+    let refs: Vec<&Task> = tasks.iter().collect();
+    let batch: Batch = data::sample_windows(&refs, |x| (0, x.len()), t.windows_per_sequence, t.window_samples, rng);
+    let u = augment(&batch.imu, &t.augment);
+    let reconstruct = cfg.model.mode.has_embedding();
+    let out = net.forward_with(&u, &ForwardOptions { train: true, reconstruct, embedding_params: None });
+    let terms = total_loss(&t.loss, &out, &batch.dt, &batch.gt, Some(&batch.valid));
+    terms.total.backward();
+    StepLosses {
+        loss: scalar(&terms.total),
+        increment: scalar(&terms.increment),
+        reconstruction: terms.reconstruction.as_ref().map(scalar),
+        support: None,
+    }
+}
+
+/// FSDA-F: MAML on the Embedding (see the module doc).
+fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
+    let t = &cfg.train;
+    let m = &t.maml;
+    let theta = net.embedding_parameters();
+    let n = tasks.len() as f64;
+    let (mut loss, mut inc, mut rec, mut sup) = (0.0, 0.0, 0.0, 0.0);
+    for task in tasks {
+        let s = data::sample_windows(&[task], |x| (0, x.support_end), m.support_windows, m.support_window_samples, rng);
+        let q = data::sample_windows(&[task], |x| (x.support_end, x.len()), m.query_windows, m.query_window_samples, rng);
+        let mut fast: Vec<Tensor> = theta.iter().map(Tensor::shallow_clone).collect();
+        let su = augment(&s.imu, &t.augment);
+        for k in 0..m.inner_steps {
+            let out = net.forward_with(&su, &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast) });
+            let l = total_loss(&t.loss, &out, &s.dt, &s.gt, Some(&s.valid)).total;
+            if k == 0 {
+                sup += scalar(&l) / n;
+            }
+            let second = !m.first_order;
+            let grads = Tensor::run_backward(&[&l], &fast, second, second);
+            fast = fast.iter().zip(&grads).map(|(p, g)| if second { p - g * m.inner_lr } else { p - g.detach() * m.inner_lr }).collect();
+        }
+        let qu = augment(&q.imu, &t.augment);
+        let out = net.forward_with(&qu, &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast) });
+        let terms = total_loss(&t.loss, &out, &q.dt, &q.gt, Some(&q.valid));
+        (&terms.total / n).backward();
+        loss += scalar(&terms.total) / n;
+        inc += scalar(&terms.increment) / n;
+        rec += terms.reconstruction.as_ref().map_or(0.0, scalar) / n;
+    }
+    StepLosses { loss, increment: inc, reconstruction: Some(rec), support: Some(sup) }
+}
+
+fn epoch_seed(seed: u64, epoch: usize) -> i64 {
+    // SplitMix64 of (seed, epoch): independent per-epoch streams, stable across resumes.
+    let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15u64.wrapping_mul(epoch as u64 + 1));
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    ((z ^ (z >> 31)) >> 1) as i64
+}
+
+fn mean_aoe(evals: &[SequenceEvals]) -> Option<f64> {
+    let v: Vec<f64> = evals.iter().filter_map(|e| e.evals.last().map(|x| x.1.aoe_deg)).collect();
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// Trains, evaluates and exports; returns the summary (also written to `<out>/<name>.train.json`).
+pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummary> {
+    let mut cfg = cfg.clone();
+    if let Some(s) = opts.seed {
+        cfg.train.seed = s;
+    }
+    if let Some(e) = opts.epochs {
+        cfg.train.epochs = e;
+    }
+    cfg.validate().map_err(|e| anyhow::anyhow!("config: {e}"))?;
+    let seed = cfg.train.seed;
+    tch::set_num_threads(cfg.train.threads);
+    tch::manual_seed(seed as i64);
+    let mode = cfg.model.mode;
+
+    // Every check that can fail runs here, before any training.
+    let resume = opts.resume.as_deref().map(checkpoint::load).transpose()?;
+    if let Some(r) = &resume {
+        if r.meta.config.model != cfg.model {
+            anyhow::bail!("--resume: the checkpoint's model config differs from {}'s", opts.name);
+        }
+    }
+    let data = load_datasets(&cfg)?;
+    let eopts = eval_opts(&cfg);
+
+    let vs = VarStore::new(Device::Cpu);
+    let net = Net::new(&cfg.model, &vs.root())?;
+    let (mean, std) = data::normalization(&data.train);
+    net.set_normalization(&mean, &std)?;
+    let mut adam = Adam::new(&vs);
+    tracing::info!("normalisation from {} training recordings: mean {mean:?}, std {std:?}", data.train.len());
+
+    let mut history: Vec<EpochRecord> = Vec::new();
+    let mut validation: Vec<SequenceEvals> = Vec::new();
+    let mut best: Option<(usize, f64)> = None;
+    let mut best_vars: Option<BTreeMap<String, Tensor>> = None;
+    let mut start_epoch = 0;
+    let mut prior_seconds = 0.0;
+    if let Some(r) = &resume {
+        checkpoint::restore_vars(&vs, &r.tensors, "vs")?;
+        adam.load_state(r.meta.adam_step, &r.tensors).map_err(|e| anyhow::anyhow!("--resume: {e}"))?;
+        if r.meta.seed != seed {
+            tracing::warn!("resuming with seed {seed}, the checkpoint was trained with {}", r.meta.seed);
+        }
+        start_epoch = r.meta.epoch;
+        history = r.meta.history.clone();
+        validation = r.meta.validation.clone();
+        best = r.meta.best;
+        prior_seconds = r.meta.train_seconds;
+        if best.is_some() && r.tensors.keys().any(|k| k.starts_with("best.")) {
+            best_vars =
+                Some(r.tensors.iter().filter_map(|(k, t)| k.strip_prefix("best.").map(|n| (n.to_string(), t.shallow_clone()))).collect());
+        }
+        tracing::info!("resumed from {} at epoch {start_epoch}", opts.resume.as_ref().unwrap().display());
+    }
+    if validation.len() != data.validation.len() {
+        validation = data
+            .validation
+            .iter()
+            .map(|t| Ok(SequenceEvals { name: t.name.clone(), source: t.source.clone(), raw: evaluate_raw(t, &eopts)?, evals: vec![] }))
+            .collect::<anyhow::Result<_>>()?;
+    }
+    for v in &validation {
+        tracing::info!("validation {}: raw AOE {:.2}°", v.name, v.raw.aoe_deg);
+    }
+
+    let epochs = cfg.train.epochs;
+    let pb = if opts.progress {
+        ProgressBar::new(epochs as u64)
+    } else {
+        ProgressBar::with_draw_target(Some(epochs as u64), ProgressDrawTarget::hidden())
+    };
+    pb.set_style(
+        ProgressStyle::with_template("{prefix} {elapsed_precise} [{bar:25}] {pos}/{len} epochs, ETA {eta_precise} {msg}")
+            .expect("template")
+            .progress_chars("=> "),
+    );
+    pb.set_prefix(format!("{} {:?}", opts.name, mode));
+    pb.set_position(start_epoch as u64);
+    let save_ckpt = |epoch: usize,
+                     adam: &Adam,
+                     history: &[EpochRecord],
+                     validation: &[SequenceEvals],
+                     best: Option<(usize, f64)>,
+                     best_vars: Option<&BTreeMap<String, Tensor>>,
+                     seconds: f64|
+     -> anyhow::Result<PathBuf> {
+        let meta = CheckpointMeta {
+            format_version: 1,
+            epoch,
+            adam_step: adam.step,
+            seed,
+            config: cfg.clone(),
+            history: history.to_vec(),
+            validation: validation.to_vec(),
+            best,
+            train_seconds: seconds,
+        };
+        checkpoint::save(&opts.out_dir, &opts.name, &vs, adam, best_vars, &meta)
+    };
+
+    let started = Instant::now();
+    let mut ran = 0usize;
+    for epoch in start_epoch..epochs {
+        let t0 = Instant::now();
+        let es = epoch_seed(seed, epoch);
+        tch::manual_seed(es);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(epoch as u64);
+        let _: u32 = rng.gen();
+        let lr = cfg.train.schedule.lr(cfg.train.lr, epoch);
+        adam.zero_grad();
+        let l = match mode {
+            Mode::FsdaF => maml_step(&net, &cfg, &data.train, &mut rng),
+            Mode::Fsda | Mode::Digdl => plain_step(&net, &cfg, &data.train, &mut rng),
+        };
+        if !l.loss.is_finite() {
+            anyhow::bail!("epoch {epoch}: the loss is {} — lower train.lr (or train.maml.inner_lr)", l.loss);
+        }
+        let grad_norm = adam.grad_norm();
+        adam.step(lr, cfg.train.weight_decay);
+        ran += 1;
+        history.push(EpochRecord {
+            epoch,
+            lr,
+            loss: l.loss,
+            increment: l.increment,
+            reconstruction: l.reconstruction,
+            support_loss: l.support,
+            grad_norm,
+            seconds: t0.elapsed().as_secs_f64(),
+        });
+        let done = epoch + 1;
+        let mut msg = format!(
+            "loss {:.4} (L_D {:.4}{}) lr {lr:.2e}",
+            l.loss,
+            l.increment,
+            l.reconstruction.map_or(String::new(), |r| format!(", L_R {r:.4}"))
+        );
+        if let Some(s) = l.support {
+            msg.push_str(&format!(", support {s:.4}"));
+        }
+        let eval_now = cfg.train.eval_every > 0 && done % cfg.train.eval_every == 0 || done == epochs;
+        if eval_now && !data.validation.is_empty() {
+            for (v, task) in validation.iter_mut().zip(&data.validation) {
+                let e = evaluate_net(&net, task, &eopts)?;
+                v.evals.push((done, e));
+            }
+            let m = mean_aoe(&validation).unwrap_or(f64::NAN);
+            tracing::info!("epoch {done}: {msg}; validation mean AOE {m:.3}°");
+            msg.push_str(&format!(", val AOE {m:.2}°"));
+            if cfg.train.select_best && best.is_none_or(|(_, b)| m < b) {
+                best = Some((done, m));
+                best_vars = Some(checkpoint::snapshot(&vs));
+            }
+        } else if done % (epochs / 20).max(1) == 0 {
+            tracing::info!("epoch {done}: {msg}");
+        }
+        pb.set_message(msg);
+        pb.set_position(done as u64);
+        if cfg.train.checkpoint_every > 0 && done % cfg.train.checkpoint_every == 0 && done < epochs {
+            let secs = prior_seconds + started.elapsed().as_secs_f64();
+            save_ckpt(done, &adam, &history, &validation, best, best_vars.as_ref(), secs)?;
+        }
+    }
+    pb.finish();
+    let train_seconds = prior_seconds + started.elapsed().as_secs_f64();
+    let ckpt = save_ckpt(epochs, &adam, &history, &validation, best, best_vars.as_ref(), train_seconds)?;
+    tracing::info!("checkpoint {}", ckpt.display());
+
+    // The exported weights: the best validated epoch if asked, else the last.
+    let mut exported_epoch = epochs;
+    if let (true, Some((e, _)), Some(snap)) = (cfg.train.select_best, best, best_vars.as_ref()) {
+        checkpoint::restore_snapshot(&vs, snap)?;
+        exported_epoch = e;
+    }
+
+    let mut test = Vec::new();
+    for task in &data.test {
+        let raw = evaluate_raw(task, &eopts)?;
+        let model = evaluate_net(&net, task, &eopts)?;
+        tracing::info!("test {}: AOE raw {:.2}° → model {:.2}°", task.name, raw.aoe_deg, model.aoe_deg);
+        test.push(TestResult { name: task.name.clone(), source: task.source.clone(), raw, model });
+    }
+
+    let k = (history.len() / 4).clamp(1, 5);
+    let mean_of = |h: &[EpochRecord]| h.iter().map(|r| r.loss).sum::<f64>() / h.len().max(1) as f64;
+    let loss_first = mean_of(&history[..k.min(history.len())]);
+    let loss_last = mean_of(&history[history.len().saturating_sub(k)..]);
+    let seconds_per_epoch = if ran > 0 { started.elapsed().as_secs_f64() / ran as f64 } else { f64::NAN };
+
+    let mut metrics = BTreeMap::new();
+    metrics.insert("epochs".to_string(), exported_epoch as f64);
+    metrics.insert("loss_first".to_string(), loss_first);
+    metrics.insert("loss_last".to_string(), loss_last);
+    metrics.insert("train_seconds".to_string(), train_seconds);
+    metrics.insert("seconds_per_epoch".to_string(), seconds_per_epoch);
+    metrics.insert("threads".to_string(), cfg.train.threads as f64);
+    metrics.insert("seed".to_string(), seed as f64);
+    let val_at_export: Vec<(f64, f64)> = validation
+        .iter()
+        .filter_map(|v| v.evals.iter().find(|(e, _)| *e == exported_epoch).map(|(_, e)| (v.raw.aoe_deg, e.aoe_deg)))
+        .collect();
+    for (v, (raw, m)) in validation.iter().zip(&val_at_export) {
+        metrics.insert(format!("val.{}.raw_aoe_deg", v.name), *raw);
+        metrics.insert(format!("val.{}.aoe_deg", v.name), *m);
+    }
+    if !val_at_export.is_empty() {
+        let n = val_at_export.len() as f64;
+        metrics.insert("val.mean_raw_aoe_deg".into(), val_at_export.iter().map(|x| x.0).sum::<f64>() / n);
+        metrics.insert("val.mean_aoe_deg".into(), val_at_export.iter().map(|x| x.1).sum::<f64>() / n);
+    }
+    for r in &test {
+        for (k, v) in [
+            ("raw_aoe_deg", r.raw.aoe_deg),
+            ("aoe_deg", r.model.aoe_deg),
+            ("roll_rmse_deg", r.model.roll_rmse_deg),
+            ("pitch_rmse_deg", r.model.pitch_rmse_deg),
+            ("yaw_rmse_deg", r.model.yaw_rmse_deg),
+            ("tilt_rmse_deg", r.model.tilt_rmse_deg),
+            ("heading_rmse_deg", r.model.heading_rmse_deg),
+        ] {
+            metrics.insert(format!("test.{}.{k}", r.name), v);
+        }
+    }
+    if !test.is_empty() {
+        let n = test.len() as f64;
+        metrics.insert("test.mean_raw_aoe_deg".into(), test.iter().map(|r| r.raw.aoe_deg).sum::<f64>() / n);
+        metrics.insert("test.mean_aoe_deg".into(), test.iter().map(|r| r.model.aoe_deg).sum::<f64>() / n);
+    }
+
+    let training_data: Vec<String> = data
+        .train
+        .iter()
+        .map(|t| {
+            if mode == Mode::FsdaF {
+                format!(
+                    "{} (support {:.1} s + query {:.1} s)",
+                    t.source,
+                    t.support_end as f64 / t.rec.imu_rate_hz(),
+                    (t.len() - t.support_end) as f64 / t.rec.imu_rate_hz()
+                )
+            } else {
+                t.source.clone()
+            }
+        })
+        .collect();
+    let files = export_model(
+        &opts.out_dir,
+        &opts.name,
+        &vs,
+        &net,
+        &ExportInfo { training_data, metrics, code_revision: crate::model::export::code_revision() },
+    )
+    .with_context(|| format!("exporting {} to {}", opts.name, opts.out_dir.display()))?;
+
+    let summary = TrainSummary {
+        name: opts.name.clone(),
+        mode,
+        seed,
+        epochs,
+        resumed_from_epoch: resume.as_ref().map(|r| r.meta.epoch),
+        exported_epoch,
+        loss_first,
+        loss_last,
+        train_seconds,
+        seconds_per_epoch,
+        threads: cfg.train.threads,
+        tasks: data
+            .train
+            .iter()
+            .map(|t| TaskInfo {
+                name: t.name.clone(),
+                source: t.source.clone(),
+                samples: t.len(),
+                seconds: t.seconds(),
+                support_samples: t.support_end,
+                valid_fraction: t.valid_fraction,
+            })
+            .collect(),
+        validation,
+        test,
+        history,
+        model_json: files.metadata.display().to_string(),
+        config: cfg.clone(),
+    };
+    let path = summary_path(&opts.out_dir, &opts.name);
+    std::fs::write(&path, serde_json::to_string_pretty(&summary)?).with_context(|| format!("writing {}", path.display()))?;
+    Ok(summary)
+}
+
+/// `<out>/<name>.train.json`.
+pub fn summary_path(out_dir: &Path, name: &str) -> PathBuf {
+    out_dir.join(format!("{name}.train.json"))
+}

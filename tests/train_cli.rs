@@ -1,0 +1,160 @@
+//! `imu-fsda train`: the CI profile (params/train/ci-small.yaml, FSDA-F with second-order MAML
+//! on two short EuRoC tasks) learns — the loss falls and the held-out AOE beats the raw gyro —,
+//! its export loads as TorchScript, a checkpoint resumes, and bad inputs are refused with a
+//! clear message before any training starts.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use imu_fsda::bag::write_recording;
+use imu_fsda::core::{ImuSample, PoseSample, Recording};
+use imu_fsda::model::export::{load_metadata, load_torchscript};
+use nalgebra::{UnitQuaternion, Vector3};
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_imu-fsda")
+}
+
+fn manifest() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn shared_data() -> Option<PathBuf> {
+    let p = manifest().join("../shared/data");
+    if p.join("euroc").is_dir() {
+        Some(p)
+    } else {
+        assert!(std::env::var_os("CI").is_none(), "../shared/data is missing in CI");
+        eprintln!("SKIPPED: ../shared/data not found; the training test needs EuRoC");
+        None
+    }
+}
+
+fn run(cmd: &mut Command) -> Output {
+    cmd.env("RUST_LOG", "info").output().expect("spawn imu-fsda")
+}
+
+fn ok(cmd: &mut Command) -> String {
+    let out = run(cmd);
+    assert!(out.status.success(), "{cmd:?} failed:\n{}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+#[test]
+fn ci_small_learns_exports_and_resumes() {
+    let Some(_) = shared_data() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let t0 = std::time::Instant::now();
+    let printed = ok(Command::new(bin())
+        .args(["train", "--config"])
+        .arg(manifest().join("params/train/ci-small.yaml"))
+        .arg("--out-dir")
+        .arg(dir.path())
+        .args(["--name", "ci", "--no-progress"]));
+    eprintln!("{printed}(trained in {:.1} s)", t0.elapsed().as_secs_f64());
+
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("ci.train.json")).unwrap()).unwrap();
+    let (first, last) = (summary["loss_first"].as_f64().unwrap(), summary["loss_last"].as_f64().unwrap());
+    assert!(last < 0.8 * first, "loss did not fall: {first} → {last}");
+
+    let meta = load_metadata(&dir.path().join("ci.json")).unwrap();
+    let raw = meta.metrics["val.mean_raw_aoe_deg"];
+    let model = meta.metrics["val.mean_aoe_deg"];
+    assert!(model < 0.7 * raw, "held-out AOE {model}° did not improve over raw {raw}°");
+    assert!(meta.training_data.iter().any(|s| s.contains("MH_01_easy")), "{:?}", meta.training_data);
+    assert!(meta.metrics.contains_key("test.MH_04_difficult@0-40s.aoe_deg"), "{:?}", meta.metrics.keys());
+
+    let ts = load_torchscript(&dir.path().join("ci.json")).unwrap();
+    let u = tch::Tensor::zeros([1, 700, 6], (tch::Kind::Float, tch::Device::Cpu));
+    assert_eq!(ts.forward(&u).unwrap().size(), vec![1, 700, 3]);
+
+    // Resume the finished run for two more epochs: history continues, the model re-exports.
+    let printed = ok(Command::new(bin())
+        .args(["train", "--config"])
+        .arg(manifest().join("params/train/ci-small.yaml"))
+        .arg("--out-dir")
+        .arg(dir.path())
+        .args(["--name", "ci", "--no-progress", "--epochs", "62", "--resume"])
+        .arg(dir.path().join("ci.ckpt.json")));
+    assert!(printed.contains("62 epochs"), "{printed}");
+    let resumed: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("ci.train.json")).unwrap()).unwrap();
+    assert_eq!(resumed["resumed_from_epoch"].as_u64(), Some(60));
+    assert_eq!(resumed["history"].as_array().unwrap().len(), 62);
+    assert_eq!(resumed["history"][59]["loss"], summary["history"][59]["loss"]);
+}
+
+fn imu(n: usize, t0_ns: i64) -> Vec<ImuSample> {
+    (0..n)
+        .map(|i| ImuSample {
+            stamp_ns: t0_ns + i as i64 * 5_000_000,
+            gyro: Vector3::new(0.01, 0.0, 0.0),
+            accel: Vector3::new(0.0, 0.0, 9.81),
+        })
+        .collect()
+}
+
+fn poses(n: usize, t0_ns: i64) -> Vec<PoseSample> {
+    (0..n)
+        .map(|i| PoseSample {
+            stamp_ns: t0_ns + i as i64 * 5_000_000,
+            position_in_world: Vector3::zeros(),
+            world_from_body: UnitQuaternion::identity(),
+        })
+        .collect()
+}
+
+/// Trains on one bag with a small FSDA config; returns stderr of the (expected) failure.
+fn train_fails_on(dir: &Path, rec: &Recording, tag: &str) -> String {
+    let bag = dir.join(format!("{tag}.mcap"));
+    write_recording(&bag, rec).unwrap();
+    let cfg = dir.join(format!("{tag}.yaml"));
+    std::fs::write(
+        &cfg,
+        format!(
+            "model: {{mode: fsda}}\ndataset:\n  train: [{{bag: {}}}]\ntrain: {{epochs: 2, window_samples: 2000, threads: 1}}\n",
+            bag.display()
+        ),
+    )
+    .unwrap();
+    let t = std::time::Instant::now();
+    let out = run(Command::new(bin()).args(["train", "--no-progress", "--config"]).arg(&cfg).arg("--out-dir").arg(dir.join("out")));
+    assert!(!out.status.success(), "{tag}: training should have been refused");
+    assert!(!dir.join("out").join(format!("{tag}.ckpt.json")).exists(), "{tag}: trained anyway");
+    assert!(t.elapsed().as_secs_f64() < 30.0);
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+#[test]
+fn bad_inputs_are_refused_before_training() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let no_gt = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: vec![], temperature: vec![] };
+    let err = train_fails_on(d, &no_gt, "no_gt");
+    assert!(err.contains("no ground truth"), "{err}");
+
+    let short = Recording { name: "x".into(), imu: imu(1000, 0), ground_truth: poses(1000, 0), temperature: vec![] };
+    let err = train_fails_on(d, &short, "short");
+    assert!(err.contains("shorter than the training window (2000 samples)"), "{err}");
+
+    let far = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 3_600_000_000_000), temperature: vec![] };
+    let err = train_fails_on(d, &far, "no_overlap");
+    assert!(err.contains("does not overlap the IMU"), "{err}");
+
+    let mut nan = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 0), temperature: vec![] };
+    nan.imu[100].gyro.y = f64::NAN;
+    let err = train_fails_on(d, &nan, "nan");
+    assert!(err.contains("non-finite"), "{err}");
+
+    // A sequence shorter than the FSDA-F support set (60 s) plus a query set.
+    let bag = d.join("support.mcap");
+    write_recording(&bag, &Recording { name: "x".into(), imu: imu(8000, 0), ground_truth: poses(8000, 0), temperature: vec![] }).unwrap();
+    let cfg = d.join("support.yaml");
+    std::fs::write(
+        &cfg,
+        format!("model: {{mode: fsda_f}}\ndataset:\n  train: [{{bag: {}}}]\ntrain: {{epochs: 2, threads: 1}}\n", bag.display()),
+    )
+    .unwrap();
+    let out = run(Command::new(bin()).args(["train", "--no-progress", "--config"]).arg(&cfg).arg("--out-dir").arg(d.join("out")));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("shorter than the support set"), "{err}");
+}
