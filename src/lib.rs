@@ -3,6 +3,7 @@
 //! Data flows one way: bags / datasets → samples → model → corrected samples →
 //! metrics / bags / topics. See ARCHITECTURE.md for the layers.
 
+pub mod adapt;
 pub mod bag;
 pub mod core;
 pub mod dataset;

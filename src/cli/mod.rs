@@ -1,5 +1,6 @@
 //! Subcommands of `imu-fsda`, one file each.
 
+mod adapt;
 mod bag;
 mod bench;
 mod corrector;
@@ -37,6 +38,8 @@ pub enum Command {
     Simulate(simulate::SimulateArgs),
     /// Train a denoising model (FSDA-F, FSDA or DIGDL) and export it to TorchScript.
     Train(train::TrainArgs),
+    /// Few-shot adaptation of a model to a new robot/IMU from a recording with ground truth.
+    Adapt(adapt::AdaptArgs),
     /// Run the ROS 2 denoising node (subscribes raw IMU, publishes /imu/denoised).
     Node(node::NodeArgs),
     /// Run the node's pipeline over a bag and write its topics beside the input.
@@ -66,6 +69,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => eval::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Train(a) => train::run(a),
+        Command::Adapt(a) => adapt::run(a),
         Command::Node(a) => node::run(a),
         Command::Replay(a) => replay::run(a),
         Command::Play(a) => play::run(a),

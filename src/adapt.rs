@@ -1,0 +1,1 @@
+//! On-demand few-shot adaptation (in progress).
