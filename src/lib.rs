@@ -7,6 +7,7 @@ pub mod adapt;
 pub mod bag;
 pub mod core;
 pub mod dataset;
+pub mod diagnose;
 pub mod eval;
 pub mod infer;
 pub mod model;

@@ -4,6 +4,7 @@ mod adapt;
 mod bag;
 mod bench;
 mod corrector;
+mod diagnose;
 mod eval;
 mod import;
 mod node;
@@ -40,6 +41,8 @@ pub enum Command {
     Train(train::TrainArgs),
     /// Few-shot adaptation of a model to a new robot/IMU from a recording with ground truth.
     Adapt(adapt::AdaptArgs),
+    /// Sim-vs-real diagnosis: locate the mismatch, name and fit the left-out physics.
+    Diagnose(diagnose::DiagnoseArgs),
     /// Run the ROS 2 denoising node (subscribes raw IMU, publishes /imu/denoised).
     Node(node::NodeArgs),
     /// Run the node's pipeline over a bag and write its topics beside the input.
@@ -70,6 +73,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(a) => simulate::run(a),
         Command::Train(a) => train::run(a),
         Command::Adapt(a) => adapt::run(a),
+        Command::Diagnose(a) => diagnose::run(a),
         Command::Node(a) => node::run(a),
         Command::Replay(a) => replay::run(a),
         Command::Play(a) => play::run(a),

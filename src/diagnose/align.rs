@@ -1,0 +1,301 @@
+//! Load a sim bag and a real bag and put them on one time grid.
+//!
+//! The sim bag's stamps are the grid. When the real stamps are the same, nothing is done;
+//! otherwise a coarse lag (whole sim samples, from the cross-correlation of the gyro norms)
+//! is removed first and the real channels are resampled onto the sim stamps by cubic
+//! Hermite interpolation. Both steps are written down in [`Aligned::notes`]: a sub-sample
+//! delay is left in the residual on purpose, for the `time_offset` term to explain.
+
+use std::path::Path;
+
+use nalgebra::UnitQuaternion;
+
+use super::DiagnoseError;
+use crate::bag::{read_recording, BagReader, RecordingTopics, IMU_TOPIC};
+use crate::core::{ImuSample, Recording};
+use crate::msg::{Imu, RosMessage};
+
+/// Sim and real IMU streams on the sim stamps, with what the diagnosis needs beside them.
+#[derive(Debug, Clone)]
+pub struct Aligned {
+    /// Common stamps (the sim bag's, inside the overlap), ns.
+    pub stamps_ns: Vec<i64>,
+    /// Sim channels: gyro x y z (rad/s), accel x y z (m/s²).
+    pub sim: [Vec<f64>; 6],
+    /// Real channels on the same stamps.
+    pub real: [Vec<f64>; 6],
+    /// The sim's per-sample white-noise variance (gyro (rad/s)², accel (m/s²)²), from the
+    /// sim bag's covariance fields (or estimated, see the notes).
+    pub sim_variance: (f64, f64),
+    /// The real stream's per-sample white-noise variance before any left-out term: the sim's
+    /// when the rates agree (the simulator claims to model the real sensor).
+    pub real_variance: (f64, f64),
+    /// Attitude of the IMU frame at each stamp (ground truth, slerped), if the bags carry it.
+    pub world_from_imu: Option<Vec<UnitQuaternion<f64>>>,
+    /// Die temperature at each stamp, °C, if either bag carries it.
+    pub temperature_c: Option<Vec<f64>>,
+    /// What was done to align, and what is missing.
+    pub notes: Vec<String>,
+    /// The sim recording as read (for writing the corrected bag).
+    pub sim_recording: Recording,
+}
+
+impl Aligned {
+    /// Number of common samples.
+    pub fn len(&self) -> usize {
+        self.stamps_ns.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.stamps_ns.is_empty()
+    }
+
+    /// Mean sample interval, s.
+    pub fn dt(&self) -> f64 {
+        let n = self.len();
+        if n < 2 {
+            return 0.0;
+        }
+        (self.stamps_ns[n - 1] - self.stamps_ns[0]) as f64 * 1e-9 / (n - 1) as f64
+    }
+}
+
+/// The per-sample white-noise variances stated by the first IMU message's covariance
+/// diagonals (mean of the three), `None` when they are absent (zero, negative or unknown).
+pub fn covariance_variances(path: &Path) -> Result<Option<(f64, f64)>, DiagnoseError> {
+    for m in BagReader::open(path)? {
+        let m = m?;
+        if *m.topic == *IMU_TOPIC && *m.type_name == *Imu::TYPE_NAME {
+            let imu = Imu::decode(&m.data).map_err(|e| DiagnoseError::Input(format!("{}: first IMU message: {e}", path.display())))?;
+            let g =
+                (imu.angular_velocity_covariance.0[0] + imu.angular_velocity_covariance.0[4] + imu.angular_velocity_covariance.0[8]) / 3.0;
+            let a = (imu.linear_acceleration_covariance.0[0]
+                + imu.linear_acceleration_covariance.0[4]
+                + imu.linear_acceleration_covariance.0[8])
+                / 3.0;
+            return Ok((g > 0.0 && a > 0.0 && g.is_finite() && a.is_finite()).then_some((g, a)));
+        }
+    }
+    Ok(None)
+}
+
+/// Channels of IMU samples, gyro then accel.
+pub fn channels(imu: &[ImuSample]) -> [Vec<f64>; 6] {
+    std::array::from_fn(|c| imu.iter().map(|s| if c < 3 { s.gyro[c] } else { s.accel[c - 3] }).collect())
+}
+
+/// A white-noise variance estimated from the data: the variance of the third difference
+/// divided by 20 (for white noise Var(Δ³x) = 20 σ²; smooth motion contributes little).
+pub fn white_variance_from_data(x: &[f64]) -> f64 {
+    if x.len() < 8 {
+        return 0.0;
+    }
+    let d: Vec<f64> = x.windows(4).map(|w| w[3] - 3.0 * w[2] + 3.0 * w[1] - w[0]).collect();
+    // Median of squares / 0.455 (χ²₁ median) is robust to motion spikes.
+    let mut sq: Vec<f64> = d.iter().map(|v| v * v).collect();
+    let mid = sq.len() / 2;
+    sq.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+    sq[mid] / 0.454_936 / 20.0
+}
+
+/// Cubic Hermite (Catmull–Rom) interpolation of (t, x) at the query times; outside the
+/// source range the end value is held. `t` and `q` increasing.
+pub fn interpolate(t: &[f64], x: &[f64], q: &[f64]) -> Vec<f64> {
+    let n = t.len();
+    let tangent = |k: usize| {
+        let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
+        if b == a {
+            0.0
+        } else {
+            (x[b] - x[a]) / (t[b] - t[a])
+        }
+    };
+    let mut k = 0usize;
+    q.iter()
+        .map(|&tq| {
+            if n == 1 || tq <= t[0] {
+                return x[0];
+            }
+            if tq >= t[n - 1] {
+                return x[n - 1];
+            }
+            while t[k + 1] <= tq {
+                k += 1;
+            }
+            while t[k] > tq {
+                k -= 1;
+            }
+            let h = t[k + 1] - t[k];
+            let u = (tq - t[k]) / h;
+            let (u2, u3) = (u * u, u * u * u);
+            x[k] * (2.0 * u3 - 3.0 * u2 + 1.0)
+                + tangent(k) * h * (u3 - 2.0 * u2 + u)
+                + x[k + 1] * (3.0 * u2 - 2.0 * u3)
+                + tangent(k + 1) * h * (u3 - u2)
+        })
+        .collect()
+}
+
+/// The lag (in sim samples, real = sim shifted later by the lag) that best lines up the gyro
+/// norms, searched within ±`max_lag` samples.
+fn coarse_lag(sim_t: &[f64], sim_norm: &[f64], real_t: &[f64], real_norm: &[f64], dt: f64, max_lag: i64) -> i64 {
+    // Real norm on the sim grid extended by the lag range.
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let (ms, mr) = (mean(sim_norm), mean(real_norm));
+    let step = (sim_t.len() / 20_000).max(1);
+    let mut best = (f64::NEG_INFINITY, 0i64);
+    for lag in -max_lag..=max_lag {
+        let q: Vec<f64> = sim_t.iter().step_by(step).map(|t| t + lag as f64 * dt).collect();
+        let r = interpolate(real_t, real_norm, &q);
+        let (mut num, mut cnt) = (0.0, 0usize);
+        for (i, (&tq, rv)) in q.iter().zip(&r).enumerate() {
+            if tq >= real_t[0] && tq <= *real_t.last().unwrap_or(&0.0) {
+                num += (sim_norm[i * step] - ms) * (rv - mr);
+                cnt += 1;
+            }
+        }
+        if cnt > 100 {
+            let c = num / cnt as f64;
+            if c > best.0 {
+                best = (c, lag);
+            }
+        }
+    }
+    best.1
+}
+
+/// Load both bags and align the real stream to the sim stamps.
+pub fn load(sim_path: &Path, real_path: &Path) -> Result<Aligned, DiagnoseError> {
+    let topics = RecordingTopics::default();
+    let (sim, sim_report) = read_recording(sim_path, &topics)?;
+    let (real, real_report) = read_recording(real_path, &topics)?;
+    let mut notes = Vec::new();
+    for (name, r) in [("sim", &sim_report), ("real", &real_report)] {
+        if r.skipped() > 0 {
+            notes.push(format!("{name} bag: {r}"));
+        }
+    }
+    align(sim, real, covariance_variances(sim_path)?, notes)
+}
+
+/// Align two recordings (see the module docs).
+pub fn align(sim: Recording, real: Recording, stated: Option<(f64, f64)>, mut notes: Vec<String>) -> Result<Aligned, DiagnoseError> {
+    if sim.imu.len() < 64 || real.imu.len() < 64 {
+        return Err(DiagnoseError::Input(format!(
+            "too few IMU samples to diagnose (sim {}, real {}; need 64 each)",
+            sim.imu.len(),
+            real.imu.len()
+        )));
+    }
+    let t0 = sim.imu[0].stamp_ns;
+    let sim_t: Vec<f64> = sim.imu.iter().map(|s| (s.stamp_ns - t0) as f64 * 1e-9).collect();
+    let mut real_t: Vec<f64> = real.imu.iter().map(|s| (s.stamp_ns - t0) as f64 * 1e-9).collect();
+    let sim_ch = channels(&sim.imu);
+    let real_ch = channels(&real.imu);
+    let (sim_rate, real_rate) = (sim.imu_rate_hz(), real.imu_rate_hz());
+    let dt = sim.imu_seconds() / (sim.imu.len() - 1) as f64;
+
+    let same_stamps = sim.imu.len() == real.imu.len() && sim.imu.iter().zip(&real.imu).all(|(a, b)| a.stamp_ns == b.stamp_ns);
+    let (stamps_ns, real_on_grid): (Vec<i64>, [Vec<f64>; 6]) = if same_stamps {
+        (sim.imu.iter().map(|s| s.stamp_ns).collect(), real_ch)
+    } else {
+        notes.push(format!(
+            "the real stamps differ from the sim stamps (sim {} samples at {sim_rate:.3} Hz from {} ns, real {} at {real_rate:.3} Hz from {} ns): real resampled onto the sim stamps",
+            sim.imu.len(),
+            sim.imu[0].stamp_ns,
+            real.imu.len(),
+            real.imu[0].stamp_ns
+        ));
+        let norm = |ch: &[Vec<f64>; 6]| -> Vec<f64> {
+            (0..ch[0].len()).map(|i| (ch[0][i].powi(2) + ch[1][i].powi(2) + ch[2][i].powi(2)).sqrt()).collect()
+        };
+        let max_lag = ((5.0 / dt).round() as i64).max(4);
+        let lag = coarse_lag(&sim_t, &norm(&sim_ch), &real_t, &norm(&real_ch), dt, max_lag);
+        if lag != 0 {
+            let shift = lag as f64 * dt;
+            real_t.iter_mut().for_each(|t| *t -= shift);
+            notes.push(format!(
+                "real stamps shifted by {:.6} s ({lag} sim samples) to line up the gyro norms; a finer offset is left to time_offset",
+                -shift
+            ));
+        }
+        let (lo, hi) = (real_t[0], *real_t.last().unwrap_or(&0.0));
+        let keep: Vec<usize> = (0..sim_t.len()).filter(|&i| sim_t[i] >= lo && sim_t[i] <= hi).collect();
+        if keep.len() < 64 {
+            return Err(DiagnoseError::Input("the sim and real recordings do not overlap in time".into()));
+        }
+        if keep.len() < sim_t.len() {
+            notes.push(format!("only the overlap is used: {} of {} sim samples", keep.len(), sim_t.len()));
+        }
+        let q: Vec<f64> = keep.iter().map(|&i| sim_t[i]).collect();
+        let real_on: [Vec<f64>; 6] = std::array::from_fn(|c| interpolate(&real_t, &real_ch[c], &q));
+        (keep.iter().map(|&i| sim.imu[i].stamp_ns).collect(), real_on)
+    };
+    let first = sim.imu.iter().position(|s| s.stamp_ns == stamps_ns[0]).unwrap_or(0);
+    let n = stamps_ns.len();
+    let sim_on: [Vec<f64>; 6] = std::array::from_fn(|c| sim_ch[c][first..first + n].to_vec());
+
+    let sim_variance = match stated {
+        Some(v) => v,
+        None => {
+            let g = (0..3).map(|c| white_variance_from_data(&sim_on[c])).sum::<f64>() / 3.0;
+            let a = (3..6).map(|c| white_variance_from_data(&sim_on[c])).sum::<f64>() / 3.0;
+            notes.push(format!("the sim bag states no white-noise variance in its covariance fields: estimated from the data (gyro {g:.3e}, accel {a:.3e})"));
+            (g, a)
+        }
+    };
+    let real_variance = if same_stamps || (real_rate / sim_rate - 1.0).abs() < 1e-3 {
+        sim_variance
+    } else {
+        let g = (0..3).map(|c| white_variance_from_data(&real_on_grid[c])).sum::<f64>() / 3.0;
+        let a = (3..6).map(|c| white_variance_from_data(&real_on_grid[c])).sum::<f64>() / 3.0;
+        notes.push(format!(
+            "real rate {real_rate:.3} Hz differs from the sim rate {sim_rate:.3} Hz: the real white noise after resampling is estimated from the data (gyro {g:.3e}, accel {a:.3e}); gyro_noise_density is not judged"
+        ));
+        (g, a)
+    };
+
+    // Ground truth (the sim's, else the real's) → attitude at the stamps.
+    let gt = if !sim.ground_truth.is_empty() { &sim.ground_truth } else { &real.ground_truth };
+    let world_from_imu = if gt.len() < 2 {
+        notes.push("no ground truth in either bag: gravity_magnitude and earth_rotation cannot be judged".into());
+        None
+    } else {
+        let q = crate::so3::slerp_at(gt, stamps_ns.iter().copied(), 1_000_000_000);
+        let mut last = q.iter().flatten().next().copied().unwrap_or_else(UnitQuaternion::identity);
+        let filled: Vec<UnitQuaternion<f64>> = q
+            .into_iter()
+            .map(|o| {
+                if let Some(v) = o {
+                    last = v;
+                }
+                last
+            })
+            .collect();
+        Some(filled)
+    };
+
+    let temps = if !sim.temperature.is_empty() { &sim.temperature } else { &real.temperature };
+    let temperature_c = if temps.len() < 2 {
+        None
+    } else {
+        let tt: Vec<f64> = temps.iter().map(|s| (s.stamp_ns - t0) as f64 * 1e-9).collect();
+        let tv: Vec<f64> = temps.iter().map(|s| s.celsius).collect();
+        let q: Vec<f64> = stamps_ns.iter().map(|s| (s - t0) as f64 * 1e-9).collect();
+        Some(interpolate(&tt, &tv, &q))
+    };
+    if temperature_c.is_none() {
+        notes.push("no temperature topic: gyro_bias_temperature cannot be judged".into());
+    }
+    Ok(Aligned {
+        stamps_ns,
+        sim: sim_on,
+        real: real_on_grid,
+        sim_variance,
+        real_variance,
+        world_from_imu,
+        temperature_c,
+        notes,
+        sim_recording: sim,
+    })
+}

@@ -1,0 +1,326 @@
+//! Sim-vs-real diagnosis: locate where a real recording differs from its simulation beyond
+//! the simulator's noise model, name the physics the simulator left out (the vocabulary of
+//! [`crate::physics`]), fit it, and show the fit improve on held-out time blocks.
+//!
+//! The pipeline, one module per concern:
+//! 1. [`align`]: load both bags, put the real stream on the sim stamps, read the sim's
+//!    white-noise variance from its covariance fields;
+//! 2. [`residual`]: r = real − sim, its noise model (white + an estimated bias walk) and the
+//!    Kalman whitening that makes generalised least squares of any regressor cheap;
+//! 3. [`locate`]: per axis, time segment and frequency band, χ² and band-power statistics;
+//! 4. [`catalogue`]: the candidate terms as regressors built by the physics terms themselves;
+//! 5. [`select`]: greedy forward/backward selection on held-out log-likelihood ([`fit`]);
+//! 6. [`report`]: `report.json`, `report.md`, CSVs, the simulator patch and the corrected bag.
+//!
+//! ```no_run
+//! use imu_fsda::diagnose::{diagnose_bags, DiagnoseOptions};
+//! let (aligned, d) = diagnose_bags("sim.mcap".as_ref(), "real.mcap".as_ref(), &DiagnoseOptions::default()).unwrap();
+//! for f in &d.findings {
+//!     println!("{}: {}", f.term, f.params);
+//! }
+//! # let _ = aligned;
+//! ```
+
+pub mod align;
+pub mod allan;
+pub mod catalogue;
+pub mod fit;
+pub mod kinematics;
+pub mod locate;
+pub mod psd;
+pub mod report;
+pub mod residual;
+pub mod select;
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::DVector;
+use serde::Serialize;
+
+use crate::physics::{ImuSignals, PhysicsError, Term};
+use align::Aligned;
+use catalogue::Catalogue;
+use locate::Located;
+use residual::{base_signals, ChannelNoise, NoiseModel, CHANNELS};
+use select::{Problem, SelectOptions, Selection};
+
+/// Errors of the diagnosis.
+#[derive(Debug, thiserror::Error)]
+pub enum DiagnoseError {
+    #[error(transparent)]
+    Bag(#[from] crate::bag::BagError),
+    #[error("physics: {0}")]
+    Physics(#[from] PhysicsError),
+    #[error("input: {0}")]
+    Input(String),
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Options of a diagnosis.
+#[derive(Debug, Clone, Copy)]
+pub struct DiagnoseOptions {
+    /// Half-width of the smoothing window applied to the sim signals before the terms are
+    /// applied to them, s (the derivative uses twice this).
+    pub half_window_s: f64,
+    /// Model selection.
+    pub select: SelectOptions,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        DiagnoseOptions { half_window_s: 0.01, select: SelectOptions::default() }
+    }
+}
+
+/// One named left-out term, as `report.json` writes it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Finding {
+    pub term: String,
+    pub params: serde_json::Value,
+    /// 1-σ uncertainty of each parameter, same layout as `params` where it applies.
+    pub uncertainty: serde_json::Value,
+    pub evidence: serde_json::Value,
+}
+
+/// Residual figures before or after the fitted terms.
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct ResidualSummary {
+    /// RMS per channel (rad/s, m/s²).
+    pub rms: std::collections::BTreeMap<String, f64>,
+    /// Mean squared whitened residual per channel (1 when the noise model explains it).
+    pub chi2_per_sample: std::collections::BTreeMap<String, f64>,
+    /// Held-out log-likelihood, whitened units.
+    pub heldout_loglik: f64,
+    /// Held-out: "after" residuals are predictions from fits that did not see the block.
+    pub note: String,
+}
+
+/// Series behind the plots, per channel.
+#[derive(Debug, Clone, Default)]
+pub struct Curves {
+    /// (τ, before, after) per channel.
+    pub allan: Vec<Vec<(f64, f64, f64)>>,
+    /// (f, before, after) per channel.
+    pub psd: Vec<Vec<(f64, f64, f64)>>,
+    /// Allan deviation the noise model predicts, per channel (τ, σ).
+    pub allan_model: Vec<Vec<(f64, f64)>>,
+}
+
+/// A diagnosis.
+#[derive(Debug, Clone)]
+pub struct Diagnosis {
+    pub notes: Vec<String>,
+    pub findings: Vec<Finding>,
+    /// The fitted terms (the simulator patch).
+    pub terms: Vec<Term>,
+    pub located: Vec<Located>,
+    pub residual_before: ResidualSummary,
+    pub residual_after: ResidualSummary,
+    pub steps: Vec<select::Step>,
+    pub excluded: Vec<(String, String)>,
+    pub curves: Curves,
+    /// The signals the terms were fitted on (sim bag, smoothed), for effect comparisons.
+    pub base: ImuSignals,
+    /// Per-sample residual noise after the fit (gyro, accel): white and walk variances.
+    pub noise: NoiseModel,
+    /// Wall time of the diagnosis, s.
+    pub seconds: f64,
+}
+
+/// Load, align and diagnose two bags.
+pub fn diagnose_bags(sim: &Path, real: &Path, opts: &DiagnoseOptions) -> Result<(Aligned, Diagnosis), DiagnoseError> {
+    let a = align::load(sim, real)?;
+    let d = diagnose(&a, opts)?;
+    Ok((a, d))
+}
+
+/// Diagnose aligned recordings.
+pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
+    let start = std::time::Instant::now();
+    let n = a.len();
+    let dt = a.dt();
+    let mut notes = a.notes.clone();
+    let base = base_signals(a, opts.half_window_s);
+    let y: [Vec<f64>; 6] = std::array::from_fn(|c| a.real[c].iter().zip(&a.sim[c]).map(|(r, s)| r - s).collect());
+
+    // Terms read directly off the real samples.
+    let mut direct: Vec<(Term, serde_json::Value)> = Vec::new();
+    let mut mask = vec![true; n];
+    let mut white_real = [a.real_variance.0, a.real_variance.1];
+    let sim_var = [a.sim_variance.0, a.sim_variance.1];
+    let mut ranges = [f64::INFINITY; 2];
+    let mut lsbs = [0.0; 2];
+    for s in 0..2 {
+        if let Some((range, idx)) = catalogue::detect_saturation(&a.real[3 * s..3 * s + 3], &a.sim[3 * s..3 * s + 3], sim_var[s].sqrt()) {
+            ranges[s] = range;
+            for &i in &idx {
+                mask[i] = false;
+            }
+        }
+        if let Some(lsb) = catalogue::detect_quantization(&a.real[3 * s..3 * s + 3], &a.sim[3 * s..3 * s + 3]) {
+            lsbs[s] = lsb;
+            white_real[s] += lsb * lsb / 12.0;
+        }
+    }
+    if ranges.iter().any(|r| r.is_finite()) {
+        let clipped = mask.iter().filter(|m| !**m).count();
+        let t = Term::Saturation(crate::physics::Saturation { gyro_range: ranges[0], accel_range: ranges[1] });
+        direct.push((t, serde_json::json!({"clipped_samples": clipped, "rule": "≥ 3 real samples at the largest magnitude while the sim exceeds it by > 3σ"})));
+        notes.push(format!("{clipped} clipped samples left out of the fit"));
+    }
+    if lsbs.iter().any(|l| *l > 0.0) {
+        let t = Term::Quantization(crate::physics::Quantization { gyro_lsb: lsbs[0], accel_lsb: lsbs[1] });
+        direct.push((t, serde_json::json!({"rule": "every real sample is a multiple of the step, the sim samples are not"})));
+    }
+
+    let temperature =
+        a.temperature_c.as_ref().map(|t| t.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(*v), hi.max(*v))));
+    let catalogue = Catalogue::build(&base, a.world_from_imu.is_some(), temperature.map(|(lo, hi)| hi - lo))?;
+    let excluded = catalogue.excluded.clone();
+    let sensor_noise = |s: usize| ChannelNoise { white_sim: sim_var[s], white_real: white_real[s], pole: 0.0, walk: sim_var[s] * 1e-6 };
+    let noise = NoiseModel { sensors: [sensor_noise(0), sensor_noise(1)] };
+    let problem = Problem {
+        y: y.clone(),
+        mask: mask.clone(),
+        base: &base,
+        catalogue,
+        noise,
+        stated: a.real_variance,
+        judge_noise_density: a.real_variance == a.sim_variance && lsbs[0] == 0.0,
+        temperature,
+        opts: opts.select,
+    };
+    let sel = select::select(problem)?;
+
+    // Findings.
+    let fitted = select::terms_of(&sel);
+    let mut findings = Vec::new();
+    let mut terms = Vec::new();
+    for (term, sd) in &fitted {
+        let step = sel.steps.iter().rev().find(|s| s.action == "add" && s.term == term.name());
+        let uncertainty = uncertainty_json(term, sd);
+        let evidence = serde_json::json!({
+            "heldout_loglik_gain": step.map(|s| s.heldout_gain),
+            "runner_up": step.and_then(|s| s.runner_up.clone()).map(|(t, g)| serde_json::json!({"term": t, "heldout_loglik_gain": g})),
+            "rule": format!("added while the held-out log-likelihood gain exceeded {} + {} per parameter", opts.select.threshold, opts.select.per_param),
+        });
+        findings.push(Finding { term: term.name().into(), params: catalogue::params_json(term), uncertainty, evidence });
+        terms.push(term.clone());
+    }
+    for (term, evidence) in direct {
+        findings.push(Finding {
+            term: term.name().into(),
+            params: catalogue::params_json(&term),
+            uncertainty: serde_json::json!(null),
+            evidence,
+        });
+        terms.push(term);
+    }
+
+    // Locate under the no-term model.
+    let w0 = residual::whitened(&y, &sel.baseline_noise, &mask);
+    let located = locate::locate(&w0, dt);
+
+    // Before / after on held-out blocks.
+    let bl = residual::blocks(n, opts.select.folds);
+    let after = heldout_residual(&sel, &bl);
+    let w1 = residual::whitened(&after, &sel.noise, &mask);
+    let summary = |r: &[Vec<f64>; 6], w: &[Vec<f64>; 6], ll: f64, note: &str| {
+        let mut s = ResidualSummary { heldout_loglik: ll, note: note.into(), ..Default::default() };
+        for c in 0..6 {
+            let m: Vec<f64> = r[c].iter().zip(&mask).filter(|(_, m)| **m).map(|(v, _)| *v).collect();
+            s.rms.insert(CHANNELS[c].into(), (m.iter().map(|v| v * v).sum::<f64>() / m.len().max(1) as f64).sqrt());
+            s.chi2_per_sample.insert(CHANNELS[c].into(), w[c].iter().map(|v| v * v).sum::<f64>() / m.len().max(1) as f64);
+        }
+        s
+    };
+    let residual_before = summary(&y, &w0, sel.baseline.loglik_cv, "real − sim, simulator noise model (bias walk estimated)");
+    let residual_after = summary(
+        &after,
+        &w1,
+        sel.fit.loglik_cv,
+        "real − (sim + fitted terms), each time block predicted by a fit on the other blocks; noise terms included in the model",
+    );
+
+    let mut curves = Curves::default();
+    for c in 0..6 {
+        let ab = allan::allan_deviation(&y[c], dt);
+        let aa = allan::allan_deviation(&after[c], dt);
+        curves.allan.push(ab.iter().zip(&aa).map(|(b, a)| (b.0, b.1, a.1)).collect());
+        let ns = sel.noise.sensors[residual::sensor_of(c)];
+        let white = ns.white_sim + ns.white_real * (1.0 - ns.pole) / (1.0 + ns.pole);
+        curves.allan_model.push(ab.iter().map(|(tau, _)| (*tau, allan::model_allan(white, ns.walk, dt, *tau))).collect());
+        let seg = ((20.0 / dt) as usize).next_power_of_two();
+        let (f, pb) = psd::welch(&y[c], dt, seg);
+        let (_, pa) = psd::welch(&after[c], dt, seg);
+        curves.psd.push(f.iter().zip(pb.iter().zip(&pa)).map(|(f, (b, a))| (*f, *b, *a)).collect());
+    }
+
+    Ok(Diagnosis {
+        notes,
+        findings,
+        terms,
+        located,
+        residual_before,
+        residual_after,
+        steps: sel.steps.clone(),
+        excluded,
+        curves,
+        base,
+        noise: sel.noise,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// The residual after the fitted terms, each block predicted by the fit without it.
+fn heldout_residual(sel: &Selection, bl: &[std::ops::Range<usize>]) -> [Vec<f64>; 6] {
+    let mut out = sel.y.clone();
+    for (b, r) in bl.iter().enumerate() {
+        let beta: &DVector<f64> = sel.fit.beta_folds.get(b).unwrap_or(&sel.fit.beta);
+        let pred = select::model_residual(&sel.catalogue, &sel.y, &sel.chosen, beta);
+        for c in 0..6 {
+            out[c][r.clone()].copy_from_slice(&pred[c][r.clone()]);
+        }
+    }
+    out
+}
+
+/// Uncertainty in the layout of the term's params (per fitted parameter, 1 σ).
+fn uncertainty_json(term: &Term, sd: &[f64]) -> serde_json::Value {
+    use serde_json::json;
+    if sd.is_empty() {
+        return json!(null);
+    }
+    let v = |o: usize| json!([sd[o], sd[o + 1], sd[o + 2]]);
+    match term {
+        Term::GyroBias(_) | Term::AccelBias(_) => json!({"bias": v(0)}),
+        Term::GyroScale(_) | Term::AccelScale(_) => json!({"scale": v(0)}),
+        Term::GyroMisalignment(_) | Term::AccelMisalignment(_) => {
+            let mut m = [[0.0; 3]; 3];
+            for (k, &(r, c)) in catalogue::OFF_DIAGONAL.iter().enumerate() {
+                m[r][c] = sd[k];
+            }
+            json!({ "matrix": m })
+        }
+        Term::GyroGSensitivity(_) => json!({"matrix": [[sd[0], sd[1], sd[2]], [sd[3], sd[4], sd[5]], [sd[6], sd[7], sd[8]]]}),
+        Term::GyroBiasTemperature(_) => json!({"coefficient": v(0)}),
+        Term::MountRotation(_) => json!({"rotvec": v(0)}),
+        Term::LeverArm(_) => json!({"offset": v(0)}),
+        Term::TimeOffset(_) => json!({"seconds": sd[0]}),
+        Term::GravityMagnitude(_) => json!({"g": sd[0]}),
+        Term::EarthRotation(e) => {
+            // Delta method on φ = atan2(s, c) at unit magnitude.
+            let (c, s) = (e.latitude_rad.cos(), e.latitude_rad.sin());
+            json!({"latitude_rad": ((s * sd[0]).powi(2) + (c * sd[1]).powi(2)).sqrt()})
+        }
+        Term::Vibration(_) => {
+            json!({"accel_amplitude": [sd[0].hypot(sd[3]) / std::f64::consts::SQRT_2, sd[1].hypot(sd[4]) / std::f64::consts::SQRT_2, sd[2].hypot(sd[5]) / std::f64::consts::SQRT_2]})
+        }
+        _ => json!(sd),
+    }
+}

@@ -1,0 +1,218 @@
+//! Outputs of a diagnosis: `report.json`, `report.md`, the CSVs behind the plots, the
+//! simulator patch (`patch.yaml`, a list of physics terms in their serde form) and the
+//! corrected simulation bag (sim + fitted terms, applied by the physics code).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use nalgebra::Vector3;
+
+use super::align::Aligned;
+use super::{DiagnoseError, Diagnosis};
+use crate::bag::{BagWriter, GROUND_TRUTH_TOPIC, IMU_FRAME, IMU_TOPIC, TEMPERATURE_TOPIC, WORLD_FRAME};
+use crate::msg::{Header, Imu, PoseStamped, Temperature, Time};
+use crate::physics::{apply_terms, ImuSignals, Term, TermContext, WhiteNoise};
+
+fn write(path: &Path, text: &str) -> Result<(), DiagnoseError> {
+    std::fs::write(path, text).map_err(|source| DiagnoseError::Io { path: path.to_path_buf(), source })
+}
+
+/// `report.json`: `{findings, located, residual_before, residual_after}` plus context.
+pub fn json(d: &Diagnosis) -> serde_json::Value {
+    serde_json::json!({
+        "findings": d.findings,
+        "located": d.located,
+        "residual_before": d.residual_before,
+        "residual_after": d.residual_after,
+        "selection_steps": d.steps,
+        "not_judged": d.excluded.iter().map(|(t, why)| serde_json::json!({"term": t, "why": why})).collect::<Vec<_>>(),
+        "notes": d.notes,
+        "seconds": d.seconds,
+    })
+}
+
+/// The simulator patch: the fitted terms as the simulator config's `terms:` list.
+pub fn patch_yaml(d: &Diagnosis) -> String {
+    let mut s = String::from("# Terms the simulator left out, fitted by `imu-fsda diagnose`; paste under `terms:`.\n");
+    s.push_str(&serde_yaml::to_string(&d.terms).unwrap_or_default());
+    s
+}
+
+/// `report.md`, for a person.
+pub fn markdown(d: &Diagnosis) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# Sim-vs-real diagnosis\n");
+    if !d.notes.is_empty() {
+        let _ = writeln!(s, "## Input notes\n");
+        for n in &d.notes {
+            let _ = writeln!(s, "- {n}");
+        }
+        s.push('\n');
+    }
+    let _ = writeln!(s, "## What was left out\n");
+    if d.findings.is_empty() {
+        let _ = writeln!(
+            s,
+            "**Nothing left out**: no term of the catalogue predicts held-out time blocks better than the simulator's own noise model.\n"
+        );
+    } else {
+        let _ = writeln!(s, "| term | parameters | 1σ | evidence |\n|---|---|---|---|");
+        for f in &d.findings {
+            let _ = writeln!(
+                s,
+                "| {} | `{}` | `{}` | {} |",
+                f.term,
+                f.params,
+                f.uncertainty,
+                f.evidence.get("heldout_loglik_gain").map(|g| format!("held-out Δlog L = {g}")).unwrap_or_else(|| f.evidence.to_string())
+            );
+        }
+        s.push('\n');
+    }
+    let _ = writeln!(s, "## Selection steps\n");
+    for st in &d.steps {
+        let _ = writeln!(
+            s,
+            "- {} `{}`: held-out Δlog L = {:.1}{}",
+            st.action,
+            st.term,
+            st.heldout_gain,
+            st.runner_up.as_ref().map(|(t, g)| format!(" (runner-up `{t}`: {g:.1})")).unwrap_or_default()
+        );
+    }
+    for (t, why) in &d.excluded {
+        let _ = writeln!(s, "- not judged: `{t}` ({why})");
+    }
+    let _ = writeln!(s, "\n## Where the residual differs (no-term model)\n");
+    if d.located.is_empty() {
+        let _ = writeln!(s, "Nowhere beyond the simulator's noise model (α = {} family-wise per kind).", super::locate::ALPHA);
+    } else {
+        let _ = writeln!(s, "| kind | channel | from | to | statistic | value | z | p |\n|---|---|---|---|---|---|---|---|");
+        for l in &d.located {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.3} | {:.3} | {} | {:.4} | {:.1} | {:.2e} |",
+                l.kind, l.channel, l.from, l.to, l.statistic, l.value, l.z, l.p_value
+            );
+        }
+    }
+    let _ = writeln!(s, "\n## Residual before and after (held-out blocks)\n");
+    let _ = writeln!(s, "| channel | RMS before | RMS after | χ²/n before | χ²/n after |\n|---|---|---|---|---|");
+    for (k, v) in &d.residual_before.rms {
+        let _ = writeln!(
+            s,
+            "| {k} | {v:.4e} | {:.4e} | {:.3} | {:.3} |",
+            d.residual_after.rms.get(k).copied().unwrap_or(f64::NAN),
+            d.residual_before.chi2_per_sample.get(k).copied().unwrap_or(f64::NAN),
+            d.residual_after.chi2_per_sample.get(k).copied().unwrap_or(f64::NAN)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nHeld-out log-likelihood: before {:.1}, after {:.1}.\n",
+        d.residual_before.heldout_loglik, d.residual_after.heldout_loglik
+    );
+    let _ = writeln!(s, "Curves: `allan.csv` (Allan deviation before/after and the noise model's), `psd.csv` (Welch PSD before/after).\n");
+    let _ = writeln!(s, "Diagnosis took {:.2} s.", d.seconds);
+    s
+}
+
+/// The CSVs behind the plots.
+pub fn write_csvs(dir: &Path, d: &Diagnosis) -> Result<(), DiagnoseError> {
+    let mut a = String::from("channel,tau_s,before,after,noise_model\n");
+    for (c, rows) in d.curves.allan.iter().enumerate() {
+        for (k, (tau, b, af)) in rows.iter().enumerate() {
+            let m = d.curves.allan_model[c].get(k).map_or(f64::NAN, |x| x.1);
+            let _ = writeln!(a, "{},{tau:.6},{b:.6e},{af:.6e},{m:.6e}", super::residual::CHANNELS[c]);
+        }
+    }
+    write(&dir.join("allan.csv"), &a)?;
+    let mut p = String::from("channel,freq_hz,before,after\n");
+    for (c, rows) in d.curves.psd.iter().enumerate() {
+        for (f, b, af) in rows {
+            let _ = writeln!(p, "{},{f:.6},{b:.6e},{af:.6e}", super::residual::CHANNELS[c]);
+        }
+    }
+    write(&dir.join("psd.csv"), &p)?;
+    let mut r = String::from("channel,rms_before,rms_after\n");
+    for (k, v) in &d.residual_before.rms {
+        let _ = writeln!(r, "{k},{v:.6e},{:.6e}", d.residual_after.rms.get(k).copied().unwrap_or(f64::NAN));
+    }
+    write(&dir.join("residual_rms.csv"), &r)
+}
+
+/// The sim signals as read (not smoothed), with the diagnosis' attitude, ω̇ and temperature.
+fn raw_sim_signals(a: &Aligned, d: &Diagnosis) -> ImuSignals {
+    let v3 = |ch: &[Vec<f64>], i: usize| Vector3::new(ch[0][i], ch[1][i], ch[2][i]);
+    let n = a.len();
+    ImuSignals { gyro: (0..n).map(|i| v3(&a.sim[..3], i)).collect(), accel: (0..n).map(|i| v3(&a.sim[3..], i)).collect(), ..d.base.clone() }
+}
+
+/// Sim + fitted terms. The noise-density term becomes extra white noise of the missing
+/// variance (the corrected bag's own noise is the sim's, already drawn).
+pub fn corrected_signals(a: &Aligned, d: &Diagnosis, seed: u64) -> Result<ImuSignals, DiagnoseError> {
+    let mut s = raw_sim_signals(a, d);
+    let dt = a.dt();
+    let terms: Vec<Term> = d
+        .terms
+        .iter()
+        .filter_map(|t| match t {
+            Term::GyroNoiseDensity(g) => {
+                let extra = (g.factor * g.factor - 1.0).max(0.0) * a.sim_variance.0;
+                (extra > 0.0).then(|| Term::WhiteNoise(WhiteNoise { gyro_noise_density: (extra * dt).sqrt(), accel_noise_density: 0.0 }))
+            }
+            other => Some(other.clone()),
+        })
+        .collect();
+    apply_terms(&terms, &mut s, &mut TermContext::new(seed))?;
+    Ok(s)
+}
+
+/// Write the corrected simulation bag: the sim bag's topics with `/imu/data` replaced by
+/// sim + fitted terms (covariances kept).
+pub fn write_corrected_bag(path: &Path, a: &Aligned, d: &Diagnosis) -> Result<(), DiagnoseError> {
+    let s = corrected_signals(a, d, 1)?;
+    let mut w = BagWriter::create(path)?;
+    let imu_ch = w.channel::<Imu>(IMU_TOPIC)?;
+    let gt_ch = w.channel::<PoseStamped>(GROUND_TRUTH_TOPIC)?;
+    let rec = &a.sim_recording;
+    let mut msg = Imu::from_sample(&crate::core::ImuSample { stamp_ns: s.stamps_ns[0], gyro: s.gyro[0], accel: s.accel[0] }, IMU_FRAME);
+    for i in [0, 4, 8] {
+        msg.angular_velocity_covariance.0[i] = a.sim_variance.0;
+        msg.linear_acceleration_covariance.0[i] = a.sim_variance.1;
+    }
+    for i in 0..s.len() {
+        msg.header.stamp = Time::from_ns(s.stamps_ns[i]);
+        msg.angular_velocity = s.gyro[i].into();
+        msg.linear_acceleration = s.accel[i].into();
+        w.write(imu_ch, s.stamps_ns[i], &msg)?;
+    }
+    for p in &rec.ground_truth {
+        w.write(gt_ch, p.stamp_ns, &PoseStamped::from_sample(p, WORLD_FRAME))?;
+    }
+    if !rec.temperature.is_empty() {
+        let ch = w.channel::<Temperature>(TEMPERATURE_TOPIC)?;
+        for t in &rec.temperature {
+            w.write(
+                ch,
+                t.stamp_ns,
+                &Temperature {
+                    header: Header { stamp: Time::from_ns(t.stamp_ns), frame_id: IMU_FRAME.into() },
+                    temperature: t.celsius,
+                    variance: 0.0,
+                },
+            )?;
+        }
+    }
+    Ok(w.finish()?)
+}
+
+/// Write everything into `dir`.
+pub fn write_all(dir: &Path, a: &Aligned, d: &Diagnosis) -> Result<(), DiagnoseError> {
+    std::fs::create_dir_all(dir).map_err(|source| DiagnoseError::Io { path: dir.to_path_buf(), source })?;
+    write(&dir.join("report.json"), &serde_json::to_string_pretty(&json(d)).unwrap_or_default())?;
+    write(&dir.join("report.md"), &markdown(d))?;
+    write(&dir.join("patch.yaml"), &patch_yaml(d))?;
+    write_csvs(dir, d)?;
+    write_corrected_bag(&dir.join("corrected_sim.mcap"), a, d)
+}

@@ -1,0 +1,267 @@
+//! The residual r = real − sim and its noise model.
+//!
+//! Under the simulator's own noise model the residual of one channel is
+//! r_k = W_k + z_k − n_k: the difference of two independent bias walks W (a random walk
+//! from W_0 = 0 of per-step variance q, estimated), the real white noise z (variance σ_r²,
+//! passed through a first-order low-pass of pole `pole` when the real sensor filters) and
+//! the sim white noise n (variance σ_s², from the sim bag's covariance fields). A 2-state
+//! Kalman filter for (W, z) turns the residual — and any regressor — into one-step-ahead
+//! innovations ν_k with variances S_k: whitened, ν_k/√S_k i.i.d. N(0, 1) under the model.
+//! Regressing whitened residual on whitened regressors is generalised least squares with
+//! the bias walk as a nuisance, and Σ log S_k completes the Gaussian log-likelihood.
+//!
+//! The regressors themselves are built by the physics terms from the sim bag's signals,
+//! smoothed first ([`base_signals`]): a local quadratic fit that leaves the centre sample
+//! out, so the sim's own noise at sample k (which is in r_k with a minus sign) does not
+//! correlate with the regressor at k and bias the fit.
+
+use nalgebra::{DMatrix, DVector, Vector3};
+
+use super::align::Aligned;
+use crate::physics::ImuSignals;
+
+/// Channel index → sensor (0 gyro, 1 accel).
+pub fn sensor_of(channel: usize) -> usize {
+    channel / 3
+}
+
+/// Names of the six channels.
+pub const CHANNELS: [&str; 6] = ["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"];
+
+/// Weights of a leave-centre-out local quadratic fit over ±k samples, evaluated at the
+/// centre (index 0 of the returned vec is offset −k; the centre weight is 0).
+pub fn leave_out_weights(k: usize) -> Vec<f64> {
+    let offs: Vec<f64> = (-(k as i64)..=k as i64).filter(|&j| j != 0).map(|j| j as f64).collect();
+    let deg = if k == 1 { 1 } else { 2 };
+    let v = DMatrix::from_fn(offs.len(), deg + 1, |r, c| offs[r].powi(c as i32));
+    let pinv = (v.transpose() * &v).try_inverse().unwrap_or_else(|| DMatrix::identity(deg + 1, deg + 1)) * v.transpose();
+    let mut w = vec![0.0; 2 * k + 1];
+    for (r, &j) in offs.iter().enumerate() {
+        w[(j as i64 + k as i64) as usize] = pinv[(0, r)];
+    }
+    w
+}
+
+/// Savitzky–Golay first-derivative weights over ±k samples (per unit sample spacing).
+pub fn derivative_weights(k: usize) -> Vec<f64> {
+    let s: f64 = (1..=k).map(|j| 2.0 * (j * j) as f64).sum();
+    (-(k as i64)..=k as i64).map(|j| j as f64 / s).collect()
+}
+
+/// Convolve with symmetric-window weights; the first and last `k` samples keep `edge`.
+pub fn filter(x: &[f64], w: &[f64], edge: impl Fn(usize) -> f64) -> Vec<f64> {
+    let k = w.len() / 2;
+    (0..x.len())
+        .map(|i| if i < k || i + k >= x.len() { edge(i) } else { w.iter().enumerate().map(|(j, wj)| wj * x[i + j - k]).sum() })
+        .collect()
+}
+
+/// The signals the terms are applied to: the sim bag's gyro and accel smoothed (leave-out
+/// local quadratic over ±`half_window_s`), ω̇ by a Savitzky–Golay derivative of the sim gyro
+/// over ±2·`half_window_s`, attitude from ground truth (identity when there is none) and
+/// temperature (25 °C when there is none).
+pub fn base_signals(a: &Aligned, half_window_s: f64) -> ImuSignals {
+    let dt = a.dt();
+    let k = ((half_window_s / dt).round() as usize).max(1);
+    let kd = ((2.0 * half_window_s / dt).round() as usize).max(1);
+    let wv = leave_out_weights(k);
+    let wd = derivative_weights(kd);
+    let smooth: [Vec<f64>; 6] = std::array::from_fn(|c| filter(&a.sim[c], &wv, |i| a.sim[c][i]));
+    let deriv: [Vec<f64>; 3] = std::array::from_fn(|c| {
+        let x = &a.sim[c];
+        let n = x.len();
+        filter(x, &wd, |i| {
+            let (l, r) = (i.saturating_sub(1), (i + 1).min(n - 1));
+            (x[r] - x[l]) / ((r - l).max(1) as f64)
+        })
+        .into_iter()
+        .map(|v| v / dt)
+        .collect()
+    });
+    let n = a.len();
+    let v3 = |ch: &[Vec<f64>], i: usize| Vector3::new(ch[0][i], ch[1][i], ch[2][i]);
+    // ω̇ from the noise-free ground truth when there is one (a derivative of the noisy sim gyro
+    // is noise-dominated on gentle motion), else from the sim gyro.
+    let gt = &a.sim_recording.ground_truth;
+    let alpha_in_imu = match (gt.len() >= 4, super::kinematics::ideal_from_poses(gt, &a.stamps_ns)) {
+        (true, Ok(s)) => s.alpha_in_imu,
+        _ => (0..n).map(|i| v3(&deriv, i)).collect(),
+    };
+    ImuSignals {
+        stamps_ns: a.stamps_ns.clone(),
+        world_from_imu: a.world_from_imu.clone().unwrap_or_else(|| vec![nalgebra::UnitQuaternion::identity(); n]),
+        alpha_in_imu,
+        temperature_c: a.temperature_c.clone().unwrap_or_else(|| vec![25.0; n]),
+        gyro: (0..n).map(|i| v3(&smooth[..3], i)).collect(),
+        accel: (0..n).map(|i| v3(&smooth[3..], i)).collect(),
+    }
+}
+
+/// The noise model of one sensor's residual channels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ChannelNoise {
+    /// Sim white-noise variance per sample.
+    pub white_sim: f64,
+    /// Real white-noise variance per sample (before the real low-pass).
+    pub white_real: f64,
+    /// Pole of the real sensor's first-order low-pass, e^{−ω_c dt} (0: none).
+    pub pole: f64,
+    /// Per-step variance of the residual bias walk.
+    pub walk: f64,
+}
+
+/// Noise model of both sensors.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseModel {
+    pub sensors: [ChannelNoise; 2],
+}
+
+/// Kalman gains of one channel's noise model; whitening is then linear in the data.
+#[derive(Debug, Clone)]
+pub struct Whitener {
+    gains: Vec<[f64; 2]>,
+    inv_sqrt_s: Vec<f64>,
+    pole: f64,
+    /// Σ ln S_k over each sample.
+    pub log_s: Vec<f64>,
+}
+
+impl Whitener {
+    pub fn new(noise: &ChannelNoise, mask: &[bool]) -> Self {
+        let n = mask.len();
+        let a = noise.pole;
+        let qz = (1.0 - a).powi(2) * noise.white_real;
+        // P = [[p00, p01], [p01, p11]]; W_0 = 0 exactly up to one step of walk.
+        let (mut p00, mut p01, mut p11) = (noise.walk, 0.0, noise.white_real);
+        let mut gains = Vec::with_capacity(n);
+        let mut inv_sqrt_s = Vec::with_capacity(n);
+        let mut log_s = Vec::with_capacity(n);
+        for &m in mask {
+            if m {
+                let s = p00 + 2.0 * p01 + p11 + noise.white_sim;
+                let k0 = (p00 + p01) / s;
+                let k1 = (p01 + p11) / s;
+                // P − K S Kᵀ
+                p00 -= k0 * k0 * s;
+                p01 -= k0 * k1 * s;
+                p11 -= k1 * k1 * s;
+                gains.push([k0, k1]);
+                inv_sqrt_s.push(1.0 / s.sqrt());
+                log_s.push(s.ln());
+            } else {
+                gains.push([0.0, 0.0]);
+                inv_sqrt_s.push(0.0);
+                log_s.push(0.0);
+            }
+            // Predict: F = diag(1, a), Q = diag(q, (1−a)² σ_r²).
+            p00 += noise.walk;
+            p01 *= a;
+            p11 = a * a * p11 + qz;
+        }
+        Whitener { gains, inv_sqrt_s, pole: a, log_s }
+    }
+
+    /// Whitened innovations of `x` (0 at masked samples).
+    pub fn whiten(&self, x: &[f64]) -> Vec<f64> {
+        let (mut w, mut z) = (0.0, 0.0);
+        let mut out = Vec::with_capacity(x.len());
+        for (k, &xk) in x.iter().enumerate() {
+            let [k0, k1] = self.gains[k];
+            let nu = xk - w - z;
+            out.push(nu * self.inv_sqrt_s[k]);
+            w += k0 * nu;
+            z = self.pole * (z + k1 * nu);
+        }
+        out
+    }
+}
+
+/// Sufficient statistics of a whitened regression over one time block.
+#[derive(Debug, Clone)]
+pub struct BlockStats {
+    /// Σ x̃ x̃ᵀ over the regressors.
+    pub gram: DMatrix<f64>,
+    /// Σ x̃ ỹ.
+    pub xy: DVector<f64>,
+    /// Σ ỹ².
+    pub yy: f64,
+    /// Σ ln S.
+    pub log_s: f64,
+    /// Samples (per channel, summed over channels).
+    pub n: f64,
+}
+
+impl BlockStats {
+    pub fn zeros(p: usize) -> Self {
+        BlockStats { gram: DMatrix::zeros(p, p), xy: DVector::zeros(p), yy: 0.0, log_s: 0.0, n: 0.0 }
+    }
+
+    pub fn add(&mut self, o: &BlockStats) {
+        self.gram += &o.gram;
+        self.xy += &o.xy;
+        self.yy += o.yy;
+        self.log_s += o.log_s;
+        self.n += o.n;
+    }
+
+    /// Gaussian log-likelihood of the block at regression coefficients θ (with an offset
+    /// already folded into the data), whitened units.
+    pub fn loglik(&self, theta: &DVector<f64>) -> f64 {
+        let ssr = self.yy - 2.0 * theta.dot(&self.xy) + (theta.transpose() * &self.gram * theta)[(0, 0)];
+        -0.5 * (ssr + self.log_s + self.n * (2.0 * std::f64::consts::PI).ln())
+    }
+}
+
+/// Regressor columns: per channel, `None` when the regressor is zero there.
+pub type Column = [Option<Vec<f64>>; 6];
+
+/// Whiten the residual and the columns under `noise` and sum the statistics per time block.
+/// `blocks` are sample ranges covering the recording.
+pub fn block_stats(
+    y: &[Vec<f64>; 6],
+    columns: &[&Column],
+    noise: &NoiseModel,
+    mask: &[bool],
+    blocks: &[std::ops::Range<usize>],
+) -> Vec<BlockStats> {
+    let p = columns.len();
+    let mut out: Vec<BlockStats> = blocks.iter().map(|_| BlockStats::zeros(p)).collect();
+    for c in 0..6 {
+        let wh = Whitener::new(&noise.sensors[sensor_of(c)], mask);
+        let yt = wh.whiten(&y[c]);
+        let active: Vec<(usize, Vec<f64>)> =
+            columns.iter().enumerate().filter_map(|(j, col)| col[c].as_ref().map(|x| (j, wh.whiten(x)))).collect();
+        for (b, r) in blocks.iter().enumerate() {
+            let s = &mut out[b];
+            s.yy += yt[r.clone()].iter().map(|v| v * v).sum::<f64>();
+            s.log_s += wh.log_s[r.clone()].iter().sum::<f64>();
+            s.n += mask[r.clone()].iter().filter(|m| **m).count() as f64;
+            for (ai, (j, xj)) in active.iter().enumerate() {
+                s.xy[*j] += dot(&xj[r.clone()], &yt[r.clone()]);
+                for (l, xl) in &active[ai..] {
+                    let v = dot(&xj[r.clone()], &xl[r.clone()]);
+                    s.gram[(*j, *l)] += v;
+                    if l != j {
+                        s.gram[(*l, *j)] += v;
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+pub fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// `n` samples split into `k` contiguous blocks of (nearly) equal length.
+pub fn blocks(n: usize, k: usize) -> Vec<std::ops::Range<usize>> {
+    let k = k.clamp(1, n.max(1));
+    (0..k).map(|b| b * n / k..(b + 1) * n / k).collect()
+}
+
+/// Whitened residual channels (innovations / √S) under a noise model.
+pub fn whitened(y: &[Vec<f64>; 6], noise: &NoiseModel, mask: &[bool]) -> [Vec<f64>; 6] {
+    std::array::from_fn(|c| Whitener::new(&noise.sensors[sensor_of(c)], mask).whiten(&y[c]))
+}

@@ -1,0 +1,444 @@
+//! Model selection: which left-out terms explain the residual, judged on held-out blocks.
+//!
+//! Greedy forward selection: at each step every candidate not yet in the model is fitted
+//! together with the chosen ones, and scored by its held-out log-likelihood gain (blocks of
+//! time left out in turn, [`super::fit::evaluate`]). The best candidate enters when its gain
+//! exceeds [`SelectOptions::threshold`] + [`SelectOptions::per_param`] × its parameter count,
+//! a held-out likelihood-ratio threshold set on null recordings (no term left out) so that
+//! they give no term. A backward pass then drops any chosen term whose removal costs less
+//! than the threshold, so a term that entered early and was made redundant by a better
+//! explanation leaves. Competing explanations (delay vs low-pass, bias vs g-sensitivity,
+//! misalignment vs mount rotation, walk vs temperature) meet as rival candidates of one
+//! step; the one that predicts the held-out blocks better wins.
+//!
+//! The bias-walk density of the residual is re-estimated (maximum likelihood, golden-section
+//! search on log q) after every change of the model, so a slow drift is explained by the walk
+//! unless a term predicts it better out of sample.
+
+use nalgebra::DMatrix;
+
+use super::catalogue::{atom_map, Catalogue};
+use super::fit::{evaluate, Fit};
+use super::psd::periodogram_peak;
+use super::residual::{block_stats, blocks, whitened, BlockStats, Column, NoiseModel};
+use super::DiagnoseError;
+use crate::physics::{self, ImuSignals, LowPass, LowPassSensor, Term};
+
+/// Options of the selection.
+#[derive(Debug, Clone, Copy)]
+pub struct SelectOptions {
+    /// Time blocks for cross-validation.
+    pub folds: usize,
+    /// Held-out log-likelihood gain a term needs, plus `per_param` per parameter.
+    pub threshold: f64,
+    pub per_param: f64,
+    /// Family-wise false-alarm probability of the vibration peak search.
+    pub vibration_alpha: f64,
+}
+
+impl Default for SelectOptions {
+    fn default() -> Self {
+        SelectOptions { folds: 8, threshold: 12.0, per_param: 0.5, vibration_alpha: 1e-4 }
+    }
+}
+
+/// A chosen linear candidate with its nonlinear parameter (T_ref; 0 otherwise).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Chosen {
+    pub cand: usize,
+    pub nonlinear: f64,
+}
+
+/// A noise-model term: changes the residual's noise, not only its mean.
+#[derive(Debug, Clone, PartialEq)]
+pub enum NoiseTerm {
+    NoiseDensity { factor: f64 },
+    LowPass { cutoff_hz: f64, sensor: LowPassSensor },
+}
+
+/// One step of the selection, for the report.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Step {
+    pub action: String,
+    pub term: String,
+    /// Held-out log-likelihood gain of this step (whitened units).
+    pub heldout_gain: f64,
+    /// The runner-up candidate and its gain.
+    pub runner_up: Option<(String, f64)>,
+}
+
+/// Everything the selection needs.
+pub struct Problem<'a> {
+    pub y: [Vec<f64>; 6],
+    pub mask: Vec<bool>,
+    pub base: &'a ImuSignals,
+    pub catalogue: Catalogue,
+    pub noise: NoiseModel,
+    /// The sensor noise the simulator states (per-sample variances), before any noise term.
+    pub stated: (f64, f64),
+    /// Judge gyro_noise_density (real and sim at the same rate).
+    pub judge_noise_density: bool,
+    pub temperature: Option<(f64, f64)>,
+    pub opts: SelectOptions,
+}
+
+/// The result.
+#[derive(Debug, Clone)]
+pub struct Selection {
+    pub chosen: Vec<Chosen>,
+    pub noise_terms: Vec<NoiseTerm>,
+    pub noise: NoiseModel,
+    pub fit: Fit,
+    pub steps: Vec<Step>,
+    pub vibration_hz: f64,
+    /// The residual the final fit is on (y minus fixed effects of noise terms).
+    pub y: [Vec<f64>; 6],
+    /// Baseline (no term) held-out log-likelihood per block and its noise model.
+    pub baseline: Fit,
+    pub baseline_noise: NoiseModel,
+    /// The catalogue, with the vibration candidate as last set.
+    pub catalogue: Catalogue,
+}
+
+/// The design matrix of a set of chosen candidates.
+pub fn design(cat: &Catalogue, chosen: &[Chosen]) -> DMatrix<f64> {
+    let maps: Vec<DMatrix<f64>> = chosen.iter().map(|c| atom_map(cat, c.cand, c.nonlinear)).collect();
+    let p: usize = maps.iter().map(|m| m.ncols()).sum();
+    let mut a = DMatrix::zeros(cat.atoms.len(), p);
+    let mut o = 0;
+    for m in maps {
+        a.view_mut((0, o), (m.nrows(), m.ncols())).copy_from(&m);
+        o += m.ncols();
+    }
+    a
+}
+
+/// Statistics restricted to the atoms the chosen candidates use (for quick refits).
+fn reduced(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &NoiseModel) -> (Vec<BlockStats>, DMatrix<f64>) {
+    let a = design(&p.catalogue, chosen);
+    let used: Vec<usize> = (0..a.nrows()).filter(|&r| a.row(r).iter().any(|v| *v != 0.0)).collect();
+    let cols: Vec<&Column> = used.iter().map(|&i| &p.catalogue.atoms[i].column).collect();
+    let bl = blocks(y[0].len(), p.opts.folds);
+    let stats = block_stats(y, &cols, noise, &p.mask, &bl);
+    let ar = DMatrix::from_fn(used.len(), a.ncols(), |r, c| a[(used[r], c)]);
+    (stats, ar)
+}
+
+fn fit_reduced(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &NoiseModel) -> Fit {
+    let (s, a) = reduced(p, y, chosen, noise);
+    evaluate(&s, &a)
+}
+
+/// Golden-section maximisation of f on [lo, hi].
+pub fn golden(mut lo: f64, mut hi: f64, iters: usize, mut f: impl FnMut(f64) -> f64) -> (f64, f64) {
+    let r = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut x1, mut x2) = (hi - r * (hi - lo), lo + r * (hi - lo));
+    let (mut f1, mut f2) = (f(x1), f(x2));
+    for _ in 0..iters {
+        if f1 > f2 {
+            hi = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = hi - r * (hi - lo);
+            f1 = f(x1);
+        } else {
+            lo = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = lo + r * (hi - lo);
+            f2 = f(x2);
+        }
+    }
+    if f1 > f2 {
+        (x1, f1)
+    } else {
+        (x2, f2)
+    }
+}
+
+/// Maximum-likelihood walk variance per sensor for the chosen model.
+fn estimate_walk(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &mut NoiseModel) {
+    for s in 0..2 {
+        let white = noise.sensors[s].white_sim + noise.sensors[s].white_real;
+        let lo = (white * 1e-12).log10();
+        let hi = (white * 1e-1).log10();
+        let (best, _) = golden(lo, hi, 22, |lq| {
+            let mut n = *noise;
+            n.sensors[s].walk = 10f64.powf(lq);
+            fit_reduced(p, y, chosen, &n).loglik
+        });
+        noise.sensors[s].walk = 10f64.powf(best);
+    }
+}
+
+/// The residual with the fixed mean effect of a low-pass removed, and its noise model.
+fn apply_noise_term(
+    p: &Problem,
+    term: &NoiseTerm,
+    y: &[Vec<f64>; 6],
+    noise: &NoiseModel,
+) -> Result<([Vec<f64>; 6], NoiseModel), DiagnoseError> {
+    let mut n = *noise;
+    let mut y2 = y.clone();
+    match term {
+        NoiseTerm::NoiseDensity { factor } => n.sensors[0].white_real = factor * factor * p.stated.0,
+        NoiseTerm::LowPass { cutoff_hz, sensor } => {
+            let dt = p.base.nominal_dt();
+            let pole = (-std::f64::consts::TAU * cutoff_hz * dt).exp();
+            for s in sensor.sensors() {
+                n.sensors[*s as usize].pole = pole;
+            }
+            // The mean effect to first order: the filter's low-frequency delay a/(1−a)·dt times
+            // the time_offset regressor (−ẋ), on the filtered sensors only. (The exact filter
+            // applied to the base signals also filters the sim noise left in them, which the
+            // residual does not contain.)
+            let delay = pole / (1.0 - pole) * dt;
+            let col = p.catalogue.candidate("time_offset").map(|k| &p.catalogue.atoms[p.catalogue.candidates[k].atoms[0]].column);
+            for (c, v) in col.into_iter().flat_map(|c| c.iter().enumerate()) {
+                let on = sensor.sensors().iter().any(|s| *s as usize == c / 3);
+                if let (Some(v), true) = (v, on) {
+                    y2[c].iter_mut().zip(v).for_each(|(a, b)| *a -= delay * b);
+                }
+            }
+        }
+    }
+    Ok((y2, n))
+}
+
+/// Best gyro_noise_density and low_pass candidates given the chosen mean model.
+fn noise_candidates(
+    p: &Problem,
+    y: &[Vec<f64>; 6],
+    chosen: &[Chosen],
+    noise: &NoiseModel,
+    have: &[NoiseTerm],
+) -> Result<Vec<NoiseTrial>, DiagnoseError> {
+    let mut out = Vec::new();
+    if p.judge_noise_density && !have.iter().any(|t| matches!(t, NoiseTerm::NoiseDensity { .. })) {
+        let (f, _) = golden(0.05f64.ln(), 5f64.ln(), 24, |lf| {
+            let t = NoiseTerm::NoiseDensity { factor: lf.exp() };
+            apply_noise_term(p, &t, y, noise).map(|(y2, n2)| fit_reduced(p, &y2, chosen, &n2).loglik).unwrap_or(f64::NEG_INFINITY)
+        });
+        let t = NoiseTerm::NoiseDensity { factor: f.exp() };
+        let (y2, mut n2) = apply_noise_term(p, &t, y, noise)?;
+        estimate_walk(p, &y2, chosen, &mut n2);
+        let fit = fit_reduced(p, &y2, chosen, &n2);
+        out.push((t, fit, n2, y2));
+    }
+    if !have.iter().any(|t| matches!(t, NoiseTerm::LowPass { .. })) {
+        let fs = 1.0 / p.base.nominal_dt();
+        for sensor in [LowPassSensor::Gyro, LowPassSensor::Accel, LowPassSensor::Both] {
+            let ll = |lc: f64| {
+                let t = NoiseTerm::LowPass { cutoff_hz: lc.exp(), sensor };
+                apply_noise_term(p, &t, y, noise).map(|(y2, n2)| fit_reduced(p, &y2, chosen, &n2).loglik).unwrap_or(f64::NEG_INFINITY)
+            };
+            // Coarse log grid, then golden section around the best point.
+            let grid: Vec<f64> = (0..10).map(|k| (0.01 * fs).ln() + k as f64 * (100f64.ln() / 9.0)).collect();
+            let vals: Vec<f64> = grid.iter().map(|&g| ll(g)).collect();
+            let k = (0..grid.len()).max_by(|&a, &b| vals[a].total_cmp(&vals[b])).unwrap_or(0);
+            tracing::debug!(
+                "low_pass {sensor:?} grid: {:?}",
+                grid.iter().zip(&vals).map(|(g, v)| format!("{:.1}:{v:.1}", g.exp())).collect::<Vec<_>>()
+            );
+            let step = grid[1] - grid[0];
+            let (lc, _) = golden(grid[k] - step, grid[k] + step, 16, ll);
+            let t = NoiseTerm::LowPass { cutoff_hz: lc.exp(), sensor };
+            let (y2, mut n2) = apply_noise_term(p, &t, y, noise)?;
+            estimate_walk(p, &y2, chosen, &mut n2);
+            let fit = fit_reduced(p, &y2, chosen, &n2);
+            out.push((t, fit, n2, y2));
+        }
+    }
+    Ok(out)
+}
+
+/// A fitted noise-term candidate: the term, its fit, its noise model and residual.
+type NoiseTrial = (NoiseTerm, Fit, NoiseModel, [Vec<f64>; 6]);
+
+/// A candidate of one round: name, gain, parameter count, the linear candidate or the index
+/// of the noise trial.
+type Trial = (String, f64, usize, Option<Chosen>, Option<usize>);
+
+fn noise_term_name(t: &NoiseTerm) -> &'static str {
+    match t {
+        NoiseTerm::NoiseDensity { .. } => "gyro_noise_density",
+        NoiseTerm::LowPass { .. } => "low_pass",
+    }
+}
+
+/// The raw residual minus the fitted model (un-whitened), for peak searches and plots.
+pub fn model_residual(cat: &Catalogue, y: &[Vec<f64>; 6], chosen: &[Chosen], beta: &nalgebra::DVector<f64>) -> [Vec<f64>; 6] {
+    let a = design(cat, chosen);
+    let theta = &a * beta;
+    let mut r = y.clone();
+    for (j, atom) in cat.atoms.iter().enumerate() {
+        if theta[j] == 0.0 {
+            continue;
+        }
+        for (c, col) in atom.column.iter().enumerate() {
+            if let Some(v) = col {
+                r[c].iter_mut().zip(v).for_each(|(a, b)| *a -= theta[j] * b);
+            }
+        }
+    }
+    r
+}
+
+/// Terms whose signal is a slow drift, competing with the bias walk.
+const DRIFT_TERMS: [&str; 3] = ["gyro_bias", "accel_bias", "gyro_bias_temperature"];
+
+/// The gain of a drift term. A constant bias is told from the bias walk only by the walk's
+/// known start (W_0 = 0): its information sits in the first seconds, which no other time
+/// block can predict, so cross-validation over blocks cannot see it. For the constant biases
+/// the gain is therefore the in-sample log-likelihood ratio with a BIC penalty (p/2 ln n);
+/// the temperature term keeps the held-out gain (its drift follows a measured input).
+fn drift_gain(name: &str, with: &Fit, current: &Fit, n: usize, params: usize) -> f64 {
+    if name == "gyro_bias_temperature" {
+        with.loglik_cv - current.loglik_cv
+    } else {
+        with.loglik - current.loglik - 0.5 * params as f64 * (n as f64).ln()
+    }
+}
+
+/// Run the selection.
+pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
+    let mut chosen: Vec<Chosen> = Vec::new();
+    let mut noise_terms: Vec<NoiseTerm> = Vec::new();
+    let mut y = p.y.clone();
+    let mut noise = p.noise;
+    estimate_walk(&p, &y, &chosen, &mut noise);
+    let baseline_noise = noise;
+    let baseline = fit_reduced(&p, &y, &chosen, &noise);
+    let mut current = baseline.clone();
+    let mut steps = Vec::new();
+    let mut vibration_hz = 0.0;
+    let n = y[0].len();
+    let bl = blocks(n, p.opts.folds);
+    let need = |params: usize, o: &SelectOptions| o.threshold + o.per_param * params as f64;
+
+    for _round in 0..12 {
+        // A vibration candidate at the strongest accelerometer line of the current residual.
+        if !chosen.iter().any(|c| p.catalogue.candidates[c.cand].name == "vibration") {
+            let r = model_residual(&p.catalogue, &y, &chosen, &current.beta);
+            let w = whitened(&r, &noise, &p.mask);
+            if let Some(f) = periodogram_peak(&w[3..], p.base.nominal_dt(), p.opts.vibration_alpha) {
+                vibration_hz = f;
+                p.catalogue.set_vibration(f, p.base)?;
+            }
+        }
+        // All atoms whitened under the current noise model.
+        let cols: Vec<&Column> = p.catalogue.atoms.iter().map(|a| &a.column).collect();
+        let stats = block_stats(&y, &cols, &noise, &p.mask, &bl);
+        let mut trials: Vec<Trial> = Vec::new();
+        for (ci, cand) in p.catalogue.candidates.iter().enumerate() {
+            if chosen.iter().any(|c| c.cand == ci) {
+                continue;
+            }
+            let try_with = |nl: f64| {
+                let mut m = chosen.clone();
+                m.push(Chosen { cand: ci, nonlinear: nl });
+                evaluate(&stats, &design(&p.catalogue, &m))
+            };
+            let (nl, fit) = if cand.name == "gyro_bias_temperature" {
+                let (lo, hi) = p.temperature.unwrap_or((0.0, 50.0));
+                let (t, _) = golden(lo - 40.0, hi + 40.0, 30, |t| try_with(t).loglik);
+                (t, try_with(t))
+            } else {
+                (0.0, try_with(0.0))
+            };
+            let this = Chosen { cand: ci, nonlinear: nl };
+            let gain = if DRIFT_TERMS.contains(&cand.name) {
+                // A slow drift competes with the bias walk: re-estimate the walk with the term in.
+                let mut m = chosen.clone();
+                m.push(this);
+                let mut n2 = noise;
+                estimate_walk(&p, &y, &m, &mut n2);
+                let f2 = fit_reduced(&p, &y, &m, &n2);
+                drift_gain(cand.name, &f2, &current, n, cand.params)
+            } else {
+                fit.loglik_cv - current.loglik_cv
+            };
+            trials.push((cand.name.to_string(), gain, cand.params, Some(this), None));
+        }
+        let noise_trials = noise_candidates(&p, &y, &chosen, &noise, &noise_terms)?;
+        for (k, (t, fit, _, _)) in noise_trials.iter().enumerate() {
+            let params = 1;
+            trials.push((noise_term_name(t).into(), fit.loglik_cv - current.loglik_cv, params, None, Some(k)));
+        }
+        trials.sort_by(|a, b| (b.1 - need(b.2, &p.opts)).total_cmp(&(a.1 - need(a.2, &p.opts))));
+        tracing::debug!("selection round: {:?}", trials.iter().map(|t| format!("{} {:.1}", t.0, t.1)).collect::<Vec<_>>());
+        let Some(best) = trials.first().cloned() else { break };
+        if best.1 < need(best.2, &p.opts) {
+            break;
+        }
+        let runner_up = trials.get(1).map(|t| (t.0.clone(), t.1));
+        match (best.3, best.4) {
+            (Some(c), _) => chosen.push(c),
+            (None, Some(k)) => {
+                let (t, _, n2, y2) = noise_trials[k].clone();
+                noise_terms.push(t);
+                noise = n2;
+                y = y2;
+            }
+            _ => break,
+        }
+        steps.push(Step { action: "add".into(), term: best.0.clone(), heldout_gain: best.1, runner_up });
+        estimate_walk(&p, &y, &chosen, &mut noise);
+        current = fit_reduced(&p, &y, &chosen, &noise);
+
+        // Backward: drop a chosen linear term whose removal costs less than its threshold.
+        loop {
+            let mut worst: Option<(usize, f64)> = None;
+            for k in 0..chosen.len() {
+                let mut m = chosen.clone();
+                let removed = m.remove(k);
+                let name = p.catalogue.candidates[removed.cand].name;
+                let params = p.catalogue.candidates[removed.cand].params;
+                let loss = if DRIFT_TERMS.contains(&name) {
+                    let mut n2 = noise;
+                    estimate_walk(&p, &y, &m, &mut n2);
+                    drift_gain(name, &current, &fit_reduced(&p, &y, &m, &n2), n, params)
+                } else {
+                    current.loglik_cv - fit_reduced(&p, &y, &m, &noise).loglik_cv
+                };
+                if loss < need(params, &p.opts) && worst.is_none_or(|w| loss < w.1) {
+                    worst = Some((k, loss));
+                }
+            }
+            let Some((k, loss)) = worst else { break };
+            let removed = chosen.remove(k);
+            steps.push(Step {
+                action: "drop".into(),
+                term: p.catalogue.candidates[removed.cand].name.into(),
+                heldout_gain: -loss,
+                runner_up: None,
+            });
+            estimate_walk(&p, &y, &chosen, &mut noise);
+            current = fit_reduced(&p, &y, &chosen, &noise);
+        }
+    }
+    let fit = fit_reduced(&p, &y, &chosen, &noise);
+    Ok(Selection { chosen, noise_terms, noise, fit, steps, vibration_hz, y, baseline, baseline_noise, catalogue: p.catalogue })
+}
+
+/// The fitted physics terms of a selection, with their 1-σ uncertainties per parameter.
+pub fn terms_of(sel: &Selection) -> Vec<(Term, Vec<f64>)> {
+    let cat = &sel.catalogue;
+    let mut out = Vec::new();
+    let mut o = 0;
+    for c in &sel.chosen {
+        let cand = &cat.candidates[c.cand];
+        let beta: Vec<f64> = (0..cand.params).map(|k| sel.fit.beta[o + k]).collect();
+        let sd: Vec<f64> = (0..cand.params).map(|k| sel.fit.cov[(o + k, o + k)].max(0.0).sqrt()).collect();
+        o += cand.params;
+        out.push((super::catalogue::to_term(cand.name, &beta, c.nonlinear, sel.vibration_hz), sd));
+    }
+    for t in &sel.noise_terms {
+        let term = match t {
+            NoiseTerm::NoiseDensity { factor } => Term::GyroNoiseDensity(physics::GyroNoiseDensity { factor: *factor }),
+            NoiseTerm::LowPass { cutoff_hz, sensor } => Term::LowPass(LowPass { cutoff_hz: *cutoff_hz, sensor: *sensor }),
+        };
+        out.push((term, vec![]));
+    }
+    out
+}
