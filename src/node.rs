@@ -5,7 +5,7 @@
 //! Nothing below this module knows about DDS.
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -13,7 +13,8 @@ use futures::StreamExt;
 use ros2_client::{Context, MessageTypeName, Name, NodeName, NodeOptions, ParameterValue, QosProfile};
 use serde::{Deserialize, Serialize};
 
-use crate::infer::{CorrectedImu, Counters, Pipeline, PipelineConfig};
+use crate::adapt::swap::{warm_up, Buffers, SeqSample, SwapHandle};
+use crate::infer::{CorrectedImu, Counters, GyroCorrector, ModelCorrector, Pipeline, PipelineConfig};
 use crate::msg::{DiagnosticArray, DiagnosticStatus, Header, Imu, KeyValue, RosMessage, Time, Vector3Stamped};
 
 impl ros2_client::Message for Imu {}
@@ -22,6 +23,21 @@ impl ros2_client::Message for DiagnosticArray {}
 impl ros2_client::Message for crate::msg::PoseStamped {}
 impl ros2_client::Message for crate::msg::Odometry {}
 impl ros2_client::Message for crate::msg::Temperature {}
+impl ros2_client::Message for TriggerRequest {}
+impl ros2_client::Message for TriggerResponse {}
+
+/// std_srvs/srv/Trigger's request (ROS 2 gives an empty struct this one member in CDR).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct TriggerRequest {
+    pub structure_needs_at_least_one_member: u8,
+}
+
+/// std_srvs/srv/Trigger's response.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct TriggerResponse {
+    pub success: bool,
+    pub message: String,
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum NodeError {
@@ -64,6 +80,20 @@ pub struct NodeParams {
     pub use_sim_time: bool,
     /// The per-sample pipeline: gaps, rate checks, covariances, initial attitude.
     pub pipeline: PipelineConfig,
+    /// Ground truth for on-demand adaptation (`~/adapt`, std_srvs/srv/Trigger), buffered with
+    /// the input; its type is `ground_truth_type` (geometry_msgs/msg/PoseStamped or
+    /// nav_msgs/msg/Odometry). Empty: no adaptation service.
+    pub ground_truth_topic: String,
+    pub ground_truth_type: String,
+    /// Newest seconds of input and ground truth kept for adaptation (bounded ring buffers).
+    pub adapt_buffer_seconds: f64,
+    /// Of the buffered data, the first `adapt_support_seconds` adapt the model, the rest judges it.
+    pub adapt_support_seconds: f64,
+    /// Where adapted models are written (`<model name>-adapted-<unix s>.{pt,ot,json}`); empty:
+    /// beside the model. Set `model` to one to start with it.
+    pub adapted_model_dir: String,
+    /// Inner-loop settings (crate::adapt::AdaptConfig).
+    pub adapt: crate::adapt::AdaptConfig,
 }
 
 impl Default for NodeParams {
@@ -78,6 +108,12 @@ impl Default for NodeParams {
             diagnostics_period: 1.0,
             use_sim_time: false,
             pipeline: PipelineConfig::default(),
+            ground_truth_topic: "/ground_truth/pose".into(),
+            ground_truth_type: "geometry_msgs/msg/PoseStamped".into(),
+            adapt_buffer_seconds: 120.0,
+            adapt_support_seconds: 60.0,
+            adapted_model_dir: String::new(),
+            adapt: crate::adapt::AdaptConfig::default(),
         }
     }
 }
@@ -118,7 +154,13 @@ impl NodeParams {
         let norm = |t: &str| if t.starts_with('/') { t.to_string() } else { format!("/{t}") };
         let (from, to) = (norm(from), norm(to));
         let mut hit = false;
-        for t in [&mut self.input_topic, &mut self.output_topic, &mut self.correction_topic, &mut self.diagnostics_topic] {
+        for t in [
+            &mut self.input_topic,
+            &mut self.output_topic,
+            &mut self.correction_topic,
+            &mut self.diagnostics_topic,
+            &mut self.ground_truth_topic,
+        ] {
             if *t == from {
                 *t = to.clone();
                 hit = true;
@@ -256,6 +298,12 @@ pub struct NodeStats {
     pub model: String,
     pub window: usize,
     pub model_status: String,
+    /// Adaptation (empty when the service is off): idle / running / the last result.
+    pub adapt_status: String,
+    pub adaptations: u64,
+    pub adapt_query_aoe_before_deg: Option<f64>,
+    pub adapt_query_aoe_after_deg: Option<f64>,
+    pub adapt_seconds: Option<f64>,
 }
 
 /// Build the /diagnostics message from the stats.
@@ -293,6 +341,15 @@ pub fn diagnostics_message(stats: &NodeStats, node_name: &str, stamp: Time) -> D
         kv("frame_id_changes", stats.frame_changes.to_string()),
         kv("warmup_samples", c.warmup_samples.to_string()),
     ];
+    let mut values = values;
+    if !stats.adapt_status.is_empty() {
+        let f = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x:.3}"));
+        values.push(kv("adaptation", stats.adapt_status.clone()));
+        values.push(kv("adaptations", stats.adaptations.to_string()));
+        values.push(kv("adapt_query_aoe_before_deg", f(stats.adapt_query_aoe_before_deg)));
+        values.push(kv("adapt_query_aoe_after_deg", f(stats.adapt_query_aoe_after_deg)));
+        values.push(kv("adapt_seconds", f(stats.adapt_seconds)));
+    }
     DiagnosticArray {
         header: Header { stamp, frame_id: String::new() },
         status: vec![DiagnosticStatus {
@@ -337,6 +394,26 @@ pub async fn run_node(
     model_status: String,
     limits: RunLimits,
 ) -> Result<NodeStats, NodeError> {
+    run_node_with_adaptation(node_name, params, env, pipeline, model_status, limits, None).await
+}
+
+/// What the adaptation service needs: the handle on the pipeline's [`SwappableCorrector`]
+/// (crate::adapt::swap) and the model file it runs (the meta-learned initialisation).
+pub struct AdaptSetup {
+    pub handle: SwapHandle,
+    pub model: PathBuf,
+}
+
+/// [`run_node`] with the `~/adapt` service (when `adapt` is given and `ground_truth_topic` is set).
+pub async fn run_node_with_adaptation(
+    node_name: &str,
+    params: NodeParams,
+    env: RosEnvironment,
+    pipeline: Pipeline,
+    model_status: String,
+    limits: RunLimits,
+    adapt: Option<AdaptSetup>,
+) -> Result<NodeStats, NodeError> {
     let context = env.context()?;
     let mut options = NodeOptions::new().enable_rosout(false);
     if params.use_sim_time {
@@ -363,6 +440,42 @@ pub async fn run_node(
     let out_pub = node.create_publisher::<Imu>(&output_topic, Some(reliable_qos.clone())).map_err(dds)?;
     let corr_pub = node.create_publisher::<Vector3Stamped>(&correction_topic, Some(reliable_qos.clone())).map_err(dds)?;
     let diag_pub = node.create_publisher::<DiagnosticArray>(&diag_topic, Some(reliable_qos)).map_err(dds)?;
+    let adapt = adapt.filter(|_| !params.ground_truth_topic.is_empty());
+    let buffers = adapt.as_ref().map(|_| Arc::new(Mutex::new(Buffers::new(params.adapt_buffer_seconds))));
+    let mut gt_source: Option<GroundTruthSub> = None;
+    let mut server: Option<ros2_client::service::Server<TriggerRequest, TriggerResponse>> = None;
+    if adapt.is_some() {
+        let gt_qos = sensor_data_qos(depth.max(50));
+        let name = topic_name(&params.ground_truth_topic)?;
+        gt_source = Some(match params.ground_truth_type.as_str() {
+            "geometry_msgs/msg/PoseStamped" | "geometry_msgs/PoseStamped" => {
+                let t = node.create_topic(&name, type_name::<crate::msg::PoseStamped>(), &gt_qos).map_err(dds)?;
+                GroundTruthSub::Pose(node.create_subscription(&t, Some(gt_qos.clone())).map_err(dds)?)
+            }
+            "nav_msgs/msg/Odometry" | "nav_msgs/Odometry" => {
+                let t = node.create_topic(&name, type_name::<crate::msg::Odometry>(), &gt_qos).map_err(dds)?;
+                GroundTruthSub::Odometry(node.create_subscription(&t, Some(gt_qos.clone())).map_err(dds)?)
+            }
+            other => {
+                return Err(NodeError::TopicName {
+                    name: params.ground_truth_topic.clone(),
+                    why: format!("ground_truth_type {other:?}: geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry"),
+                })
+            }
+        });
+        let service_qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 10 });
+        let srv_name = topic_name(&format!("/{node_name}/adapt"))?;
+        server = Some(
+            node.create_server::<TriggerRequest, TriggerResponse>(
+                ros2_client::service::ServiceMapping::Enhanced,
+                &srv_name,
+                &ros2_client::ServiceTypeName::new("std_srvs", "Trigger"),
+                service_qos.clone(),
+                service_qos,
+            )
+            .map_err(dds)?,
+        );
+    }
     let spinner = node.spinner().map_err(dds)?;
 
     let stats = Arc::new(Mutex::new(NodeStats {
@@ -370,6 +483,7 @@ pub async fn run_node(
         window: pipeline.window(),
         model_status,
         warming_up: true,
+        adapt_status: if adapt.is_some() { "idle".into() } else { String::new() },
         ..Default::default()
     }));
     tracing::info!(input = %params.input_topic, output = %params.output_topic, domain = env.domain_id, localhost_only = env.localhost_only, "node {node_name} up");
@@ -380,7 +494,19 @@ pub async fn run_node(
         }
     });
 
-    let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits);
+    let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits, buffers.clone());
+    let gt_task = async {
+        match (&gt_source, &buffers) {
+            (Some(src), Some(b)) => ground_truth_loop(src, b).await,
+            _ => std::future::pending().await,
+        }
+    };
+    let service_task = async {
+        match (&server, &buffers, &adapt) {
+            (Some(srv), Some(b), Some(a)) => service_loop(srv, b, a, &params, stats.clone()).await,
+            _ => std::future::pending().await,
+        }
+    };
     let diag_stats = stats.clone();
     let node_name_owned = node_name.to_string();
     let period = Duration::from_secs_f64(params.diagnostics_period.max(0.01));
@@ -414,6 +540,8 @@ pub async fn run_node(
     tokio::select! {
         _ = processing => {}
         _ = diagnostics => {}
+        _ = gt_task => {}
+        _ = service_task => {}
         _ = shutdown => tracing::info!("shutting down"),
     }
     // Stop the spinner before the node is dropped so peers hear it leave.
@@ -430,6 +558,7 @@ async fn process_loop(
     mut pipeline: Pipeline,
     stats: Arc<Mutex<NodeStats>>,
     limits: RunLimits,
+    buffers: Option<Arc<Mutex<Buffers>>>,
 ) {
     let stream = subscription.async_stream();
     futures::pin_mut!(stream);
@@ -463,6 +592,10 @@ async fn process_loop(
                 tracing::warn!("input frame_id changed from {:?} to {:?}; passed through", last_frame, msg.header.frame_id);
             }
             last_frame = Some(msg.header.frame_id.clone());
+        }
+        if let (Ok(c), Some(b)) = (&result, &buffers) {
+            let seq = pipeline.counters().processed;
+            b.lock().expect("buffers lock").push_imu(SeqSample { seq, sample, reset_before: c.after_gap });
         }
         if let Ok(c) = &result {
             let correction = Vector3Stamped { header: msg.header.clone(), vector: c.correction.into() };
@@ -502,6 +635,232 @@ async fn process_loop(
         if limits.max_messages.is_some_and(|m| published >= m) {
             return;
         }
+    }
+}
+
+enum GroundTruthSub {
+    Pose(ros2_client::Subscription<crate::msg::PoseStamped>),
+    Odometry(ros2_client::Subscription<crate::msg::Odometry>),
+}
+
+async fn ground_truth_loop(src: &GroundTruthSub, buffers: &Arc<Mutex<Buffers>>) {
+    let mut rejected = 0u64;
+    let mut push = |p: Option<crate::core::PoseSample>| {
+        let ok = p.is_some_and(|p| buffers.lock().expect("buffers lock").push_ground_truth(p));
+        if !ok {
+            rejected += 1;
+            if rejected.is_power_of_two() {
+                tracing::warn!("{rejected} ground-truth messages ignored (invalid or out of order)");
+            }
+        }
+    };
+    match src {
+        GroundTruthSub::Pose(sub) => {
+            let stream = sub.async_stream();
+            futures::pin_mut!(stream);
+            while let Some(m) = stream.next().await {
+                if let Ok((m, _)) = m {
+                    push(m.sample());
+                }
+            }
+        }
+        GroundTruthSub::Odometry(sub) => {
+            let stream = sub.async_stream();
+            futures::pin_mut!(stream);
+            while let Some(m) = stream.next().await {
+                if let Ok((m, _)) = m {
+                    push(m.sample());
+                }
+            }
+        }
+    }
+}
+
+/// The result of one adaptation job (run on its own thread).
+struct JobResult {
+    success: bool,
+    message: String,
+    report: Option<crate::adapt::AdaptReport>,
+    model_name: Option<String>,
+}
+
+/// `~/adapt`: one adaptation at a time, on a blocking thread; a second request while one runs
+/// is answered at once with success = false.
+async fn service_loop(
+    server: &ros2_client::service::Server<TriggerRequest, TriggerResponse>,
+    buffers: &Arc<Mutex<Buffers>>,
+    setup: &AdaptSetup,
+    params: &NodeParams,
+    stats: Arc<Mutex<NodeStats>>,
+) {
+    let mut running: Option<(ros2_client::RmwRequestId, tokio::sync::oneshot::Receiver<JobResult>, Instant)> = None;
+    loop {
+        let finished = async {
+            match running.as_mut() {
+                Some((_, rx, _)) => rx.await.ok(),
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            req = server.async_receive_request() => {
+                let id = match req {
+                    Ok((id, _)) => id,
+                    Err(e) => {
+                        tracing::warn!("~/adapt request: {e:?}");
+                        continue;
+                    }
+                };
+                if let Some((_, _, started)) = &running {
+                    let msg = format!("an adaptation is already running (started {:.1} s ago); the current model keeps running — call again when it ends", started.elapsed().as_secs_f64());
+                    respond(server, id, false, msg).await;
+                    continue;
+                }
+                let (imu, gt): (Vec<SeqSample>, Vec<crate::core::PoseSample>) = {
+                    let b = buffers.lock().expect("buffers lock");
+                    (b.imu.iter().copied().collect(), b.ground_truth.iter().copied().collect())
+                };
+                let (tx, rx) = tokio::sync::oneshot::channel();
+                let job = Job {
+                    model: setup.model.clone(),
+                    handle: setup.handle.clone(),
+                    buffers: buffers.clone(),
+                    imu,
+                    gt,
+                    support_seconds: params.adapt_support_seconds,
+                    out_dir: params.adapted_model_dir.clone(),
+                    cfg: params.adapt.clone(),
+                };
+                let spawned = std::thread::Builder::new().name("imu-fsda-adapt".into()).spawn(move || {
+                    let _ = tx.send(job.run());
+                });
+                if let Err(e) = spawned {
+                    respond(server, id, false, format!("cannot start the adaptation thread: {e}")).await;
+                    continue;
+                }
+                stats.lock().expect("stats lock").adapt_status = "running".into();
+                tracing::info!("adaptation started");
+                running = Some((id, rx, Instant::now()));
+            }
+            res = finished => {
+                let Some((id, _, started)) = running.take() else { continue };
+                let res = res.unwrap_or(JobResult { success: false, message: "the adaptation thread died".into(), report: None, model_name: None });
+                {
+                    let mut s = stats.lock().expect("stats lock");
+                    s.adaptations += 1;
+                    s.adapt_seconds = Some(started.elapsed().as_secs_f64());
+                    if let Some(r) = &res.report {
+                        s.adapt_query_aoe_before_deg = Some(r.query_before.aoe_deg);
+                        s.adapt_query_aoe_after_deg = Some(r.query_after.aoe_deg);
+                    }
+                    if let Some(n) = &res.model_name {
+                        s.model.clone_from(n);
+                    }
+                    s.adapt_status = format!("{}: {}", if res.success { "accepted" } else { "not applied" }, res.message);
+                }
+                tracing::info!("adaptation finished: {}", res.message);
+                respond(server, id, res.success, res.message).await;
+            }
+        }
+    }
+}
+
+async fn respond(
+    server: &ros2_client::service::Server<TriggerRequest, TriggerResponse>,
+    id: ros2_client::RmwRequestId,
+    success: bool,
+    message: String,
+) {
+    if let Err(e) = server.async_send_response(id, TriggerResponse { success, message }).await {
+        tracing::warn!("~/adapt response: {e:?}");
+    }
+}
+
+struct Job {
+    model: PathBuf,
+    handle: SwapHandle,
+    buffers: Arc<Mutex<Buffers>>,
+    imu: Vec<SeqSample>,
+    gt: Vec<crate::core::PoseSample>,
+    support_seconds: f64,
+    out_dir: String,
+    cfg: crate::adapt::AdaptConfig,
+}
+
+impl Job {
+    fn run(self) -> JobResult {
+        match self.run_inner() {
+            Ok(r) => r,
+            Err(e) => {
+                JobResult { success: false, message: format!("{e:#}; the current model keeps running"), report: None, model_name: None }
+            }
+        }
+    }
+
+    fn run_inner(&self) -> anyhow::Result<JobResult> {
+        use anyhow::Context;
+        // Off the real-time path, one intra-op thread (the node's setting).
+        tch::set_num_threads(1);
+        let t0 = Instant::now();
+        let meta = crate::model::predict::metadata_path(&self.model);
+        let loaded = crate::model::export::load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading {}", meta.display()))?;
+        anyhow::ensure!(!self.imu.is_empty(), "no input buffered yet");
+        anyhow::ensure!(!self.gt.is_empty(), "no ground truth received yet");
+        let rec = crate::core::Recording {
+            name: "node buffer".into(),
+            imu: self.imu.iter().map(|s| s.sample).collect(),
+            ground_truth: self.gt.clone(),
+            temperature: Vec::new(),
+        };
+        let (support, query) = crate::adapt::split_recording(&rec, self.support_seconds, None, &self.cfg);
+        anyhow::ensure!(
+            !query.imu.is_empty(),
+            "only {:.1} s buffered: nothing after the {} s support set to judge the adaptation on",
+            rec.imu_seconds(),
+            self.support_seconds
+        );
+        let outcome = crate::adapt::adapt(&loaded, &support, &query, &self.cfg)?;
+        let r = outcome.report;
+        let figures = format!(
+            "query AOE {:.3}° → {:.3}° (raw gyro {:.3}°), support {:.1} s, query {:.1} s, {} steps in {:.1} s",
+            r.query_before.aoe_deg, r.query_after.aoe_deg, r.query_raw.aoe_deg, r.support_seconds, r.query_seconds, r.steps, r.step_seconds
+        );
+        let Some(adapted) = outcome.adapted else {
+            return Ok(JobResult { success: false, message: format!("{}; {figures}", r.verdict), report: Some(r), model_name: None });
+        };
+        let dir =
+            if self.out_dir.is_empty() { meta.parent().unwrap_or(Path::new(".")).to_path_buf() } else { PathBuf::from(&self.out_dir) };
+        let unix = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+        let name = format!("{}-adapted-{unix}", loaded.metadata.name);
+        let paths = crate::adapt::save_adapted(&adapted, &r, &dir, &name)?;
+        let mut corrector = ModelCorrector::load(&paths.torchscript)?;
+        // Warm the new streaming model on the recent history, then hand it over: the
+        // pipeline catches up on what arrived meanwhile and swaps between two samples.
+        let history: Vec<SeqSample> = {
+            let b = self.buffers.lock().expect("buffers lock");
+            let n = corrector.window() + 1;
+            b.imu.iter().skip(b.imu.len().saturating_sub(n)).copied().collect()
+        };
+        let fed = warm_up(&mut corrector, &history);
+        let (swaps_before, _) = self.handle.swaps();
+        self.handle.offer(Box::new(corrector), fed);
+        let wait = Instant::now();
+        while self.handle.swaps().0 == swaps_before && wait.elapsed() < Duration::from_secs(5) {
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let swapped = match self.handle.swaps() {
+            (n, Some((seq, caught_up))) if n > swaps_before => format!("swapped in at sample {seq} (caught up {caught_up} samples)"),
+            _ => "will be swapped in at the next sample".to_string(),
+        };
+        Ok(JobResult {
+            success: true,
+            message: format!(
+                "adapted: {figures}; saved {}; {swapped}; total {:.1} s",
+                paths.torchscript.display(),
+                t0.elapsed().as_secs_f64()
+            ),
+            report: Some(r),
+            model_name: Some(name),
+        })
     }
 }
 

@@ -1,8 +1,137 @@
-//! `imu-fsda adapt` (in progress).
+//! `imu-fsda adapt`: few-shot adaptation of a model to a new robot / IMU from one bag with
+//! ground truth. The first `--support-seconds` (with ground truth) adapt the Embedding; the
+//! rest (or `--query-seconds` of it) is held back to judge: the adapted model is written only
+//! if its orientation error there is lower than the starting model's.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use imu_fsda::adapt::{adapt, save_adapted, split_recording, AdaptConfig, FramePolicy};
+use imu_fsda::bag::{read_recording, RecordingTopics, GROUND_TRUTH_TOPIC, IMU_TOPIC};
+use imu_fsda::model::export::load_net;
+use imu_fsda::model::predict::metadata_path;
 
 #[derive(Debug, clap::Args)]
-pub struct AdaptArgs {}
+pub struct AdaptArgs {
+    /// The model to adapt (`.pt`, `.ot` or `.json`; the three files must sit together).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// MCAP bag with the IMU and ground truth of the new robot / IMU.
+    #[arg(long)]
+    pub bag: PathBuf,
+    /// Where to write the adapted model (`<dir>/<name>.pt`; `.ot`, `.json`, `.adapt.json` beside it).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    #[arg(long, default_value = IMU_TOPIC)]
+    pub imu_topic: String,
+    /// geometry_msgs/PoseStamped, nav_msgs/Odometry, or a reference sensor_msgs/Imu's orientation.
+    #[arg(long, default_value = GROUND_TRUTH_TOPIC)]
+    pub ground_truth_topic: String,
+    /// Support set: this many seconds from the first ground-truth-covered IMU sample.
+    #[arg(long, default_value_t = 60.0)]
+    pub support_seconds: f64,
+    /// Query set (held back): this many seconds after the support set (default: the rest).
+    #[arg(long)]
+    pub query_seconds: Option<f64>,
+    /// Inner steps and learning rate (defaults: AdaptConfig's).
+    #[arg(long)]
+    pub steps: Option<usize>,
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// Update rule of the inner loop: adam (default) or sgd (the paper's plain gradient step).
+    #[arg(long, value_enum)]
+    pub optimizer: Option<imu_fsda::adapt::Optimizer>,
+    /// Ground truth in another frame than the IMU: error (default), apply (re-express it), ignore.
+    #[arg(long, value_enum, default_value_t = FramePolicy::Error)]
+    pub frame: FramePolicy,
+    /// Adaptation settings as YAML (AdaptConfig); flags override it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Print the report as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
 
-pub fn run(_args: AdaptArgs) -> anyhow::Result<()> {
-    anyhow::bail!("adapt is not built yet")
+fn output_name(out: &Path) -> anyhow::Result<(PathBuf, String)> {
+    let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
+    let name = out.file_stem().map(|s| s.to_string_lossy().into_owned()).filter(|s| !s.is_empty());
+    let name = name.with_context(|| format!("-o {}: no file name", out.display()))?;
+    Ok((dir, name))
+}
+
+pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
+    tch::set_num_threads(1);
+    let mut cfg = match &args.config {
+        Some(p) => serde_yaml::from_str(&std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?)
+            .with_context(|| format!("{}: not an adaptation config", p.display()))?,
+        None => AdaptConfig::default(),
+    };
+    if let Some(s) = args.steps {
+        cfg.steps = s;
+    }
+    if let Some(lr) = args.lr {
+        cfg.inner_lr = lr;
+    }
+    if let Some(o) = args.optimizer {
+        cfg.optimizer = o;
+    }
+    cfg.frame_policy = args.frame;
+    anyhow::ensure!(args.support_seconds > 0.0, "--support-seconds must be positive");
+    let (dir, name) = output_name(&args.output)?;
+    let meta = metadata_path(&args.model);
+    let loaded = load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading model {}", args.model.display()))?;
+    let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
+    let (rec, report) = read_recording(&args.bag, &topics).with_context(|| format!("reading {}", args.bag.display()))?;
+    anyhow::ensure!(
+        report.imu_non_finite == 0 && report.ground_truth_invalid == 0,
+        "{}: {} non-finite IMU samples, {} invalid poses: fix the bag first",
+        args.bag.display(),
+        report.imu_non_finite,
+        report.ground_truth_invalid
+    );
+    anyhow::ensure!(
+        !rec.ground_truth.is_empty(),
+        "{}: no ground truth on {} (give --ground-truth-topic: PoseStamped, Odometry or a reference Imu)",
+        args.bag.display(),
+        args.ground_truth_topic
+    );
+    let (support, query) = split_recording(&rec, args.support_seconds, args.query_seconds, &cfg);
+    anyhow::ensure!(
+        !query.imu.is_empty(),
+        "{}: nothing left after the {} s support set to judge the adaptation on (the bag has {:.1} s of IMU)",
+        args.bag.display(),
+        args.support_seconds,
+        rec.imu_seconds()
+    );
+    let outcome = adapt(&loaded, &support, &query, &cfg)?;
+    let r = &outcome.report;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(r)?);
+    }
+    if let Some(f) = &r.frame {
+        eprintln!(
+            "frame check: {:.2}° between the IMU and ground-truth frames ({} increments){}",
+            f.angle_deg,
+            f.increments,
+            if r.frame_applied { ", ground truth re-expressed in the IMU frame" } else { "" }
+        );
+    }
+    eprintln!(
+        "adapted on {:.1} s ({} steps, α {}, {:.1} s; total {:.1} s); query {:.1} s: AOE raw {:.3}°, before {:.3}°, after {:.3}°",
+        r.support_seconds,
+        r.steps,
+        r.inner_lr,
+        r.step_seconds,
+        r.total_seconds,
+        r.query_seconds,
+        r.query_raw.aoe_deg,
+        r.query_before.aoe_deg,
+        r.query_after.aoe_deg
+    );
+    let Some(adapted) = outcome.adapted else {
+        anyhow::bail!("{} (nothing written)", r.verdict);
+    };
+    let paths = save_adapted(&adapted, r, &dir, &name)?;
+    eprintln!("accepted: wrote {} (+ .ot, .json, .adapt.json)", paths.torchscript.display());
+    Ok(())
 }

@@ -4,8 +4,9 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context;
+use imu_fsda::adapt::swap::SwappableCorrector;
 use imu_fsda::infer::Pipeline;
-use imu_fsda::node::{run_node, NodeParams, RosEnvironment, RunLimits};
+use imu_fsda::node::{run_node_with_adaptation, AdaptSetup, NodeParams, RosEnvironment, RunLimits};
 
 use super::corrector::load_corrector;
 
@@ -67,13 +68,22 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     } else {
         load_corrector(&params.model)?
     };
+    // With a model and a ground-truth topic, the corrector can be swapped for an adapted one
+    // (`~/adapt`); catch-up history: 20 s at 200 Hz.
+    let (corrector, adapt) = if !args.naive_full_window && !params.model.is_empty() && !params.ground_truth_topic.is_empty() {
+        let (swappable, handle) = SwappableCorrector::new(corrector, 4000);
+        let c: Box<dyn imu_fsda::infer::GyroCorrector> = Box::new(swappable);
+        (c, Some(AdaptSetup { handle, model: PathBuf::from(&params.model) }))
+    } else {
+        (corrector, None)
+    };
     let pipeline = Pipeline::new(corrector, params.pipeline.clone());
     let limits = RunLimits { max_messages: args.max_messages, idle_exit: args.idle_exit_s.map(Duration::from_secs_f64) };
     // Inference beside an async runtime: one intra-op thread (toolchain.md: sporadic 10–20×
     // slowdowns with two OpenMP threads next to other work).
     tch::set_num_threads(1);
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("tokio runtime")?;
-    let stats = rt.block_on(run_node(&args.node_name, params, env, pipeline, status, limits))?;
+    let stats = rt.block_on(run_node_with_adaptation(&args.node_name, params, env, pipeline, status, limits, adapt))?;
     let c = &stats.counters;
     eprintln!(
         "imu-fsda node: received {}, published {}, dropped {} (non-finite {}, duplicate {}, backwards {}), gaps {}, latency p50 {:.0} µs p99 {:.0} µs",

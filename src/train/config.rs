@@ -163,6 +163,13 @@ pub struct MamlConfig {
     /// Windows drawn from each task's query set per epoch, and their length (samples).
     pub query_windows: usize,
     pub query_window_samples: usize,
+    /// Run all tasks' windows through the Restructor and Generator in one batch (each task
+    /// still has its own fast Embedding weights), so BatchNorm's training statistics span
+    /// every task and domain — as in DIGDL's one-batch step and as the folded running
+    /// statistics used at test time. `false`: one forward per task, whose BatchNorm
+    /// statistics are that one task's (a domain's constant features are normalised away in
+    /// training but not at test time).
+    pub batch_tasks: bool,
 }
 
 impl Default for MamlConfig {
@@ -175,6 +182,7 @@ impl Default for MamlConfig {
             support_window_samples: 4000,
             query_windows: 1,
             query_window_samples: 4000,
+            batch_tasks: false,
         }
     }
 }
@@ -216,9 +224,34 @@ pub struct TrainSettings {
     /// Export the epoch with the lowest mean validation AOE instead of the last one.
     #[serde(default)]
     pub select_best: bool,
-    /// libtorch intra-op threads.
+    /// libtorch intra-op threads. 1 is the fastest on these shared 2-core machines (measured:
+    /// FSDA-F 2.3 s/epoch at 1 thread vs 15 s at 2 with libgomp's default spinning wait
+    /// policy, 2.6 s at 2 with `OMP_WAIT_POLICY=passive`; docs/training.md).
     #[serde(default = "default_threads")]
     pub threads: i32,
+    /// How the FSDA-F tasks' query losses are averaged: `uniform` (mean over tasks) or
+    /// `per_domain` (each domain — the first path component of the source, e.g. `euroc`,
+    /// `tumvi` — gets the same total weight, split evenly among its tasks).
+    #[serde(default)]
+    pub task_weighting: TaskWeighting,
+    /// Start the learned correction ω' at zero (the last conv of the Generator / DIGDL CNN
+    /// initialised to 0), so the untrained model is the raw gyro through Ĉ_ω = I.
+    #[serde(default)]
+    pub zero_init_correction: bool,
+    /// Wall-time budget of the training loop, seconds (0: none). When an epoch ends past it,
+    /// training stops there and that epoch is exported (recorded as `stopped_at_budget` in the
+    /// metrics); the schedule is not rescaled, so size `epochs` to fit and keep this a guard.
+    #[serde(default)]
+    pub max_train_seconds: f64,
+}
+
+/// See [`TrainSettings::task_weighting`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TaskWeighting {
+    #[default]
+    Uniform,
+    PerDomain,
 }
 
 fn default_lr() -> f64 {
@@ -237,7 +270,7 @@ fn default_window() -> usize {
     16000
 }
 fn default_threads() -> i32 {
-    2
+    1
 }
 
 /// A config file that could not be used.

@@ -154,7 +154,70 @@ pub fn ground_truth_at_imu(rec: &Recording, cfg: &DatasetConfig) -> (Vec<Option<
 /// Loads, checks and crops one source into a task. `min_samples` (with its description)
 /// is the shortest usable length.
 pub fn load_task(root: &Path, src: &SourceConfig, cfg: &DatasetConfig, support_seconds: Option<f64>) -> Result<Task, DataError> {
-    let rec = read_source(root, src)?;
+    task_from_recording(read_source(root, src)?, src, cfg, support_seconds)
+}
+
+/// Per-channel mean and std over every IMU sample of the tasks (f64).
+pub fn normalization(tasks: &[Task]) -> ([f64; 6], [f64; 6]) {
+    let mut sum = [0.0f64; 6];
+    let mut sq = [0.0f64; 6];
+    let mut n = 0.0f64;
+    for t in tasks {
+        for s in &t.rec.imu {
+            let v = [s.gyro.x, s.gyro.y, s.gyro.z, s.accel.x, s.accel.y, s.accel.z];
+            for c in 0..6 {
+                sum[c] += v[c];
+                sq[c] += v[c] * v[c];
+            }
+            n += 1.0;
+        }
+    }
+    let mean = sum.map(|s| s / n.max(1.0));
+    let mut std = [0.0; 6];
+    for c in 0..6 {
+        std[c] = ((sq[c] / n.max(1.0) - mean[c] * mean[c]).max(0.0)).sqrt().max(1e-9);
+    }
+    (mean, std)
+}
+
+/// `count` random windows of `len` samples from index range `range` of each task, stacked
+/// into one batch (order: task-major).
+pub fn sample_windows<R: Rng>(tasks: &[&Task], range: impl Fn(&Task) -> (usize, usize), count: usize, len: usize, rng: &mut R) -> Batch {
+    let mut imu = Vec::new();
+    let mut dt = Vec::new();
+    let mut gt = Vec::new();
+    let mut valid = Vec::new();
+    for t in tasks {
+        let (a, b) = range(t);
+        assert!(b >= a + len, "{}: range {a}..{b} shorter than window {len} (checked at load)", t.name);
+        for _ in 0..count {
+            let start = rng.gen_range(a..=b - len) as i64;
+            imu.push(t.imu.narrow(0, start, len as i64));
+            dt.push(t.dt.narrow(0, start, len as i64));
+            gt.push(t.gt.narrow(0, start, len as i64));
+            valid.push(t.valid.narrow(0, start, len as i64));
+        }
+    }
+    Batch { imu: Tensor::stack(&imu, 0), dt: Tensor::stack(&dt, 0), gt: Tensor::stack(&gt, 0), valid: Tensor::stack(&valid, 0) }
+}
+
+/// Minimum length checks for a training task.
+pub fn check_length(task: &Task, needed: usize, what: &str, available: usize) -> Result<(), DataError> {
+    if available < needed {
+        return Err(DataError::TooShort {
+            name: task.name.clone(),
+            samples: available,
+            seconds: available as f64 / task.rec.imu_rate_hz().max(1e-9),
+            needed: format!("{what} ({needed} samples)"),
+        });
+    }
+    Ok(())
+}
+
+/// [`load_task`] on a recording already in memory (the checks, ground truth at the IMU
+/// stamps, the crop of `src.start_s` / `src.end_s` and the support split): the node's
+/// buffered data and `imu-fsda adapt`'s split bag go through the trainer's own path.
+pub fn task_from_recording(rec: Recording, src: &SourceConfig, cfg: &DatasetConfig, support_seconds: Option<f64>) -> Result<Task, DataError> {
     let (gt, valid) = ground_truth_at_imu(&rec, cfg);
     let first = gt.iter().position(Option::is_some);
     let last = gt.iter().rposition(Option::is_some);
@@ -216,63 +279,6 @@ pub fn load_task(root: &Path, src: &SourceConfig, cfg: &DatasetConfig, support_s
         valid_fraction: valid_count as f64 / n.max(1) as f64,
         rec: cropped,
     })
-}
-
-/// Per-channel mean and std over every IMU sample of the tasks (f64).
-pub fn normalization(tasks: &[Task]) -> ([f64; 6], [f64; 6]) {
-    let mut sum = [0.0f64; 6];
-    let mut sq = [0.0f64; 6];
-    let mut n = 0.0f64;
-    for t in tasks {
-        for s in &t.rec.imu {
-            let v = [s.gyro.x, s.gyro.y, s.gyro.z, s.accel.x, s.accel.y, s.accel.z];
-            for c in 0..6 {
-                sum[c] += v[c];
-                sq[c] += v[c] * v[c];
-            }
-            n += 1.0;
-        }
-    }
-    let mean = sum.map(|s| s / n.max(1.0));
-    let mut std = [0.0; 6];
-    for c in 0..6 {
-        std[c] = ((sq[c] / n.max(1.0) - mean[c] * mean[c]).max(0.0)).sqrt().max(1e-9);
-    }
-    (mean, std)
-}
-
-/// `count` random windows of `len` samples from index range `range` of each task, stacked
-/// into one batch (order: task-major).
-pub fn sample_windows<R: Rng>(tasks: &[&Task], range: impl Fn(&Task) -> (usize, usize), count: usize, len: usize, rng: &mut R) -> Batch {
-    let mut imu = Vec::new();
-    let mut dt = Vec::new();
-    let mut gt = Vec::new();
-    let mut valid = Vec::new();
-    for t in tasks {
-        let (a, b) = range(t);
-        assert!(b >= a + len, "{}: range {a}..{b} shorter than window {len} (checked at load)", t.name);
-        for _ in 0..count {
-            let start = rng.gen_range(a..=b - len) as i64;
-            imu.push(t.imu.narrow(0, start, len as i64));
-            dt.push(t.dt.narrow(0, start, len as i64));
-            gt.push(t.gt.narrow(0, start, len as i64));
-            valid.push(t.valid.narrow(0, start, len as i64));
-        }
-    }
-    Batch { imu: Tensor::stack(&imu, 0), dt: Tensor::stack(&dt, 0), gt: Tensor::stack(&gt, 0), valid: Tensor::stack(&valid, 0) }
-}
-
-/// Minimum length checks for a training task.
-pub fn check_length(task: &Task, needed: usize, what: &str, available: usize) -> Result<(), DataError> {
-    if available < needed {
-        return Err(DataError::TooShort {
-            name: task.name.clone(),
-            samples: available,
-            seconds: available as f64 / task.rec.imu_rate_hz().max(1e-9),
-            needed: format!("{what} ({needed} samples)"),
-        });
-    }
-    Ok(())
 }
 
 #[cfg(test)]

@@ -21,7 +21,7 @@ use rand_chacha::ChaCha8Rng;
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
 use super::checkpoint::{self, CheckpointMeta};
-use super::config::{Augment, TrainConfig};
+use super::config::{Augment, TaskWeighting, TrainConfig};
 use super::data::{self, Batch, Task};
 use super::optim::Adam;
 use super::report::{EpochRecord, SequenceEvals, TaskInfo, TestResult, TrainSummary};
@@ -160,9 +160,11 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
     let t = &cfg.train;
     let m = &t.maml;
     let theta = net.embedding_parameters();
-    let n = tasks.len() as f64;
+    let weights = task_weights(tasks, t.task_weighting);
     let (mut loss, mut inc, mut rec, mut sup) = (0.0, 0.0, 0.0, 0.0);
-    for task in tasks {
+    for (task, &w) in tasks.iter().zip(&weights) {
+        // `n` is the reciprocal of the task's weight (the number of tasks when uniform).
+        let n = 1.0 / w;
         let s = data::sample_windows(&[task], |x| (0, x.support_end), m.support_windows, m.support_window_samples, rng);
         let q = data::sample_windows(&[task], |x| (x.support_end, x.len()), m.query_windows, m.query_window_samples, rng);
         let mut fast: Vec<Tensor> = theta.iter().map(Tensor::shallow_clone).collect();
@@ -186,6 +188,221 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
         rec += terms.reconstruction.as_ref().map_or(0.0, scalar) / n;
     }
     StepLosses { loss, increment: inc, reconstruction: Some(rec), support: Some(sup) }
+}
+
+/// The domain of a training source: the first path component (`euroc/MH_01_easy` → `euroc`).
+pub fn task_domain(task: &Task) -> String {
+    let s = task.source.trim_start_matches("./");
+    s.split(['/', '\\']).next().unwrap_or(s).to_string()
+}
+
+/// Weight of each task's query loss in the outer (meta) loss; they sum to 1.
+pub fn task_weights(tasks: &[Task], how: TaskWeighting) -> Vec<f64> {
+    domain_weights(&tasks.iter().map(task_domain).collect::<Vec<_>>(), how)
+}
+
+/// [`task_weights`] from the tasks' domains.
+pub fn domain_weights(domains: &[String], how: TaskWeighting) -> Vec<f64> {
+    let n = domains.len().max(1) as f64;
+    match how {
+        TaskWeighting::Uniform => vec![1.0 / n; domains.len()],
+        TaskWeighting::PerDomain => {
+            let mut uniq = domains.to_vec();
+            uniq.sort();
+            uniq.dedup();
+            let nd = uniq.len() as f64;
+            domains.iter().map(|d| 1.0 / (nd * domains.iter().filter(|x| *x == d).count() as f64)).collect()
+        }
+    }
+}
+
+/// Zeroes the last conv of the correction CNN (Generator or DIGDL's), so ω' starts at 0.
+fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
+    let prefix = if net.config().mode == Mode::Digdl { "digdl" } else { "generator" };
+    let layers = if net.config().mode == Mode::Digdl { net.config().digdl.kernel_sizes.len() } else { net.config().generator.kernel_sizes.len() };
+    let vars = vs.variables();
+    for leaf in ["weight", "bias"] {
+        let name = format!("{prefix}.conv{}.{leaf}", layers - 1);
+        let v = vars.get(&name).ok_or_else(|| anyhow::anyhow!("zero_init_correction: no variable {name}"))?;
+        tch::no_grad(|| {
+            let _ = v.shallow_clone().zero_();
+        });
+    }
+    Ok(())
+}
+
+/// One conv layer of a functional view of the model's dilated CNN (the VarStore's own
+/// tensors, so gradients and BatchNorm running statistics land in the model).
+struct FnLayer {
+    weight: Tensor,
+    bias: Tensor,
+    bn: Option<[Tensor; 4]>,
+    dilation: i64,
+    hidden: bool,
+}
+
+/// The Restructor's and Generator's CNNs, Ĉ_ω and σ as functions of an embedding batch:
+/// the same operations as `model::cnn::DilatedCausalCnn::forward_t` in training mode.
+struct Heads {
+    generator: Vec<FnLayer>,
+    restructor: Vec<FnLayer>,
+    gen_pad: i64,
+    rest_pad: i64,
+    dropout: f64,
+    noise_std: f64,
+    sigma: Tensor,
+}
+
+fn fn_layers(vars: &std::collections::HashMap<String, Tensor>, prefix: &str, cnn: &crate::model::CnnConfig, bn: bool) -> anyhow::Result<Vec<FnLayer>> {
+    let get = |n: String| vars.get(&n).map(Tensor::shallow_clone).ok_or_else(|| anyhow::anyhow!("no variable {n}"));
+    let n = cnn.kernel_sizes.len();
+    (0..n)
+        .map(|l| {
+            let hidden = l + 1 < n;
+            let bn = if hidden && bn {
+                Some([
+                    get(format!("{prefix}.bn{l}.weight"))?,
+                    get(format!("{prefix}.bn{l}.bias"))?,
+                    get(format!("{prefix}.bn{l}.running_mean"))?,
+                    get(format!("{prefix}.bn{l}.running_var"))?,
+                ])
+            } else {
+                None
+            };
+            Ok(FnLayer {
+                weight: get(format!("{prefix}.conv{l}.weight"))?,
+                bias: get(format!("{prefix}.conv{l}.bias"))?,
+                bn,
+                dilation: cnn.dilations[l],
+                hidden,
+            })
+        })
+        .collect()
+}
+
+impl Heads {
+    fn new(vs: &VarStore, net: &Net) -> anyhow::Result<Self> {
+        let c = net.config();
+        let vars = vs.variables();
+        Ok(Self {
+            generator: fn_layers(&vars, "generator", &c.generator, c.batch_norm)?,
+            restructor: fn_layers(&vars, "restructor", &c.restructor, c.batch_norm)?,
+            gen_pad: c.generator.receptive_field() - 1,
+            rest_pad: c.restructor.receptive_field() - 1,
+            dropout: c.dropout,
+            noise_std: c.restructor_noise_std,
+            sigma: vars.get("output_scale.sigma").map(Tensor::shallow_clone).ok_or_else(|| anyhow::anyhow!("no output_scale.sigma"))?,
+        })
+    }
+
+    fn cnn(&self, layers: &[FnLayer], pad: i64, x: &Tensor) -> Tensor {
+        let mut h = x.transpose(1, 2).replication_pad1d([pad, 0]);
+        for l in layers {
+            h = h.conv1d(&l.weight, Some(&l.bias), [1], [0], [l.dilation], 1);
+            if l.hidden {
+                if let Some([g, b, rm, rv]) = &l.bn {
+                    h = Tensor::batch_norm(&h, Some(g), Some(b), Some(rm), Some(rv), true, 0.1, 1e-5, false);
+                }
+                h = h.gelu("none").dropout(self.dropout, true);
+            }
+        }
+        h.transpose(1, 2)
+    }
+
+    /// Training forward of a batch whose embedding `e` was computed per task.
+    fn forward(&self, net: &Net, u: &Tensor, u_norm: Tensor, e: &Tensor) -> crate::model::NetOutput {
+        let noisy = if self.noise_std > 0.0 { e + e.randn_like() * self.noise_std } else { e.shallow_clone() };
+        let reconstruction = self.cnn(&self.restructor, self.rest_pad, &noisy);
+        let correction = self.cnn(&self.generator, self.gen_pad, e);
+        let gyro = u.narrow(2, 0, 3).matmul(&net.gyro_calibration().tr()) + correction * &self.sigma;
+        crate::model::NetOutput { gyro, reconstruction: Some(reconstruction), input_normalised: u_norm, embedding: None }
+    }
+}
+
+fn slice_out(out: &crate::model::NetOutput, start: i64, len: i64) -> crate::model::NetOutput {
+    crate::model::NetOutput {
+        gyro: out.gyro.narrow(0, start, len),
+        reconstruction: out.reconstruction.as_ref().map(|r| r.narrow(0, start, len)),
+        input_normalised: out.input_normalised.narrow(0, start, len),
+        embedding: None,
+    }
+}
+
+/// FSDA-F with every task in one batch through the Restructor and Generator (see
+/// `MamlConfig::batch_tasks`): per-task fast Embedding weights; the inner gradient of task i
+/// is that of the summed support losses w.r.t. task i's fast weights (the other tasks' losses
+/// depend on them only through the shared BatchNorm statistics).
+fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
+    let t = &cfg.train;
+    let m = &t.maml;
+    let theta = net.embedding_parameters();
+    let emb = net.embedding().expect("fsda_f has an Embedding");
+    let weights = task_weights(tasks, t.task_weighting);
+    let (mut s_list, mut q_list) = (Vec::new(), Vec::new());
+    for task in tasks {
+        s_list.push(data::sample_windows(&[task], |x| (0, x.support_end), m.support_windows, m.support_window_samples, rng));
+        q_list.push(data::sample_windows(&[task], |x| (x.support_end, x.len()), m.query_windows, m.query_window_samples, rng));
+    }
+    let cat = |l: &[Batch], f: fn(&Batch) -> &Tensor| Tensor::cat(&l.iter().map(f).collect::<Vec<_>>(), 0);
+    let stack = |l: &[Batch]| Batch { imu: cat(l, |b| &b.imu), dt: cat(l, |b| &b.dt), gt: cat(l, |b| &b.gt), valid: cat(l, |b| &b.valid) };
+    let (s, q) = (stack(&s_list), stack(&q_list));
+    let n = tasks.len();
+    let forward = |u: &Tensor, per: i64, fast: &[Vec<Tensor>]| {
+        let un = net.normalize(u);
+        let e: Vec<Tensor> = (0..n).map(|i| emb.forward_with(&un.narrow(0, i as i64 * per, per), &fast[i])).collect();
+        heads.forward(net, u, un, &Tensor::cat(&e, 0))
+    };
+    let task_losses = |out: &crate::model::NetOutput, b: &Batch, per: i64| -> Vec<crate::model::loss::LossTerms> {
+        (0..n)
+            .map(|i| {
+                let (a, len) = (i as i64 * per, per);
+                total_loss(&t.loss, &slice_out(out, a, len), &b.dt.narrow(0, a, len), &b.gt.narrow(0, a, len), Some(&b.valid.narrow(0, a, len)))
+            })
+            .collect()
+    };
+    let mut fast: Vec<Vec<Tensor>> = (0..n).map(|_| theta.iter().map(Tensor::shallow_clone).collect()).collect();
+    let su = augment(&s.imu, &t.augment);
+    let sper = m.support_windows as i64;
+    let mut sup = 0.0;
+    for k in 0..m.inner_steps {
+        let out = forward(&su, sper, &fast);
+        let ls = task_losses(&out, &s, sper);
+        if k == 0 {
+            sup = ls.iter().zip(&weights).map(|(l, w)| scalar(&l.total) * w).sum();
+        }
+        let sum = ls.iter().map(|l| l.total.shallow_clone()).reduce(|a, b| a + b).expect("≥ 1 task");
+        let flat: Vec<Tensor> = fast.iter().flatten().map(Tensor::shallow_clone).collect();
+        let second = !m.first_order;
+        let grads = Tensor::run_backward(&[&sum], &flat, second, second);
+        let p = theta.len();
+        fast = (0..n)
+            .map(|i| {
+                (0..p)
+                    .map(|j| {
+                        let (w, g) = (&fast[i][j], &grads[i * p + j]);
+                        if second {
+                            w - g * m.inner_lr
+                        } else {
+                            w - g.detach() * m.inner_lr
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+    }
+    let qu = augment(&q.imu, &t.augment);
+    let qper = m.query_windows as i64;
+    let out = forward(&qu, qper, &fast);
+    let ls = task_losses(&out, &q, qper);
+    let outer = ls.iter().zip(&weights).map(|(l, w)| &l.total * *w).reduce(|a, b| a + b).expect("≥ 1 task");
+    outer.backward();
+    let wsum = |f: &dyn Fn(&crate::model::loss::LossTerms) -> f64| ls.iter().zip(&weights).map(|(l, w)| f(l) * w).sum::<f64>();
+    StepLosses {
+        loss: scalar(&outer),
+        increment: wsum(&|l| scalar(&l.increment)),
+        reconstruction: Some(wsum(&|l| l.reconstruction.as_ref().map_or(0.0, scalar))),
+        support: Some(sup),
+    }
 }
 
 fn epoch_seed(seed: u64, epoch: usize) -> i64 {
@@ -213,6 +430,13 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     cfg.validate().map_err(|e| anyhow::anyhow!("config: {e}"))?;
     let seed = cfg.train.seed;
     tch::set_num_threads(cfg.train.threads);
+    if cfg.train.threads > 1 && !std::env::var("OMP_WAIT_POLICY").is_ok_and(|v| v.eq_ignore_ascii_case("passive")) {
+        tracing::warn!(
+            "train.threads = {} without OMP_WAIT_POLICY=passive: libgomp's spinning threads make epochs up to 6× slower \
+             on a shared machine (docs/training.md); use threads: 1 or export OMP_WAIT_POLICY=passive",
+            cfg.train.threads
+        );
+    }
     tch::manual_seed(seed as i64);
     let mode = cfg.model.mode;
 
@@ -230,6 +454,14 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     let net = Net::new(&cfg.model, &vs.root())?;
     let (mean, std) = data::normalization(&data.train);
     net.set_normalization(&mean, &std)?;
+    if cfg.train.zero_init_correction && resume.is_none() {
+        zero_init_correction(&vs, &net)?;
+    }
+    let heads = if mode == Mode::FsdaF && cfg.train.maml.batch_tasks { Some(Heads::new(&vs, &net)?) } else { None };
+    if mode == Mode::FsdaF {
+        let w = task_weights(&data.train, cfg.train.task_weighting);
+        tracing::info!("task weights ({:?}): {:?}", cfg.train.task_weighting, w);
+    }
     let mut adam = Adam::new(&vs);
     tracing::info!("normalisation from {} training recordings: mean {mean:?}, std {std:?}", data.train.len());
 
@@ -304,6 +536,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
 
     let started = Instant::now();
     let mut ran = 0usize;
+    let mut stopped_at: Option<usize> = None;
     for epoch in start_epoch..epochs {
         let t0 = Instant::now();
         let es = epoch_seed(seed, epoch);
@@ -314,7 +547,10 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         let lr = cfg.train.schedule.lr(cfg.train.lr, epoch);
         adam.zero_grad();
         let l = match mode {
-            Mode::FsdaF => maml_step(&net, &cfg, &data.train, &mut rng),
+            Mode::FsdaF => match &heads {
+                Some(h) => maml_step_batched(&net, h, &cfg, &data.train, &mut rng),
+                None => maml_step(&net, &cfg, &data.train, &mut rng),
+            },
             Mode::Fsda | Mode::Digdl => plain_step(&net, &cfg, &data.train, &mut rng),
         };
         if !l.loss.is_finite() {
@@ -343,7 +579,12 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         if let Some(s) = l.support {
             msg.push_str(&format!(", support {s:.4}"));
         }
-        let eval_now = cfg.train.eval_every > 0 && done % cfg.train.eval_every == 0 || done == epochs;
+        let over_budget = cfg.train.max_train_seconds > 0.0 && started.elapsed().as_secs_f64() > cfg.train.max_train_seconds && done < epochs;
+        if over_budget {
+            tracing::warn!("epoch {done}: past the wall-time budget of {:.0} s; stopping and exporting this epoch", cfg.train.max_train_seconds);
+            stopped_at = Some(done);
+        }
+        let eval_now = cfg.train.eval_every > 0 && done % cfg.train.eval_every == 0 || done == epochs || over_budget;
         if eval_now && !data.validation.is_empty() {
             for (v, task) in validation.iter_mut().zip(&data.validation) {
                 let e = evaluate_net(&net, task, &eopts)?;
@@ -361,6 +602,9 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         }
         pb.set_message(msg);
         pb.set_position(done as u64);
+        if over_budget {
+            break;
+        }
         if cfg.train.checkpoint_every > 0 && done % cfg.train.checkpoint_every == 0 && done < epochs {
             let secs = prior_seconds + started.elapsed().as_secs_f64();
             save_ckpt(done, &adam, &history, &validation, best, best_vars.as_ref(), secs)?;
@@ -368,11 +612,12 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     }
     pb.finish();
     let train_seconds = prior_seconds + started.elapsed().as_secs_f64();
-    let ckpt = save_ckpt(epochs, &adam, &history, &validation, best, best_vars.as_ref(), train_seconds)?;
+    let last_epoch = stopped_at.unwrap_or(epochs);
+    let ckpt = save_ckpt(last_epoch, &adam, &history, &validation, best, best_vars.as_ref(), train_seconds)?;
     tracing::info!("checkpoint {}", ckpt.display());
 
     // The exported weights: the best validated epoch if asked, else the last.
-    let mut exported_epoch = epochs;
+    let mut exported_epoch = last_epoch;
     if let (true, Some((e, _)), Some(snap)) = (cfg.train.select_best, best, best_vars.as_ref()) {
         checkpoint::restore_snapshot(&vs, snap)?;
         exported_epoch = e;
@@ -400,6 +645,9 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     metrics.insert("seconds_per_epoch".to_string(), seconds_per_epoch);
     metrics.insert("threads".to_string(), cfg.train.threads as f64);
     metrics.insert("seed".to_string(), seed as f64);
+    if let Some(e) = stopped_at {
+        metrics.insert("stopped_at_budget".to_string(), e as f64);
+    }
     let val_at_export: Vec<(f64, f64)> = validation
         .iter()
         .filter_map(|v| v.evals.iter().find(|(e, _)| *e == exported_epoch).map(|(_, e)| (v.raw.aoe_deg, e.aoe_deg)))
@@ -495,4 +743,55 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
 /// `<out>/<name>.train.json`.
 pub fn summary_path(out_dir: &Path, name: &str) -> PathBuf {
     out_dir.join(format!("{name}.train.json"))
+}
+
+/// One inner (task) step of the few-shot strategy on the Embedding, as in [`maml_step`]:
+/// `L = total_loss(forward(batch, θ_e = fast))`, `fast' = fast − α ∇_fast L`. `second_order`
+/// keeps the inner gradient in the graph (meta-training); `false` detaches the gradient (first
+/// order; the fast weights stay connected to θ_e). Test-time adaptation (`crate::adapt`) runs
+/// it first order in eval mode (`train: false`: BatchNorm running statistics, no dropout, none
+/// of them updated) and detaches the result itself.
+/// Returns the loss before the step and the new fast weights.
+pub fn embedding_inner_step(
+    net: &Net,
+    loss: &crate::model::loss::LossConfig,
+    batch: &Batch,
+    fast: &[Tensor],
+    inner_lr: f64,
+    train: bool,
+    second_order: bool,
+) -> (crate::model::loss::LossTerms, Vec<Tensor>) {
+    let (terms, grads) = embedding_inner_grads(net, loss, batch, fast, train, second_order);
+    let next = fast.iter().zip(&grads).map(|(p, g)| if second_order { p - g * inner_lr } else { p - g.detach() * inner_lr }).collect();
+    (terms, next)
+}
+
+/// The loss of [`embedding_inner_step`] and its gradient with respect to the fast weights
+/// (in the graph when `second_order`), for callers that scale the step themselves (Adam).
+pub fn embedding_inner_grads(
+    net: &Net,
+    loss: &crate::model::loss::LossConfig,
+    batch: &Batch,
+    fast: &[Tensor],
+    train: bool,
+    second_order: bool,
+) -> (crate::model::loss::LossTerms, Vec<Tensor>) {
+    let out = net.forward_with(&batch.imu, &ForwardOptions { train, reconstruct: true, embedding_params: Some(fast) });
+    let terms = total_loss(loss, &out, &batch.dt, &batch.gt, Some(&batch.valid));
+    let grads = Tensor::run_backward(&[&terms.total], fast, second_order, second_order);
+    (terms, grads)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn per_domain_weights_give_each_domain_the_same_total() {
+        let d: Vec<String> = ["euroc", "euroc", "euroc", "euroc", "euroc", "euroc", "tumvi", "tumvi", "tumvi"].map(String::from).to_vec();
+        let w = domain_weights(&d, TaskWeighting::PerDomain);
+        assert!((w[..6].iter().sum::<f64>() - 0.5).abs() < 1e-12 && (w[6..].iter().sum::<f64>() - 0.5).abs() < 1e-12);
+        let u = domain_weights(&d, TaskWeighting::Uniform);
+        assert!(u.iter().all(|x| (x - 1.0 / 9.0).abs() < 1e-12));
+    }
 }

@@ -1,1 +1,0 @@
-//! On-demand few-shot adaptation (in progress).

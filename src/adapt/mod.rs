@@ -1,0 +1,440 @@
+//! On-demand few-shot adaptation (paper §III-B at test time): from a model's meta-learned
+//! initialisation, a few to some tens of first-order steps of the inner loop on the
+//! Embedding θ_e only (`θ_e ← θ_e − α ∇_{θ_e} L_support`, `L = L^R + γ L^D`, the trainer's own
+//! [`crate::train::fit::embedding_inner_step`]) on a support recording with ground truth;
+//! the Restructor, Generator and Ĉ_ω are frozen. The adapted model is accepted only if its
+//! open-loop orientation error (AOE, [`crate::eval::evaluate`]) on a held-back query
+//! recording is lower than the starting model's; otherwise it is rejected with the figures.
+//!
+//! Files: [`frame`] (is the ground truth in the IMU's frame?), [`swap`] (the node's
+//! between-two-samples model swap). See docs/adaptation.md.
+
+pub mod frame;
+pub mod swap;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use tch::{nn::VarStore, Device, Tensor};
+
+use crate::core::Recording;
+use crate::eval::{EvalOptions, OrientationErrors};
+use crate::model::export::{export_model, ExportInfo, ExportPaths, LoadedNet};
+use crate::model::loss::LossConfig;
+use crate::model::{ModelError, Net};
+use crate::train::config::{DatasetConfig, SourceConfig};
+use crate::train::data::{self, DataError, Task};
+use crate::train::fit::{embedding_inner_grads, embedding_inner_step, evaluate_net, evaluate_raw};
+
+pub use frame::{check_frame, FrameCheck};
+
+/// What to do when the ground truth's body frame differs from the IMU's by a constant rotation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum FramePolicy {
+    /// Refuse with the rotation found (the default: a frame mix-up is a set-up error).
+    #[default]
+    Error,
+    /// Re-express the ground truth in the IMU's frame (`R_gt ← R_gt R_x`) and go on.
+    Apply,
+    /// Do not check.
+    Ignore,
+}
+
+/// The inner loop's update rule.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Optimizer {
+    /// Plain gradient descent, the paper's inner loop (`θ_e − α ∇L`).
+    Sgd,
+    /// Adam (β 0.9, 0.999) on the same gradient: far less sensitive to α (the default).
+    #[default]
+    Adam,
+}
+
+/// Adaptation settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AdaptConfig {
+    /// Inner steps (first-order gradient descent on θ_e).
+    pub steps: usize,
+    /// α, the inner learning rate.
+    pub inner_lr: f64,
+    pub optimizer: Optimizer,
+    /// Each step's batch: this many random windows of `window_samples` from the support set
+    /// (the whole support set when it is shorter than one window).
+    pub windows: usize,
+    pub window_samples: usize,
+    /// The loss (the trainer's defaults).
+    pub loss: LossConfig,
+    /// Shortest support set accepted, s.
+    pub min_support_seconds: f64,
+    /// Shortest query set accepted, s.
+    pub min_query_seconds: f64,
+    /// Ground-truth interpolation: longest pose gap, and farthest nearest pose for a sample to count (ms).
+    pub max_interpolation_gap_ms: f64,
+    pub max_nearest_gt_ms: f64,
+    /// Ground truth in another frame: error, apply or ignore; a rotation above this many
+    /// degrees counts as "another frame".
+    pub frame_policy: FramePolicy,
+    pub frame_tolerance_deg: f64,
+    /// Seed of the window sampler.
+    pub seed: u64,
+    /// Stop stepping after this many seconds (the steps done so far are kept).
+    pub max_seconds: f64,
+}
+
+impl Default for AdaptConfig {
+    fn default() -> Self {
+        AdaptConfig {
+            steps: 100,
+            inner_lr: 1e-2,
+            optimizer: Optimizer::Adam,
+            windows: 2,
+            window_samples: 2000,
+            loss: LossConfig::default(),
+            min_support_seconds: 20.0,
+            min_query_seconds: 10.0,
+            max_interpolation_gap_ms: 50.0,
+            max_nearest_gt_ms: 10.0,
+            frame_policy: FramePolicy::Error,
+            frame_tolerance_deg: 5.0,
+            seed: 0,
+            max_seconds: 25.0,
+        }
+    }
+}
+
+/// Why adaptation could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum AdaptError {
+    #[error("the model is {0:?}: only FSDA / FSDA-F models have an Embedding to adapt")]
+    NoEmbedding(crate::model::Mode),
+    #[error("{what}: {detail}")]
+    TooLittleData { what: &'static str, detail: String },
+    #[error(
+        "ground truth is in another frame: a constant rotation of {:.1}° (quaternion w,x,y,z {:.4?}) takes the IMU's \
+         increments onto the ground truth's (residual {:.2}° with it, {:.2}° without, {} increments{}); express the ground \
+         truth in the IMU frame, or allow it to be re-expressed (frame policy `apply`)",
+        .0.angle_deg, .0.gt_from_imu, .0.residual_deg, .0.residual_identity_deg, .0.increments,
+        if .0.fully_observable { "" } else { "; only the tilt between the motion axes is observable" })]
+    OtherFrame(FrameCheck),
+    #[error(transparent)]
+    Data(#[from] DataError),
+    #[error(transparent)]
+    Eval(#[from] crate::eval::EvalError),
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error("{0}")]
+    Other(String),
+}
+
+impl From<anyhow::Error> for AdaptError {
+    fn from(e: anyhow::Error) -> Self {
+        AdaptError::Other(format!("{e:#}"))
+    }
+}
+
+/// The figures of one adaptation (also written beside an adapted model).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AdaptReport {
+    pub model: String,
+    pub support: String,
+    pub query: String,
+    pub support_seconds: f64,
+    pub support_samples: usize,
+    pub query_seconds: f64,
+    pub query_samples: usize,
+    /// Query AOE of the raw gyro, the starting model, and the adapted one.
+    pub query_raw: OrientationErrors,
+    pub query_before: OrientationErrors,
+    pub query_after: OrientationErrors,
+    pub accepted: bool,
+    /// Why it was rejected (empty when accepted).
+    pub verdict: String,
+    /// Support loss at each step (before that step's update).
+    pub losses: Vec<f64>,
+    pub steps: usize,
+    pub inner_lr: f64,
+    /// Wall time of the inner loop, and of everything (data, evaluations), s.
+    pub step_seconds: f64,
+    pub total_seconds: f64,
+    pub frame: Option<FrameCheck>,
+    pub frame_applied: bool,
+    pub config: AdaptConfig,
+}
+
+/// An adaptation's result: the figures, and the adapted model when accepted.
+pub struct AdaptOutcome {
+    pub report: AdaptReport,
+    /// The adapted model (a fresh VarStore; the input model is untouched). `None` when rejected.
+    pub adapted: Option<LoadedNet>,
+}
+
+fn dataset_cfg(cfg: &AdaptConfig) -> DatasetConfig {
+    DatasetConfig {
+        root: PathBuf::from("."),
+        train: vec![],
+        validation: vec![],
+        test: vec![],
+        support_seconds: 0.0,
+        max_interpolation_gap_ms: cfg.max_interpolation_gap_ms,
+        max_nearest_gt_ms: cfg.max_nearest_gt_ms,
+    }
+}
+
+fn to_task(rec: &Recording, what: &'static str, cfg: &AdaptConfig) -> Result<Task, AdaptError> {
+    if rec.imu.len() < 2 {
+        return Err(AdaptError::TooLittleData { what, detail: format!("{} IMU samples", rec.imu.len()) });
+    }
+    if rec.ground_truth.is_empty() {
+        return Err(AdaptError::Data(DataError::NoGroundTruth(format!("{what} {}", rec.name))));
+    }
+    let src = SourceConfig { bag: Some(rec.name.clone()), name: Some(rec.name.clone()), ..Default::default() };
+    Ok(data::task_from_recording(rec.clone(), &src, &dataset_cfg(cfg), None)?)
+}
+
+/// A copy of `loaded` in a fresh VarStore (everything frozen: only the fast weights train).
+fn copy_net(loaded: &LoadedNet) -> Result<(VarStore, Net), ModelError> {
+    let mut vs = VarStore::new(Device::Cpu);
+    let net = Net::new(&loaded.metadata.config, &vs.root())?;
+    let src = loaded.vs.variables();
+    tch::no_grad(|| -> Result<(), ModelError> {
+        for (name, var) in vs.variables() {
+            let s = src.get(&name).ok_or_else(|| ModelError::InvalidConfig(format!("variable {name} missing from the loaded model")))?;
+            var.shallow_clone().f_copy_(s)?;
+        }
+        Ok(())
+    })?;
+    vs.freeze();
+    Ok((vs, net))
+}
+
+/// Re-expresses the ground truth in the IMU's frame: `R_gt ← R_gt R_x`.
+pub fn apply_frame(rec: &mut Recording, gt_from_imu: &nalgebra::UnitQuaternion<f64>) {
+    for p in &mut rec.ground_truth {
+        p.world_from_body *= gt_from_imu;
+    }
+}
+
+/// Runs the frame check on a recording (ground truth slerped at the IMU stamps).
+pub fn frame_check(rec: &Recording, cfg: &AdaptConfig) -> Option<FrameCheck> {
+    let (gt, _) = data::ground_truth_at_imu(rec, &dataset_cfg(cfg));
+    let rate = rec.imu_rate_hz().max(1.0);
+    check_frame(&rec.imu, &gt, (0.25 * rate).round() as usize, 0.05)
+}
+
+/// Adapts `loaded`'s Embedding on `support`, judges on `query` (see the module doc).
+/// `loaded` is not modified. Errors: not an FSDA model, too little support or query data,
+/// ground truth missing / not overlapping the IMU / in another frame (policy `error`).
+pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &AdaptConfig) -> Result<AdaptOutcome, AdaptError> {
+    let t_all = Instant::now();
+    let mode = loaded.metadata.mode;
+    if !mode.has_embedding() {
+        return Err(AdaptError::NoEmbedding(mode));
+    }
+    let mut support = support.clone();
+    let mut query = query.clone();
+    let s_task0 = to_task(&support, "support", cfg)?;
+    if s_task0.seconds() < cfg.min_support_seconds {
+        return Err(AdaptError::TooLittleData {
+            what: "support",
+            detail: format!(
+                "{:.1} s of IMU with ground truth ({} samples), at least {:.0} s needed",
+                s_task0.seconds(),
+                s_task0.len(),
+                cfg.min_support_seconds
+            ),
+        });
+    }
+    let mut frame = None;
+    let mut frame_applied = false;
+    if cfg.frame_policy != FramePolicy::Ignore {
+        frame = frame_check(&s_task0.rec, cfg);
+        if let Some(f) = frame.filter(|f| f.angle_deg > cfg.frame_tolerance_deg) {
+            match cfg.frame_policy {
+                FramePolicy::Error => return Err(AdaptError::OtherFrame(f)),
+                FramePolicy::Apply => {
+                    tracing::warn!("ground truth re-expressed in the IMU frame: rotation of {:.1}°", f.angle_deg);
+                    apply_frame(&mut support, &f.rotation());
+                    apply_frame(&mut query, &f.rotation());
+                    frame_applied = true;
+                }
+                FramePolicy::Ignore => {}
+            }
+        }
+    }
+    let s_task = if frame_applied { to_task(&support, "support", cfg)? } else { s_task0 };
+    let q_task = to_task(&query, "query", cfg)?;
+    if q_task.seconds() < cfg.min_query_seconds {
+        return Err(AdaptError::TooLittleData {
+            what: "query",
+            detail: format!("{:.1} s of IMU with ground truth, at least {:.0} s needed", q_task.seconds(), cfg.min_query_seconds),
+        });
+    }
+    let eopts = EvalOptions { max_gap_ns: (cfg.max_interpolation_gap_ms * 1e6) as i64 };
+    let query_raw = evaluate_raw(&q_task, &eopts)?;
+    let query_before = evaluate_net(&loaded.net, &q_task, &eopts)?;
+
+    // The inner loop, first order, eval mode, on the fast weights only.
+    let (mut vs, net) = copy_net(loaded)?;
+    let mut fast: Vec<Tensor> = net.embedding_parameters().iter().map(|p| p.detach().copy().set_requires_grad(true)).collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+    let win = cfg.window_samples.min(s_task.len());
+    let refs = [&s_task];
+    let mut losses = Vec::with_capacity(cfg.steps);
+    let mut adam = TensorAdam::new(&fast);
+    let t_steps = Instant::now();
+    for step in 0..cfg.steps {
+        if t_steps.elapsed().as_secs_f64() > cfg.max_seconds {
+            tracing::warn!("adaptation stopped after {step} steps: time budget of {} s reached", cfg.max_seconds);
+            break;
+        }
+        let count = if win == s_task.len() { 1 } else { cfg.windows.max(1) };
+        let batch = data::sample_windows(&refs, |t| (0, t.len()), count, win, &mut rng);
+        let (l, next) = match cfg.optimizer {
+            Optimizer::Sgd => {
+                let (terms, next) = embedding_inner_step(&net, &cfg.loss, &batch, &fast, cfg.inner_lr, false, false);
+                (terms.total.double_value(&[]), next)
+            }
+            Optimizer::Adam => {
+                let (terms, grads) = embedding_inner_grads(&net, &cfg.loss, &batch, &fast, false, false);
+                (terms.total.double_value(&[]), adam.step(&fast, &grads, cfg.inner_lr))
+            }
+        };
+        if !l.is_finite() {
+            return Err(AdaptError::Other(format!("step {step}: the support loss is {l}: lower the inner learning rate")));
+        }
+        losses.push(l);
+        fast = next.iter().map(|t| t.detach().set_requires_grad(true)).collect();
+        tracing::debug!("adapt step {step}: support loss {l:.4}");
+    }
+    let step_seconds = t_steps.elapsed().as_secs_f64();
+    {
+        let vars = vs.variables();
+        tch::no_grad(|| -> Result<(), ModelError> {
+            for (name, f) in net.embedding_parameter_names().iter().zip(&fast) {
+                vars[name].shallow_clone().f_copy_(f)?;
+            }
+            Ok(())
+        })?;
+    }
+    vs.unfreeze();
+    let query_after = evaluate_net(&net, &q_task, &eopts)?;
+    let accepted = query_after.aoe_deg < query_before.aoe_deg;
+    let verdict = if accepted {
+        String::new()
+    } else {
+        format!(
+            "rejected: the adapted model is not better on the query data (AOE {:.3}° → {:.3}°); the previous model is kept",
+            query_before.aoe_deg, query_after.aoe_deg
+        )
+    };
+    let report = AdaptReport {
+        model: loaded.metadata.name.clone(),
+        support: s_task.source.clone(),
+        query: q_task.source.clone(),
+        support_seconds: s_task.seconds(),
+        support_samples: s_task.len(),
+        query_seconds: q_task.seconds(),
+        query_samples: q_task.len(),
+        query_raw,
+        query_before,
+        query_after,
+        accepted,
+        verdict,
+        steps: losses.len(),
+        losses,
+        inner_lr: cfg.inner_lr,
+        step_seconds,
+        total_seconds: t_all.elapsed().as_secs_f64(),
+        frame,
+        frame_applied,
+        config: cfg.clone(),
+    };
+    let adapted = accepted.then(|| LoadedNet { vs, net, metadata: loaded.metadata.clone() });
+    Ok(AdaptOutcome { report, adapted })
+}
+
+/// Writes an accepted adapted model as `<dir>/<name>.{pt,ot,json}` (metadata: the original's
+/// training data plus what it was adapted on; its metrics plus `adapt.*` figures) and the
+/// full report as `<dir>/<name>.adapt.json`.
+pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name: &str) -> Result<ExportPaths, AdaptError> {
+    let mut training_data = adapted.metadata.training_data.clone();
+    training_data.push(format!(
+        "few-shot adapted from {} on {} ({:.1} s support, {} steps); judged on {} ({:.1} s)",
+        report.model, report.support, report.support_seconds, report.steps, report.query, report.query_seconds
+    ));
+    let mut metrics: BTreeMap<String, f64> = adapted.metadata.metrics.clone();
+    metrics.insert("adapt.query_raw_aoe_deg".into(), report.query_raw.aoe_deg);
+    metrics.insert("adapt.query_aoe_before_deg".into(), report.query_before.aoe_deg);
+    metrics.insert("adapt.query_aoe_after_deg".into(), report.query_after.aoe_deg);
+    metrics.insert("adapt.support_seconds".into(), report.support_seconds);
+    metrics.insert("adapt.query_seconds".into(), report.query_seconds);
+    metrics.insert("adapt.steps".into(), report.steps as f64);
+    metrics.insert("adapt.step_seconds".into(), report.step_seconds);
+    let paths = export_model(dir, name, &adapted.vs, &adapted.net, &ExportInfo { training_data, metrics, code_revision: None })?;
+    let side = dir.join(format!("{name}.adapt.json"));
+    let json = serde_json::to_string_pretty(report).map_err(|e| AdaptError::Other(e.to_string()))?;
+    std::fs::write(&side, json + "\n").map_err(|e| AdaptError::Other(format!("writing {}: {e}", side.display())))?;
+    Ok(paths)
+}
+
+/// Splits a recording at `support_seconds` after its first ground-truth-covered IMU sample:
+/// (support, query), the query limited to `query_seconds` when given. Both keep all the
+/// ground truth (it is only read at their IMU stamps).
+pub fn split_recording(rec: &Recording, support_seconds: f64, query_seconds: Option<f64>, cfg: &AdaptConfig) -> (Recording, Recording) {
+    let (gt, _) = data::ground_truth_at_imu(rec, &dataset_cfg(cfg));
+    let first = gt.iter().position(Option::is_some).unwrap_or(0);
+    let t0 = rec.imu.get(first).map_or(0, |s| s.stamp_ns);
+    let cut = t0 + (support_seconds * 1e9) as i64;
+    let end = query_seconds.map_or(i64::MAX, |q| cut + (q * 1e9) as i64);
+    let part = |a: i64, b: i64, tag: &str| Recording {
+        name: format!("{} [{tag}]", rec.name),
+        imu: rec.imu.iter().filter(|s| s.stamp_ns >= a && s.stamp_ns < b).copied().collect(),
+        ground_truth: rec.ground_truth.clone(),
+        temperature: Vec::new(),
+    };
+    let q_tag = match query_seconds {
+        Some(q) => format!("{support_seconds}–{} s", support_seconds + q),
+        None => format!("{support_seconds} s–end"),
+    };
+    (part(t0, cut, &format!("0–{support_seconds} s")), part(cut, end, &q_tag))
+}
+
+/// Adam (PyTorch's, no weight decay) over a list of plain tensors (the fast weights).
+struct TensorAdam {
+    m: Vec<Tensor>,
+    v: Vec<Tensor>,
+    t: i32,
+}
+
+impl TensorAdam {
+    fn new(params: &[Tensor]) -> Self {
+        let z = || params.iter().map(|p| p.detach().zeros_like()).collect();
+        TensorAdam { m: z(), v: z(), t: 0 }
+    }
+
+    fn step(&mut self, params: &[Tensor], grads: &[Tensor], lr: f64) -> Vec<Tensor> {
+        let (b1, b2, eps) = (0.9f64, 0.999f64, 1e-8);
+        self.t += 1;
+        let (c1, c2) = (1.0 - b1.powi(self.t), 1.0 - b2.powi(self.t));
+        tch::no_grad(|| {
+            params
+                .iter()
+                .zip(grads)
+                .zip(self.m.iter_mut().zip(self.v.iter_mut()))
+                .map(|((p, g), (m, v))| {
+                    let g = g.detach();
+                    *m = &*m * b1 + &g * (1.0 - b1);
+                    *v = &*v * b2 + g.square() * (1.0 - b2);
+                    p.detach() - (&*m / c1) / ((&*v / c2).sqrt() + eps) * lr
+                })
+                .collect()
+        })
+    }
+}

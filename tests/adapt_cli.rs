@@ -1,0 +1,115 @@
+//! `imu-fsda adapt` end to end: a model that does not fit a new domain (a seeded random
+//! FSDA-F model exported through the library, on a simulated car with an MPU-9250-like IMU)
+//! is adapted on the first 60 s and judged on the rest; the written model loads, replays and
+//! is not worse. Bad inputs give clear errors and write nothing.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use imu_fsda::bag::{read_recording, write_recording, RecordingTopics};
+use imu_fsda::core::Recording;
+use imu_fsda::model::export::{export_model, load_metadata, load_torchscript, ExportInfo};
+use imu_fsda::model::{Config, Mode, Net};
+use nalgebra::UnitQuaternion;
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_imu-fsda")
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(bin()).args(args).output().expect("run imu-fsda")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn random_model(dir: &Path, rec: &Recording) -> PathBuf {
+    tch::manual_seed(7);
+    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+    let net = Net::new(&Config::for_mode(Mode::FsdaF), &vs.root()).unwrap();
+    let mut mean = [0.0; 6];
+    let mut std = [0.0; 6];
+    for c in 0..6 {
+        let v: Vec<f64> = rec.imu.iter().map(|s| if c < 3 { s.gyro[c] } else { s.accel[c - 3] }).collect();
+        mean[c] = v.iter().sum::<f64>() / v.len() as f64;
+        std[c] = (v.iter().map(|x| (x - mean[c]).powi(2)).sum::<f64>() / v.len() as f64).sqrt().max(1e-3);
+    }
+    net.set_normalization(&mean, &std).unwrap();
+    let info = ExportInfo { training_data: vec!["seeded random (tests/adapt_cli.rs)".into()], ..Default::default() };
+    export_model(dir, "random", &vs, &net, &info).unwrap().torchscript
+}
+
+#[test]
+fn adapts_on_a_new_domain_and_refuses_bad_input() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let car = d.join("car.mcap");
+    let o = run(&["simulate", "--profile", "car", "--grade", "mpu-9250", "--seconds", "150", "--output", car.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (rec, _) = read_recording(&car, &RecordingTopics::default()).unwrap();
+    let model = random_model(d, &rec);
+    let m = model.to_str().unwrap();
+    let c = car.to_str().unwrap();
+
+    // The good case.
+    let out = d.join("adapted/car-adapted.pt");
+    let o = run(&["adapt", "--model", m, "--bag", c, "-o", out.to_str().unwrap(), "--steps", "40", "--json"]);
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let before = report["query_before"]["aoe_deg"].as_f64().unwrap();
+    let after = report["query_after"]["aoe_deg"].as_f64().unwrap();
+    eprintln!("car / random model: query AOE {before:.3}° → {after:.3}° in {:.1} s", report["step_seconds"].as_f64().unwrap());
+    assert!(after <= before, "{err}");
+    assert!(report["accepted"].as_bool().unwrap());
+    let meta = load_metadata(&out.with_extension("json")).unwrap();
+    assert!(meta.training_data.iter().any(|t| t.contains("few-shot adapted")), "{:?}", meta.training_data);
+    assert!((meta.metrics["adapt.query_aoe_after_deg"] - after).abs() < 1e-9);
+    load_torchscript(&out.with_extension("json")).unwrap();
+    assert!(out.with_extension("adapt.json").is_file());
+    // It replays (the node's pipeline, incl. its TorchScript-vs-streaming start-up check).
+    let replayed = d.join("replayed.mcap");
+    let o = run(&["replay", c, "--model", out.to_str().unwrap(), "-o", replayed.to_str().unwrap()]);
+    assert!(o.status.success(), "replay: {}", stderr(&o));
+
+    // Bad input: each a clear error, nothing written.
+    let bad_out = d.join("bad/x.pt");
+    let bo = bad_out.to_str().unwrap();
+    let expect_err = |args: &[&str], needle: &str| {
+        let o = run(args);
+        let e = stderr(&o);
+        assert!(!o.status.success(), "{args:?} should fail");
+        assert!(e.contains(needle), "{args:?}: expected {needle:?} in: {e}");
+        assert!(!bad_out.exists(), "{args:?} wrote a model");
+    };
+    expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--support-seconds", "8"], "at least 20 s needed");
+    expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--support-seconds", "400"], "nothing left after");
+    expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--ground-truth-topic", "/nope"], "no ground truth");
+    expect_err(&["adapt", "--model", "/nonexistent.pt", "--bag", c, "-o", bo], "missing");
+    // A model that is not better is rejected with the figures (no step: the same model).
+    expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--steps", "0"], "rejected: the adapted model is not better");
+
+    // Ground truth not overlapping the IMU in time.
+    let mut shifted = rec.clone();
+    for p in &mut shifted.ground_truth {
+        p.stamp_ns += 10_000_000_000_000;
+    }
+    let b = d.join("shifted.mcap");
+    write_recording(&b, &shifted).unwrap();
+    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "does not overlap");
+
+    // Ground truth of another body frame (rotated 30° about x): detected and reported …
+    let rx = UnitQuaternion::from_euler_angles(0.5, 0.0, 0.0);
+    let mut rotated = rec.clone();
+    for p in &mut rotated.ground_truth {
+        p.world_from_body *= rx.inverse();
+    }
+    let b = d.join("rotated.mcap");
+    write_recording(&b, &rotated).unwrap();
+    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "another frame");
+    // … or re-expressed on request.
+    let o = run(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo, "--frame", "apply", "--steps", "3"]);
+    let e = stderr(&o);
+    assert!(e.contains("re-expressed"), "{e}");
+}
