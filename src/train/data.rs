@@ -217,7 +217,12 @@ pub fn check_length(task: &Task, needed: usize, what: &str, available: usize) ->
 /// [`load_task`] on a recording already in memory (the checks, ground truth at the IMU
 /// stamps, the crop of `src.start_s` / `src.end_s` and the support split): the node's
 /// buffered data and `imu-fsda adapt`'s split bag go through the trainer's own path.
-pub fn task_from_recording(rec: Recording, src: &SourceConfig, cfg: &DatasetConfig, support_seconds: Option<f64>) -> Result<Task, DataError> {
+pub fn task_from_recording(
+    rec: Recording,
+    src: &SourceConfig,
+    cfg: &DatasetConfig,
+    support_seconds: Option<f64>,
+) -> Result<Task, DataError> {
     let (gt, valid) = ground_truth_at_imu(&rec, cfg);
     let first = gt.iter().position(Option::is_some);
     let last = gt.iter().rposition(Option::is_some);

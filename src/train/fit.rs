@@ -219,7 +219,8 @@ pub fn domain_weights(domains: &[String], how: TaskWeighting) -> Vec<f64> {
 /// Zeroes the last conv of the correction CNN (Generator or DIGDL's), so ω' starts at 0.
 fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
     let prefix = if net.config().mode == Mode::Digdl { "digdl" } else { "generator" };
-    let layers = if net.config().mode == Mode::Digdl { net.config().digdl.kernel_sizes.len() } else { net.config().generator.kernel_sizes.len() };
+    let layers =
+        if net.config().mode == Mode::Digdl { net.config().digdl.kernel_sizes.len() } else { net.config().generator.kernel_sizes.len() };
     let vars = vs.variables();
     for leaf in ["weight", "bias"] {
         let name = format!("{prefix}.conv{}.{leaf}", layers - 1);
@@ -253,7 +254,12 @@ struct Heads {
     sigma: Tensor,
 }
 
-fn fn_layers(vars: &std::collections::HashMap<String, Tensor>, prefix: &str, cnn: &crate::model::CnnConfig, bn: bool) -> anyhow::Result<Vec<FnLayer>> {
+fn fn_layers(
+    vars: &std::collections::HashMap<String, Tensor>,
+    prefix: &str,
+    cnn: &crate::model::CnnConfig,
+    bn: bool,
+) -> anyhow::Result<Vec<FnLayer>> {
     let get = |n: String| vars.get(&n).map(Tensor::shallow_clone).ok_or_else(|| anyhow::anyhow!("no variable {n}"));
     let n = cnn.kernel_sizes.len();
     (0..n)
@@ -356,7 +362,13 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
         (0..n)
             .map(|i| {
                 let (a, len) = (i as i64 * per, per);
-                total_loss(&t.loss, &slice_out(out, a, len), &b.dt.narrow(0, a, len), &b.gt.narrow(0, a, len), Some(&b.valid.narrow(0, a, len)))
+                total_loss(
+                    &t.loss,
+                    &slice_out(out, a, len),
+                    &b.dt.narrow(0, a, len),
+                    &b.gt.narrow(0, a, len),
+                    Some(&b.valid.narrow(0, a, len)),
+                )
             })
             .collect()
     };
@@ -579,9 +591,13 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         if let Some(s) = l.support {
             msg.push_str(&format!(", support {s:.4}"));
         }
-        let over_budget = cfg.train.max_train_seconds > 0.0 && started.elapsed().as_secs_f64() > cfg.train.max_train_seconds && done < epochs;
+        let over_budget =
+            cfg.train.max_train_seconds > 0.0 && started.elapsed().as_secs_f64() > cfg.train.max_train_seconds && done < epochs;
         if over_budget {
-            tracing::warn!("epoch {done}: past the wall-time budget of {:.0} s; stopping and exporting this epoch", cfg.train.max_train_seconds);
+            tracing::warn!(
+                "epoch {done}: past the wall-time budget of {:.0} s; stopping and exporting this epoch",
+                cfg.train.max_train_seconds
+            );
             stopped_at = Some(done);
         }
         let eval_now = cfg.train.eval_every > 0 && done % cfg.train.eval_every == 0 || done == epochs || over_budget;
