@@ -256,10 +256,14 @@ mod tests {
     fn swap_is_exact_and_loses_nothing() {
         let imu = stream(3000);
         let cfg = PipelineConfig { nominal_rate_hz: 200.0, ..Default::default() };
-        let mut reference = Pipeline::new(Box::new(model(2)), cfg.clone());
+        // Built once and cloned: tch's global RNG is shared with tests running in parallel,
+        // so two seeded constructions are not guaranteed to give the same weights.
+        let (old, new) = (model(1), model(2));
+        let copy = |m: &ModelCorrector| ModelCorrector { denoiser: m.denoiser.clone(), name: m.name.clone(), rate_hz: m.rate_hz };
+        let mut reference = Pipeline::new(Box::new(copy(&new)), cfg.clone());
         let want: Vec<_> = imu.iter().map(|s| reference.push(s).unwrap()).collect();
         for (offer_at, late) in [(1200usize, 7usize), (1520, 3), (1500, 0), (1497, 3), (2600, 0), (900, 600)] {
-            let (sw, handle) = SwappableCorrector::new(Box::new(model(1)), 400);
+            let (sw, handle) = SwappableCorrector::new(Box::new(copy(&old)), 400);
             let mut p = Pipeline::new(Box::new(sw), cfg.clone());
             let mut buf = Buffers::new(120.0);
             let mut got = Vec::new();
@@ -267,7 +271,7 @@ mod tests {
                 if k == offer_at + late {
                     // The warm-up used the history up to `offer_at`; `late` samples arrived meanwhile.
                     let hist: Vec<SeqSample> = buf.imu.iter().copied().filter(|h| h.seq as usize <= offer_at).collect();
-                    let mut m = model(2);
+                    let mut m = copy(&new);
                     let fed = warm_up(&mut m, &hist);
                     handle.offer(Box::new(m), fed);
                 }
