@@ -12,18 +12,8 @@ use super::corrector::load_corrector;
 
 #[derive(Debug, clap::Args)]
 pub struct NodeArgs {
-    /// ROS 2 parameter file (`imu_fsda: ros__parameters: …`); defaults apply without one.
-    #[arg(long)]
-    pub params: Option<PathBuf>,
-    /// Node name (also the section read from the parameter file).
-    #[arg(long, default_value = "imu_fsda")]
-    pub node_name: String,
-    /// Topic remapping `from:=to` (repeatable), as `--ros-args -r`.
-    #[arg(short = 'r', long = "remap")]
-    pub remaps: Vec<String>,
-    /// Model file, overriding the parameter `model` ("" = none).
-    #[arg(long)]
-    pub model: Option<String>,
+    #[command(flatten)]
+    pub config: NodeConfigArgs,
     /// Exit after publishing this many messages (tests, benchmarks).
     #[arg(long)]
     pub max_messages: Option<u64>,
@@ -39,22 +29,42 @@ pub struct NodeArgs {
     pub naive_full_window: bool,
 }
 
-pub fn load_params(path: Option<&PathBuf>, node_name: &str, remaps: &[String], model: Option<&String>) -> anyhow::Result<NodeParams> {
-    let mut params = match path {
-        Some(p) => NodeParams::from_yaml_file(p, node_name)?,
-        None => NodeParams::default(),
-    };
-    for r in remaps {
-        params.remap(r)?;
+/// What configures the node's pipeline, shared by `node` and `replay`.
+#[derive(Debug, clap::Args)]
+pub struct NodeConfigArgs {
+    /// ROS 2 parameter file (`imu_fsda: ros__parameters: …`); defaults apply without one.
+    #[arg(long)]
+    pub params: Option<PathBuf>,
+    /// Node name (also the section read from the parameter file).
+    #[arg(long, default_value = "imu_fsda")]
+    pub node_name: String,
+    /// Topic remapping `from:=to` (repeatable), as `--ros-args -r`.
+    #[arg(short = 'r', long = "remap")]
+    pub remaps: Vec<String>,
+    /// Model file, overriding the parameter `model` ("" = none).
+    #[arg(long)]
+    pub model: Option<String>,
+}
+
+impl NodeConfigArgs {
+    /// The parameter file's section (or the defaults), with the remappings and model override applied.
+    pub fn load(&self) -> anyhow::Result<NodeParams> {
+        let mut params = match &self.params {
+            Some(p) => NodeParams::from_yaml_file(p, &self.node_name)?,
+            None => NodeParams::default(),
+        };
+        for r in &self.remaps {
+            params.remap(r)?;
+        }
+        if let Some(m) = &self.model {
+            params.model.clone_from(m);
+        }
+        Ok(params)
     }
-    if let Some(m) = model {
-        params.model.clone_from(m);
-    }
-    Ok(params)
 }
 
 pub fn run(args: NodeArgs) -> anyhow::Result<()> {
-    let params = load_params(args.params.as_ref(), &args.node_name, &args.remaps, args.model.as_ref())?;
+    let params = args.config.load()?;
     let env = RosEnvironment::from_env()?;
     let (corrector, status) = if args.naive_full_window {
         anyhow::ensure!(!params.model.is_empty(), "--naive-full-window needs a model");
@@ -83,7 +93,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     // slowdowns with two OpenMP threads next to other work).
     tch::set_num_threads(1);
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("tokio runtime")?;
-    let stats = rt.block_on(run_node_with_adaptation(&args.node_name, params, env, pipeline, status, limits, adapt))?;
+    let stats = rt.block_on(run_node_with_adaptation(&args.config.node_name, params, env, pipeline, status, limits, adapt))?;
     let c = &stats.counters;
     eprintln!(
         "imu-fsda node: received {}, published {}, dropped {} (non-finite {}, duplicate {}, backwards {}), gaps {}, latency p50 {:.0} µs p99 {:.0} µs",

@@ -11,7 +11,7 @@ use imu_fsda::msg::{DiagnosticArray, Imu, RosMessage, Time, Vector3Stamped};
 use imu_fsda::node::{diagnostics_message, fill_denoised, NodeStats};
 
 use super::corrector::load_corrector;
-use super::node::load_params;
+use super::node::NodeConfigArgs;
 
 #[derive(Debug, clap::Args)]
 pub struct ReplayArgs {
@@ -20,25 +20,15 @@ pub struct ReplayArgs {
     /// Output bag: the input plus the node's topics.
     #[arg(short, long)]
     pub output: PathBuf,
-    /// ROS 2 parameter file of the node.
-    #[arg(long)]
-    pub params: Option<PathBuf>,
-    /// Node name (section of the parameter file).
-    #[arg(long, default_value = "imu_fsda")]
-    pub node_name: String,
-    /// Topic remapping `from:=to` (repeatable).
-    #[arg(short = 'r', long = "remap")]
-    pub remaps: Vec<String>,
-    /// Model file, overriding the parameter `model` ("" = none).
-    #[arg(long)]
-    pub model: Option<String>,
+    #[command(flatten)]
+    pub config: NodeConfigArgs,
     /// Raw IMU topic in the bag; default: the node's input topic if the bag has it, else /imu/data.
     #[arg(long)]
     pub input_topic: Option<String>,
 }
 
 pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
-    let params = load_params(args.params.as_ref(), &args.node_name, &args.remaps, args.model.as_ref())?;
+    let params = args.config.load()?;
     let (corrector, status) = load_corrector(&params.model)?;
     let mut pipeline = Pipeline::new(corrector, params.pipeline.clone());
     let input_topic = match &args.input_topic {
@@ -118,7 +108,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             writer.write(
                 diag_ch,
                 m.log_time_ns as i64,
-                &diagnostics_message(&stats, &args.node_name, Time::from_ns(m.log_time_ns as i64)),
+                &diagnostics_message(&stats, &args.config.node_name, Time::from_ns(m.log_time_ns as i64)),
             )?;
             next_diag = Some(due + period_ns);
         }
@@ -126,7 +116,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     stats.counters = pipeline.counters().clone();
     stats.decode_errors = decode_errors;
     stats.frame_id = last_frame.unwrap_or_default();
-    writer.write(diag_ch, last_log as i64, &diagnostics_message(&stats, &args.node_name, Time::from_ns(last_log as i64)))?;
+    writer.write(diag_ch, last_log as i64, &diagnostics_message(&stats, &args.config.node_name, Time::from_ns(last_log as i64)))?;
     writer.finish().with_context(|| format!("finishing {}", args.output.display()))?;
     let c = &stats.counters;
     println!(
