@@ -1,6 +1,6 @@
 //! Checkpoints: `<out>/<name>.ckpt.ot` (every VarStore variable as `vs.<path>`, Adam's
 //! moments as `adam.{m,v}.<path>`, and, when a best model is being kept, its variables as
-//! `best.<path>`) plus `<name>.ckpt.json` ([`CheckpointMeta`]: the epoch reached, Adam's step
+//! `best.<path>`, and, with `train.ema_decay`, the moving average as `ema.<path>`) plus `<name>.ckpt.json` ([`CheckpointMeta`]: the epoch reached, Adam's step
 //! count, the seed, the config, the loss history and evaluations so far).
 //!
 //! What resumes exactly: weights, BatchNorm statistics, Adam's moments and step count, the
@@ -46,6 +46,7 @@ pub fn save(
     vs: &VarStore,
     adam: &Adam,
     best: Option<&BTreeMap<String, Tensor>>,
+    ema: Option<&BTreeMap<String, Tensor>>,
     meta: &CheckpointMeta,
 ) -> anyhow::Result<PathBuf> {
     std::fs::create_dir_all(out_dir)?;
@@ -54,6 +55,9 @@ pub fn save(
     named.extend(adam.state());
     if let Some(best) = best {
         named.extend(best.iter().map(|(n, t)| (format!("best.{n}"), t.shallow_clone())));
+    }
+    if let Some(ema) = ema {
+        named.extend(ema.iter().map(|(n, t)| (format!("ema.{n}"), t.shallow_clone())));
     }
     let tmp = ot.with_extension("ot.tmp");
     Tensor::save_multi(&named, &tmp)?;
@@ -109,4 +113,55 @@ pub fn snapshot(vs: &VarStore) -> BTreeMap<String, Tensor> {
 pub fn restore_snapshot(vs: &VarStore, snap: &BTreeMap<String, Tensor>) -> anyhow::Result<()> {
     let prefixed: BTreeMap<String, Tensor> = snap.iter().map(|(n, t)| (format!("s.{n}"), t.shallow_clone())).collect();
     restore_vars(vs, &prefixed, "s")
+}
+
+/// Exponential moving average of every floating-point variable of a VarStore.
+pub struct Ema {
+    pub decay: f64,
+    pub avg: BTreeMap<String, Tensor>,
+    updates: u64,
+}
+
+impl Ema {
+    /// Starts the average at the current weights (or at `ema.`-prefixed tensors of a checkpoint).
+    pub fn new(vs: &VarStore, decay: f64, from: Option<&BTreeMap<String, Tensor>>, updates: u64) -> Self {
+        let mut avg = snapshot(vs);
+        if let Some(from) = from {
+            for (n, t) in avg.iter_mut() {
+                if let Some(src) = from.get(&format!("ema.{n}")).filter(|s| s.size() == t.size()) {
+                    *t = src.detach().copy();
+                }
+            }
+        }
+        Self { decay, avg, updates }
+    }
+
+    /// avg ← d·avg + (1 − d)·var, with d ramped up over the first steps (min(d, (1+k)/(10+k)))
+    /// so the average does not remember the random initialisation.
+    pub fn update(&mut self, vs: &VarStore) {
+        self.updates += 1;
+        let k = self.updates as f64;
+        let d = self.decay.min((1.0 + k) / (10.0 + k));
+        tch::no_grad(|| {
+            for (n, v) in vs.variables() {
+                if let Some(a) = self.avg.get_mut(&n) {
+                    if a.is_floating_point() {
+                        let _ = a.g_mul_scalar_(d);
+                        let _ = a.g_add_(&(v.detach() * (1.0 - d)));
+                    } else {
+                        a.copy_(&v);
+                    }
+                }
+            }
+        });
+    }
+
+    /// Runs `f` with the averaged weights in `vs`, then puts the trained ones back.
+    pub fn with_average<T>(&self, vs: &VarStore, f: impl FnOnce() -> T) -> anyhow::Result<T> {
+        let current = snapshot(vs);
+        restore_snapshot(vs, &self.avg)?;
+        let out = f();
+        restore_snapshot(vs, &current)?;
+        Ok(out)
+    }
 }

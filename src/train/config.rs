@@ -243,6 +243,12 @@ pub struct TrainSettings {
     /// metrics); the schedule is not rescaled, so size `epochs` to fit and keep this a guard.
     #[serde(default)]
     pub max_train_seconds: f64,
+    /// Decay of an exponential moving average of every variable (weights and BatchNorm
+    /// statistics), kept beside the trained ones; 0 (default): off. When on, evaluations,
+    /// best-model selection and the export use the averaged weights: the last epochs' Adam
+    /// noise averages out of the slowly learned parts (the static bias, Ĉ_ω).
+    #[serde(default)]
+    pub ema_decay: f64,
 }
 
 /// See [`TrainSettings::task_weighting`].
@@ -375,6 +381,9 @@ impl TrainConfig {
         }
         if !non_negative(t.maml.inner_lr) || t.maml.inner_steps == 0 {
             return Err("train.maml.inner_lr must be ≥ 0 and inner_steps ≥ 1".into());
+        }
+        if !(0.0..1.0).contains(&t.ema_decay) {
+            return Err(format!("train.ema_decay must be in [0, 1), got {}", t.ema_decay));
         }
         if t.threads < 1 {
             return Err("train.threads must be ≥ 1".into());

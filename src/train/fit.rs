@@ -500,6 +500,8 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         }
         tracing::info!("resumed from {} at epoch {start_epoch}", opts.resume.as_ref().unwrap().display());
     }
+    let mut ema = (cfg.train.ema_decay > 0.0)
+        .then(|| checkpoint::Ema::new(&vs, cfg.train.ema_decay, resume.as_ref().map(|r| &r.tensors), adam.step.max(0) as u64));
     if validation.len() != data.validation.len() {
         validation = data
             .validation
@@ -530,6 +532,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
                      validation: &[SequenceEvals],
                      best: Option<(usize, f64)>,
                      best_vars: Option<&BTreeMap<String, Tensor>>,
+                     ema: Option<&checkpoint::Ema>,
                      seconds: f64|
      -> anyhow::Result<PathBuf> {
         let meta = CheckpointMeta {
@@ -543,7 +546,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             best,
             train_seconds: seconds,
         };
-        checkpoint::save(&opts.out_dir, &opts.name, &vs, adam, best_vars, &meta)
+        checkpoint::save(&opts.out_dir, &opts.name, &vs, adam, best_vars, ema.map(|e| &e.avg), &meta)
     };
 
     let started = Instant::now();
@@ -570,6 +573,9 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         }
         let grad_norm = adam.grad_norm();
         adam.step(lr, cfg.train.weight_decay);
+        if let Some(e) = ema.as_mut() {
+            e.update(&vs);
+        }
         ran += 1;
         history.push(EpochRecord {
             epoch,
@@ -602,16 +608,25 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         }
         let eval_now = cfg.train.eval_every > 0 && done % cfg.train.eval_every == 0 || done == epochs || over_budget;
         if eval_now && !data.validation.is_empty() {
-            for (v, task) in validation.iter_mut().zip(&data.validation) {
-                let e = evaluate_net(&net, task, &eopts)?;
-                v.evals.push((done, e));
+            let evals = |v: &mut Vec<SequenceEvals>| -> anyhow::Result<()> {
+                for (v, task) in v.iter_mut().zip(&data.validation) {
+                    v.evals.push((done, evaluate_net(&net, task, &eopts)?));
+                }
+                Ok(())
+            };
+            match &ema {
+                Some(e) => e.with_average(&vs, || evals(&mut validation))??,
+                None => evals(&mut validation)?,
             }
             let m = mean_aoe(&validation).unwrap_or(f64::NAN);
             tracing::info!("epoch {done}: {msg}; validation mean AOE {m:.3}°");
             msg.push_str(&format!(", val AOE {m:.2}°"));
             if cfg.train.select_best && best.is_none_or(|(_, b)| m < b) {
                 best = Some((done, m));
-                best_vars = Some(checkpoint::snapshot(&vs));
+                best_vars = Some(match &ema {
+                    Some(e) => e.avg.iter().map(|(n, t)| (n.clone(), t.copy())).collect(),
+                    None => checkpoint::snapshot(&vs),
+                });
             }
         } else if done % (epochs / 20).max(1) == 0 {
             tracing::info!("epoch {done}: {msg}");
@@ -623,17 +638,21 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         }
         if cfg.train.checkpoint_every > 0 && done % cfg.train.checkpoint_every == 0 && done < epochs {
             let secs = prior_seconds + started.elapsed().as_secs_f64();
-            save_ckpt(done, &adam, &history, &validation, best, best_vars.as_ref(), secs)?;
+            save_ckpt(done, &adam, &history, &validation, best, best_vars.as_ref(), ema.as_ref(), secs)?;
         }
     }
     pb.finish();
     let train_seconds = prior_seconds + started.elapsed().as_secs_f64();
     let last_epoch = stopped_at.unwrap_or(epochs);
-    let ckpt = save_ckpt(last_epoch, &adam, &history, &validation, best, best_vars.as_ref(), train_seconds)?;
+    let ckpt = save_ckpt(last_epoch, &adam, &history, &validation, best, best_vars.as_ref(), ema.as_ref(), train_seconds)?;
     tracing::info!("checkpoint {}", ckpt.display());
 
-    // The exported weights: the best validated epoch if asked, else the last.
+    // The exported weights: the best validated epoch if asked, else the last (averaged when
+    // `ema_decay` is on).
     let mut exported_epoch = last_epoch;
+    if let Some(e) = &ema {
+        checkpoint::restore_snapshot(&vs, &e.avg)?;
+    }
     if let (true, Some((e, _)), Some(snap)) = (cfg.train.select_best, best, best_vars.as_ref()) {
         checkpoint::restore_snapshot(&vs, snap)?;
         exported_epoch = e;
