@@ -70,9 +70,63 @@ impl Recording {
             0.0
         }
     }
+
+    /// The IMU samples between `start_s` and `end_s` seconds after the first IMU sample at or
+    /// after the first ground-truth pose (the trainer's and `adapt`'s clock: "the first 60 s"
+    /// means the same span everywhere), with all the ground truth and temperature kept. `None`
+    /// when there is no ground truth, no IMU sample after it, or nothing in the span.
+    pub fn crop_after_ground_truth_start(&self, start_s: Option<f64>, end_s: Option<f64>) -> Option<Recording> {
+        let g0 = self.ground_truth.first()?.stamp_ns;
+        let t0 = self.imu.iter().find(|s| s.stamp_ns >= g0)?.stamp_ns;
+        let imu: Vec<ImuSample> = self
+            .imu
+            .iter()
+            .filter(|s| {
+                let t = ns_to_s(s.stamp_ns - t0);
+                t >= 0.0 && start_s.is_none_or(|a| t >= a) && end_s.is_none_or(|b| t <= b)
+            })
+            .copied()
+            .collect();
+        (!imu.is_empty()).then(|| Recording {
+            name: self.name.clone(),
+            imu,
+            ground_truth: self.ground_truth.clone(),
+            temperature: self.temperature.clone(),
+        })
+    }
 }
 
 /// Nanoseconds to seconds.
 pub fn ns_to_s(ns: i64) -> f64 {
     ns as f64 * 1e-9
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    fn rec() -> Recording {
+        // IMU at 100 Hz from t = 0 s, ground truth from t = 1.005 s.
+        let imu = (0..1000)
+            .map(|i| ImuSample { stamp_ns: i * 10_000_000, gyro: Vector3::zeros(), accel: Vector3::new(0.0, 0.0, 9.81) })
+            .collect();
+        let ground_truth = (0..100)
+            .map(|i| PoseSample { stamp_ns: 1_005_000_000 + i * 50_000_000, position_in_world: Vector3::zeros(), world_from_body: UnitQuaternion::identity() })
+            .collect();
+        Recording { name: "r".into(), imu, ground_truth, temperature: vec![] }
+    }
+
+    #[test]
+    fn crop_counts_from_the_first_imu_sample_covered_by_ground_truth() {
+        let r = rec();
+        let all = r.crop_after_ground_truth_start(None, None).unwrap();
+        assert_eq!(all.imu[0].stamp_ns, 1_010_000_000);
+        let c = r.crop_after_ground_truth_start(Some(2.0), Some(3.0)).unwrap();
+        assert_eq!(c.imu[0].stamp_ns, 3_010_000_000);
+        assert_eq!(c.imu.last().unwrap().stamp_ns, 4_010_000_000);
+        assert_eq!(c.ground_truth.len(), 100);
+        assert!(r.crop_after_ground_truth_start(Some(50.0), None).is_none());
+        assert!(Recording { ground_truth: vec![], ..r }.crop_after_ground_truth_start(None, None).is_none());
+    }
 }

@@ -28,6 +28,14 @@ pub struct EvalArgs {
     /// Longest ground-truth gap interpolated over, ms; samples in longer gaps are not scored.
     #[arg(long, default_value_t = 50.0)]
     pub max_gap_ms: f64,
+    /// Score only from this many seconds after the first IMU sample covered by ground truth
+    /// (the trainer's and `adapt`'s clock: `--start-s 60` is the query set after a 60 s
+    /// support set). Integration starts there, from the ground-truth attitude.
+    #[arg(long)]
+    pub start_s: Option<f64>,
+    /// Score only up to this many seconds after the first IMU sample covered by ground truth.
+    #[arg(long)]
+    pub end_s: Option<f64>,
     /// Also write the table as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -62,6 +70,19 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         if rec.ground_truth.is_empty() {
             anyhow::bail!("{}: no ground truth on {}", bag.display(), args.ground_truth_topic);
         }
+        let rec = if args.start_s.is_some() || args.end_s.is_some() {
+            rec.crop_after_ground_truth_start(args.start_s, args.end_s).with_context(|| {
+                format!(
+                    "{}: no IMU sample between --start-s {} and --end-s {} after the ground truth starts ({:.1} s recorded)",
+                    bag.display(),
+                    args.start_s.unwrap_or(0.0),
+                    args.end_s.map_or("(end)".to_string(), |e| e.to_string()),
+                    rec.imu_seconds()
+                )
+            })?
+        } else {
+            rec
+        };
         for &m in &methods {
             let row = match m.apply(&rec, &detector).and_then(|(g, note)| Ok((evaluate(&rec, &g, &opts)?, note))) {
                 Ok((e, mut note)) => {
