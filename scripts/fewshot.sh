@@ -17,7 +17,7 @@ source "$here/scripts/env.sh"
 "$here/scripts/setup.sh"
 data="${IMU_FSDA_DATA:-$here/../shared/data}"
 [ -d "$data/tumvi" ] || { echo "error: datasets not found at $data (set IMU_FSDA_DATA)" >&2; exit 1; }
-bin="$here/target/release/imu-fsda"
+bin="${IMU_FSDA_BIN:-$here/target/release/imu-fsda}"
 model="${MODEL:-$here/models/fsda-f-euroc.pt}"
 digdl="${DIGDL:-$here/models/digdl-euroc.pt}"
 support_s="${SUPPORT_S:-60}"

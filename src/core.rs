@@ -112,7 +112,11 @@ mod tests {
             .map(|i| ImuSample { stamp_ns: i * 10_000_000, gyro: Vector3::zeros(), accel: Vector3::new(0.0, 0.0, 9.81) })
             .collect();
         let ground_truth = (0..100)
-            .map(|i| PoseSample { stamp_ns: 1_005_000_000 + i * 50_000_000, position_in_world: Vector3::zeros(), world_from_body: UnitQuaternion::identity() })
+            .map(|i| PoseSample {
+                stamp_ns: 1_005_000_000 + i * 50_000_000,
+                position_in_world: Vector3::zeros(),
+                world_from_body: UnitQuaternion::identity(),
+            })
             .collect();
         Recording { name: "r".into(), imu, ground_truth, temperature: vec![] }
     }
