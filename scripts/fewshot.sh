@@ -14,7 +14,7 @@
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$here/scripts/env.sh"
-"$here/scripts/setup.sh"
+IMU_FSDA_NO_BUILD="${IMU_FSDA_BIN:+1}" "$here/scripts/setup.sh"
 data="${IMU_FSDA_DATA:-$here/../shared/data}"
 [ -d "$data/tumvi" ] || { echo "error: datasets not found at $data (set IMU_FSDA_DATA)" >&2; exit 1; }
 bin="${IMU_FSDA_BIN:-$here/target/release/imu-fsda}"
@@ -54,6 +54,16 @@ for d in "${domains[@]}"; do
   fi
   end=$(date +%s.%N)
   echo "{\"domain\": \"$d\", \"status\": \"$status\", \"wall_seconds\": $(echo "$end - $start" | bc)}" >"$work/adapted/$d.status.json"
+  # 1b. The same, also adapting the calibration head (Ĉ_ω and the output bias; beyond the paper).
+  out_cal="$work/adapted/$mstem-$d-cal.pt"
+  start=$(date +%s.%N)
+  if "$bin" adapt --model "$model" --bag "$bag" --support-seconds "$support_s" --calibration -o "$out_cal" --json >"$work/adapted/$d.cal.adapt.json" 2>"$work/adapted/$d.cal.adapt.log"; then
+    status_cal=accepted
+  else
+    status_cal=rejected
+  fi
+  end=$(date +%s.%N)
+  echo "{\"domain\": \"$d\", \"status\": \"$status_cal\", \"wall_seconds\": $(echo "$end - $start" | bc)}" >"$work/adapted/$d.cal.status.json"
   # 2. From scratch on the same support set (the FSDA framework, no meta-learning), judged on the query set.
   cfg="$work/scratch/$d.yaml"
   cat >"$cfg" <<YAML
@@ -77,16 +87,19 @@ YAML
   # 3. Every model on the same query set, scored the same way.
   models=(--model "$model" --model "$digdl")
   [ "$status" = accepted ] && models+=(--model "$out")
+  [ "$status_cal" = accepted ] && models+=(--model "$out_cal")
   [ -f "$work/scratch/$d.pt" ] && models+=(--model "$work/scratch/$d.pt")
   "$bin" eval "$bag" --start-s "$support_s" --method raw "${models[@]}" --json "$work/eval/$d.query.json" >/dev/null
 done
 # 4. Rooms: the model adapted on one room, on the other rooms (whole recordings).
 for d in "${domains[@]}"; do
   case "$d" in room*) ;; *) continue ;; esac
-  [ -f "$work/adapted/$mstem-$d.pt" ] || continue
+  adapted_models=()
+  for a in "$work/adapted/$mstem-$d.pt" "$work/adapted/$mstem-$d-cal.pt"; do [ -f "$a" ] && adapted_models+=(--model "$a"); done
+  [ ${#adapted_models[@]} -gt 0 ] || continue
   others=()
   for o in "${domains[@]}"; do case "$o" in room*) [ "$o" != "$d" ] && others+=("$work/bags/$o.mcap") ;; esac; done
-  "$bin" eval "${others[@]}" --method raw --model "$model" --model "$work/adapted/$mstem-$d.pt" --json "$work/eval/$d.others.json" >/dev/null
+  "$bin" eval "${others[@]}" --method raw --model "$model" "${adapted_models[@]}" --json "$work/eval/$d.others.json" >/dev/null
 done
 
 "$PYTHON" "$here/scripts/fewshot_table.py" "$work" "$mstem" "$support_s" "$here/docs/fewshot.md" "$here/docs/fewshot.json"

@@ -17,4 +17,5 @@ if ! command -v unshare >/dev/null || ! command -v ip >/dev/null; then
   (apt-get update -qq && apt-get install -y -qq iproute2 util-linux) >/dev/null 2>&1 || echo "[setup] could not install iproute2; DDS tests will skip loudly"
 fi
 cd "$here"
-cargo build --release --quiet
+# IMU_FSDA_NO_BUILD=1: venv and system packages only (scripts given a prebuilt IMU_FSDA_BIN).
+[ "${IMU_FSDA_NO_BUILD:-}" = 1 ] || cargo build --release --quiet

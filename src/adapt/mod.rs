@@ -86,6 +86,11 @@ pub struct AdaptConfig {
     pub seed: u64,
     /// Stop stepping after this many seconds (the steps done so far are kept).
     pub max_seconds: f64,
+    /// Also adapt the calibration head: Ĉ_ω and the Generator's output bias (a constant gyro
+    /// correction). The paper adapts θ_e only; a model meta-trained on one IMU has seen one
+    /// bias, so its Generator may have no input that maps to another IMU's bias, and a new IMU
+    /// is first of all a new bias and scale (docs/adaptation.md measures both).
+    pub calibration: bool,
 }
 
 impl Default for AdaptConfig {
@@ -105,6 +110,7 @@ impl Default for AdaptConfig {
             frame_tolerance_deg: 5.0,
             seed: 0,
             max_seconds: 25.0,
+            calibration: false,
         }
     }
 }
@@ -198,6 +204,39 @@ fn to_task(rec: &Recording, what: &'static str, cfg: &AdaptConfig) -> Result<Tas
     Ok(data::task_from_recording(rec.clone(), &src, &dataset_cfg(cfg), None)?)
 }
 
+/// The calibration head's VarStore names: Ĉ_ω's `gyro_calib.delta` and the bias of the
+/// Generator's last conv (its output is scaled by σ and added to the gyro: a constant offset).
+fn calibration_head_names(vs: &VarStore) -> Vec<String> {
+    let vars = vs.variables();
+    let last_conv = vars
+        .keys()
+        .filter_map(|n| n.strip_prefix("generator.conv")?.strip_suffix(".bias")?.parse::<usize>().ok())
+        .max();
+    let mut names: Vec<String> = last_conv.map(|l| format!("generator.conv{l}.bias")).into_iter().collect();
+    if vars.contains_key("gyro_calib.delta") {
+        names.push("gyro_calib.delta".into());
+    }
+    names
+}
+
+/// Gradients of the support loss w.r.t. the fast θ_e followed by the calibration head.
+fn embedding_and_head_grads(
+    net: &Net,
+    loss: &LossConfig,
+    batch: &data::Batch,
+    fast: &[Tensor],
+    head: &[Tensor],
+) -> (crate::model::loss::LossTerms, Vec<Tensor>) {
+    let out = net.forward_with(
+        &batch.imu,
+        &crate::model::ForwardOptions { train: false, reconstruct: true, embedding_params: Some(fast) },
+    );
+    let terms = crate::model::loss::total_loss(loss, &out, &batch.dt, &batch.gt, Some(&batch.valid));
+    let inputs: Vec<&Tensor> = fast.iter().chain(head).collect();
+    let grads = Tensor::run_backward(&[&terms.total], &inputs, false, false);
+    (terms, grads)
+}
+
 /// A copy of `loaded` in a fresh VarStore (everything frozen: only the fast weights train).
 fn copy_net(loaded: &LoadedNet) -> Result<(VarStore, Net), ModelError> {
     let mut vs = VarStore::new(Device::Cpu);
@@ -283,6 +322,12 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     // The inner loop, first order, eval mode, on the fast weights only.
     let (mut vs, net) = copy_net(loaded)?;
     let mut fast: Vec<Tensor> = net.embedding_parameters().iter().map(|p| p.detach().copy().set_requires_grad(true)).collect();
+    let head_names = if cfg.calibration { calibration_head_names(&vs) } else { Vec::new() };
+    let head: Vec<Tensor> = {
+        let vars = vs.variables();
+        head_names.iter().map(|n| vars[n].shallow_clone().set_requires_grad(true)).collect()
+    };
+    let mut head_adam = TensorAdam::new(&head);
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let win = cfg.window_samples.min(s_task.len());
     let refs = [&s_task];
@@ -300,6 +345,17 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
             Optimizer::Sgd => {
                 let (terms, next) = embedding_inner_step(&net, &cfg.loss, &batch, &fast, cfg.inner_lr, false, false);
                 (terms.total.double_value(&[]), next)
+            }
+            Optimizer::Adam if !head.is_empty() => {
+                let (terms, grads) = embedding_and_head_grads(&net, &cfg.loss, &batch, &fast, &head);
+                let (g_fast, g_head) = grads.split_at(fast.len());
+                let new_head = head_adam.step(&head, g_head, cfg.inner_lr);
+                tch::no_grad(|| {
+                    for (h, n) in head.iter().zip(&new_head) {
+                        h.shallow_clone().copy_(n);
+                    }
+                });
+                (terms.total.double_value(&[]), adam.step(&fast, g_fast, cfg.inner_lr))
             }
             Optimizer::Adam => {
                 let (terms, grads) = embedding_inner_grads(&net, &cfg.loss, &batch, &fast, false, false);

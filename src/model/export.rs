@@ -63,7 +63,9 @@ pub struct ModelMetadata {
     pub parameter_counts: ParameterCounts,
     /// Sequences / bags the model was trained on (filled by the trainer).
     pub training_data: Vec<String>,
-    /// Evaluation figures (filled by the trainer), e.g. `"MH_04_difficult/aoe_deg"`.
+    /// Evaluation figures (filled by the trainer), e.g. `"MH_04_difficult/aoe_deg"`. A figure
+    /// that could not be measured (NaN, written by JSON as `null`) is left out on reading.
+    #[serde(deserialize_with = "finite_metrics")]
     pub metrics: BTreeMap<String, f64>,
     /// Git revision of the code that wrote the model, when known.
     pub code_revision: Option<String>,
@@ -71,6 +73,11 @@ pub struct ModelMetadata {
     /// Seconds since the Unix epoch.
     pub created_unix_s: u64,
     pub files: ExportFiles,
+}
+
+fn finite_metrics<'de, D: serde::Deserializer<'de>>(d: D) -> Result<BTreeMap<String, f64>, D::Error> {
+    let m: BTreeMap<String, Option<f64>> = serde::Deserialize::deserialize(d)?;
+    Ok(m.into_iter().filter_map(|(k, v)| Some((k, v?))).collect())
 }
 
 /// What the trainer adds to the metadata.
@@ -170,7 +177,7 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         config: cfg,
         parameter_counts: net.parameter_counts(),
         training_data: info.training_data.clone(),
-        metrics: info.metrics.clone(),
+        metrics: info.metrics.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), *v)).collect(),
         code_revision: info.code_revision.clone().or_else(code_revision),
         crate_version: env!("CARGO_PKG_VERSION").into(),
         created_unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0),

@@ -670,7 +670,14 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     let mean_of = |h: &[EpochRecord]| h.iter().map(|r| r.loss).sum::<f64>() / h.len().max(1) as f64;
     let loss_first = mean_of(&history[..k.min(history.len())]);
     let loss_last = mean_of(&history[history.len().saturating_sub(k)..]);
-    let seconds_per_epoch = if ran > 0 { started.elapsed().as_secs_f64() / ran as f64 } else { f64::NAN };
+    // A run resumed only to export (no new epoch) reports the whole run's mean.
+    let seconds_per_epoch = if ran > 0 {
+        started.elapsed().as_secs_f64() / ran as f64
+    } else if last_epoch > 0 {
+        train_seconds / last_epoch as f64
+    } else {
+        f64::NAN
+    };
 
     let mut metrics = BTreeMap::new();
     metrics.insert("epochs".to_string(), exported_epoch as f64);
