@@ -95,6 +95,9 @@ pub struct NodeParams {
     pub adapted_model_dir: String,
     /// Inner-loop settings (crate::adapt::AdaptConfig).
     pub adapt: crate::adapt::AdaptConfig,
+    /// Nice value of the adaptation thread (0 = the node's priority … 19 = lowest): it yields
+    /// the cores to the real-time path (and to anything else running at a higher priority).
+    pub adapt_thread_nice: i32,
 }
 
 impl Default for NodeParams {
@@ -115,6 +118,7 @@ impl Default for NodeParams {
             adapt_support_seconds: 60.0,
             adapted_model_dir: String::new(),
             adapt: crate::adapt::AdaptConfig::default(),
+            adapt_thread_nice: 10,
         }
     }
 }
@@ -788,9 +792,10 @@ async fn service_loop(
                 };
                 adapting.store(true, Ordering::Relaxed);
                 let flag = adapting.clone();
+                let nice = params.adapt_thread_nice.clamp(0, 19);
                 let spawned = std::thread::Builder::new().name("imu-fsda-adapt".into()).spawn(move || {
                     // Below the real-time path: the scheduler serves the node's threads first.
-                    lower_thread_priority(ADAPT_NICE);
+                    lower_thread_priority(nice);
                     let res = job.run();
                     flag.store(false, Ordering::Relaxed);
                     let _ = tx.send(res);
@@ -828,9 +833,6 @@ async fn service_loop(
         }
     }
 }
-
-/// Nice value of the adaptation thread (0 = the node's, 19 = lowest).
-const ADAPT_NICE: i32 = 10;
 
 /// Lowers the calling thread's scheduling priority to `nice` (Linux: `setpriority` on the
 /// thread id changes that thread only). Failure only costs latency: logged, not fatal.
