@@ -37,7 +37,7 @@ use serde_json::Value;
 static SERIAL: Mutex<()> = Mutex::new(());
 
 const NODE_NAME: &str = "imu_fsda";
-/// Bound of the adaptation run (node + peer); a passing run takes ~30 s.
+/// Bound of the adaptation run (node + peer); a passing run takes ~16 s.
 const ADAPT_RUN_TIMEOUT: Duration = Duration::from_secs(100);
 /// Bound of the restart run.
 const RESTART_RUN_TIMEOUT: Duration = Duration::from_secs(40);
