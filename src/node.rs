@@ -6,6 +6,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -94,6 +95,9 @@ pub struct NodeParams {
     pub adapted_model_dir: String,
     /// Inner-loop settings (crate::adapt::AdaptConfig).
     pub adapt: crate::adapt::AdaptConfig,
+    /// Nice value of the adaptation thread (0 = the node's priority … 19 = lowest): it yields
+    /// the cores to the real-time path (and to anything else running at a higher priority).
+    pub adapt_thread_nice: i32,
 }
 
 impl Default for NodeParams {
@@ -114,6 +118,7 @@ impl Default for NodeParams {
             adapt_support_seconds: 60.0,
             adapted_model_dir: String::new(),
             adapt: crate::adapt::AdaptConfig::default(),
+            adapt_thread_nice: 10,
         }
     }
 }
@@ -281,6 +286,33 @@ impl LatencyHistogram {
     pub fn count(&self) -> u64 {
         self.count
     }
+    /// Largest value recorded, µs (exact, not binned).
+    pub fn max_us(&self) -> f64 {
+        self.max_us
+    }
+    /// p50 / p99 / max / count as JSON (the node's `--stats-json`, benchmarks).
+    pub fn summary_json(&self) -> serde_json::Value {
+        serde_json::json!({"p50_us": self.quantile_us(0.5), "p99_us": self.quantile_us(0.99), "max_us": self.max_us, "count": self.count})
+    }
+}
+
+/// Per-sample latencies split by whether an adaptation was running when the sample was
+/// processed (index 0: idle, 1: adapting), to check the adaptation does not starve the
+/// real-time path.
+#[derive(Debug, Clone, Default)]
+pub struct SplitLatency {
+    /// In the node: input taken from the subscription → outputs published.
+    pub in_node: [LatencyHistogram; 2],
+    /// Writer to publish: the input's DDS source timestamp (the sender's clock; same host)
+    /// → outputs published. Includes DDS delivery and any wait for a tokio worker.
+    pub write_to_publish: [LatencyHistogram; 2],
+}
+
+impl SplitLatency {
+    pub fn summary_json(&self) -> serde_json::Value {
+        let side = |i: usize| serde_json::json!({"in_node": self.in_node[i].summary_json(), "write_to_publish": self.write_to_publish[i].summary_json()});
+        serde_json::json!({"idle": side(0), "adapting": side(1)})
+    }
 }
 
 /// What the diagnostics report (shared between the processing and diagnostics tasks).
@@ -304,6 +336,8 @@ pub struct NodeStats {
     pub adapt_query_aoe_before_deg: Option<f64>,
     pub adapt_query_aoe_after_deg: Option<f64>,
     pub adapt_seconds: Option<f64>,
+    /// Latencies split by adaptation state (recorded only when the service is on).
+    pub split_latency: SplitLatency,
 }
 
 /// Build the /diagnostics message from the stats.
@@ -349,6 +383,11 @@ pub fn diagnostics_message(stats: &NodeStats, node_name: &str, stamp: Time) -> D
         values.push(kv("adapt_query_aoe_before_deg", f(stats.adapt_query_aoe_before_deg)));
         values.push(kv("adapt_query_aoe_after_deg", f(stats.adapt_query_aoe_after_deg)));
         values.push(kv("adapt_seconds", f(stats.adapt_seconds)));
+        for (i, state) in ["idle", "adapting"].iter().enumerate() {
+            let h = &stats.split_latency.in_node[i];
+            values.push(kv(&format!("latency_{state}_p99_us"), format!("{:.0}", h.quantile_us(0.99))));
+            values.push(kv(&format!("latency_{state}_max_us"), format!("{:.0}", h.max_us())));
+        }
     }
     DiagnosticArray {
         header: Header { stamp, frame_id: String::new() },
@@ -494,7 +533,11 @@ pub async fn run_node_with_adaptation(
         }
     });
 
-    let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits, buffers.clone());
+    // Set while an adaptation job runs (by the service before it spawns the job, cleared by
+    // the job's thread as it ends): the process loop files its latencies under it.
+    let adapting = Arc::new(AtomicBool::new(false));
+    let tap = buffers.as_ref().map(|b| AdaptTap { buffers: b.clone(), adapting: adapting.clone() });
+    let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits, tap);
     let gt_task = async {
         match (&gt_source, &buffers) {
             (Some(src), Some(b)) => ground_truth_loop(src, b).await,
@@ -503,7 +546,7 @@ pub async fn run_node_with_adaptation(
     };
     let service_task = async {
         match (&server, &buffers, &adapt) {
-            (Some(srv), Some(b), Some(a)) => service_loop(srv, b, a, &params, stats.clone()).await,
+            (Some(srv), Some(b), Some(a)) => service_loop(srv, b, a, &params, stats.clone(), adapting.clone()).await,
             _ => std::future::pending().await,
         }
     };
@@ -551,6 +594,12 @@ pub async fn run_node_with_adaptation(
     Ok(s)
 }
 
+/// What the process loop feeds and reads when the adaptation service is on.
+struct AdaptTap {
+    buffers: Arc<Mutex<Buffers>>,
+    adapting: Arc<AtomicBool>,
+}
+
 async fn process_loop(
     subscription: &ros2_client::Subscription<Imu>,
     out_pub: &ros2_client::Publisher<Imu>,
@@ -558,7 +607,7 @@ async fn process_loop(
     mut pipeline: Pipeline,
     stats: Arc<Mutex<NodeStats>>,
     limits: RunLimits,
-    buffers: Option<Arc<Mutex<Buffers>>>,
+    tap: Option<AdaptTap>,
 ) {
     let stream = subscription.async_stream();
     futures::pin_mut!(stream);
@@ -575,8 +624,9 @@ async fn process_loop(
         };
         let Some(item) = next else { return };
         let arrived = Instant::now();
-        let mut msg = match item {
-            Ok((m, _info)) => m,
+        let state = tap.as_ref().map(|t| usize::from(t.adapting.load(Ordering::Relaxed)));
+        let (mut msg, source_ns) = match item {
+            Ok((m, info)) => (m, info.source_timestamp().map(|t| t.to_nanos())),
             Err(e) => {
                 tracing::warn!("input decode error: {e:?}");
                 stats.lock().expect("stats lock").decode_errors += 1;
@@ -593,9 +643,9 @@ async fn process_loop(
             }
             last_frame = Some(msg.header.frame_id.clone());
         }
-        if let (Ok(c), Some(b)) = (&result, &buffers) {
+        if let (Ok(c), Some(t)) = (&result, &tap) {
             let seq = pipeline.counters().processed;
-            b.lock().expect("buffers lock").push_imu(SeqSample { seq, sample, reset_before: c.after_gap });
+            t.buffers.lock().expect("buffers lock").push_imu(SeqSample { seq, sample, reset_before: c.after_gap });
         }
         if let Ok(c) = &result {
             let correction = Vector3Stamped { header: msg.header.clone(), vector: c.correction.into() };
@@ -612,7 +662,16 @@ async fn process_loop(
         }
         {
             let mut s = stats.lock().expect("stats lock");
-            s.latency.record(arrived.elapsed());
+            let in_node = arrived.elapsed();
+            s.latency.record(in_node);
+            if let Some(i) = state {
+                s.split_latency.in_node[i].record(in_node);
+                if let Some(src) = source_ns {
+                    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64);
+                    // Clamped at 0: the sender's clock is the same host's, but not monotonic.
+                    s.split_latency.write_to_publish[i].record(Duration::from_nanos((now - src).max(0) as u64));
+                }
+            }
             s.counters = pipeline.counters().clone();
             if frame_changed {
                 s.frame_changes += 1;
@@ -692,6 +751,7 @@ async fn service_loop(
     setup: &AdaptSetup,
     params: &NodeParams,
     stats: Arc<Mutex<NodeStats>>,
+    adapting: Arc<AtomicBool>,
 ) {
     let mut running: Option<(ros2_client::RmwRequestId, tokio::sync::oneshot::Receiver<JobResult>, Instant)> = None;
     loop {
@@ -730,10 +790,18 @@ async fn service_loop(
                     out_dir: params.adapted_model_dir.clone(),
                     cfg: params.adapt.clone(),
                 };
+                adapting.store(true, Ordering::Relaxed);
+                let flag = adapting.clone();
+                let nice = params.adapt_thread_nice.clamp(0, 19);
                 let spawned = std::thread::Builder::new().name("imu-fsda-adapt".into()).spawn(move || {
-                    let _ = tx.send(job.run());
+                    // Below the real-time path: the scheduler serves the node's threads first.
+                    lower_thread_priority(nice);
+                    let res = job.run();
+                    flag.store(false, Ordering::Relaxed);
+                    let _ = tx.send(res);
                 });
                 if let Err(e) = spawned {
+                    adapting.store(false, Ordering::Relaxed);
                     respond(server, id, false, format!("cannot start the adaptation thread: {e}")).await;
                     continue;
                 }
@@ -743,6 +811,8 @@ async fn service_loop(
             }
             res = finished => {
                 let Some((id, _, started)) = running.take() else { continue };
+                // Normally cleared by the job's thread; also when that thread died.
+                adapting.store(false, Ordering::Relaxed);
                 let res = res.unwrap_or(JobResult { success: false, message: "the adaptation thread died".into(), report: None, model_name: None });
                 {
                     let mut s = stats.lock().expect("stats lock");
@@ -762,6 +832,26 @@ async fn service_loop(
             }
         }
     }
+}
+
+/// Lowers the calling thread's scheduling priority to `nice` (Linux: `setpriority` on the
+/// thread id changes that thread only). Failure only costs latency: logged, not fatal.
+fn lower_thread_priority(nice: i32) {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: plain syscalls on the calling thread's own id; no memory is passed.
+        let rc = unsafe {
+            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+            libc::setpriority(libc::PRIO_PROCESS, tid, nice)
+        };
+        if rc != 0 {
+            tracing::warn!("adaptation thread: setpriority(nice {nice}) failed: {}", std::io::Error::last_os_error());
+        } else {
+            tracing::debug!("adaptation thread at nice {nice}");
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = nice;
 }
 
 async fn respond(

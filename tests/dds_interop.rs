@@ -16,11 +16,15 @@
 //! Nothing touches the host's network: a machine where the namespace cannot be created skips
 //! loudly (`SKIPPED: ...`), except under `CI`, where that is a failure.
 
+mod common;
+
+use std::ffi::OsStr;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
+
+use common::{fs, manifest_dir, prerequisites, run_cli as run_cli_for, run_in_namespace as ns_run, same_bits, stamp_ns, tail, Prereqs};
 
 use imu_fsda::bag::BagReader;
 use imu_fsda::msg::{Imu, RosMessage, Vector3Stamped};
@@ -37,139 +41,12 @@ const NAMESPACE_TIMEOUT: Duration = Duration::from_secs(40);
 /// Bound of one `import` / `replay`.
 const CLI_TIMEOUT: Duration = Duration::from_secs(30);
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_imu-fsda")
-}
-
-fn manifest_dir() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-}
-
-/// Not runnable here: skip loudly, or fail under CI.
 fn skip_or_fail(why: &str) {
-    if std::env::var_os("CI").is_some() {
-        panic!("dds_interop cannot run, and CI is set: {why}");
-    }
-    // Straight to the process's stderr: libtest captures `eprintln!` of passing tests.
-    let _ = writeln!(std::io::stderr(), "SKIPPED: dds_interop: {why}");
+    common::skip_or_fail("dds_interop", why);
 }
 
-/// A child process (and its process group) that is killed when dropped: no orphans when an
-/// assertion or a timeout ends the test early.
-struct Guarded {
-    child: Child,
-    what: String,
-}
-
-impl Guarded {
-    fn spawn(cmd: &mut Command, what: &str) -> Guarded {
-        use std::os::unix::process::CommandExt;
-        cmd.process_group(0);
-        let child = cmd.spawn().unwrap_or_else(|e| panic!("{what}: cannot start {cmd:?}: {e}"));
-        Guarded { child, what: what.to_string() }
-    }
-
-    /// Wait at most `timeout`; `None` (after killing everything) when it ran out.
-    fn wait_timeout(&mut self, timeout: Duration) -> Option<ExitStatus> {
-        let t0 = Instant::now();
-        loop {
-            if let Some(st) = self.child.try_wait().expect("try_wait") {
-                return Some(st);
-            }
-            if t0.elapsed() > timeout {
-                self.kill();
-                return None;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
-    fn kill(&mut self) {
-        if self.child.try_wait().ok().flatten().is_none() {
-            eprintln!("dds_interop: killing {} (pid {})", self.what, self.child.id());
-            // The whole process group; `unshare --kill-child` + the PID namespace take the rest.
-            let _ = Command::new("kill").args(["-KILL", "--", &format!("-{}", self.child.id())]).status();
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
-    }
-}
-
-impl Drop for Guarded {
-    fn drop(&mut self) {
-        self.kill();
-    }
-}
-
-/// Run a command to completion within `timeout`, output captured; panics with it on failure.
 fn run_cli(args: &[&str], what: &str) -> String {
-    let mut cmd = Command::new(bin());
-    cmd.args(args).stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
-    let mut g = Guarded::spawn(&mut cmd, what);
-    // Read the pipes on threads so a chatty child cannot block on a full pipe.
-    let mut so = g.child.stdout.take().unwrap();
-    let mut se = g.child.stderr.take().unwrap();
-    let ho = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = std::io::Read::read_to_string(&mut so, &mut s);
-        s
-    });
-    let he = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = std::io::Read::read_to_string(&mut se, &mut s);
-        s
-    });
-    let st = g.wait_timeout(CLI_TIMEOUT);
-    let (out, err) = (ho.join().unwrap(), he.join().unwrap());
-    match st {
-        Some(s) if s.success() => out,
-        Some(s) => panic!("{what}: imu-fsda {args:?} failed ({s}):\n{out}\n{err}"),
-        None => panic!("{what}: imu-fsda {args:?} did not finish within {CLI_TIMEOUT:?}:\n{out}\n{err}"),
-    }
-}
-
-/// What a test needs from the machine; `Err` = skip (or fail under CI).
-struct Prereqs {
-    python: PathBuf,
-}
-
-fn prerequisites() -> Result<Prereqs, String> {
-    let python = std::env::var_os("PYTHON").map(PathBuf::from).unwrap_or_else(|| {
-        let venv = std::env::var_os("IMU_FSDA_VENV").map(PathBuf::from).unwrap_or_else(|| {
-            let cache = std::env::var_os("XDG_CACHE_HOME")
-                .map(PathBuf::from)
-                .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache"));
-            cache.join("imu-fsda/torch-2.13.0")
-        });
-        venv.join("bin/python")
-    });
-    let ok = Command::new(&python)
-        .args(["-c", "import cyclonedds, importlib.metadata as m; assert m.version('cyclonedds') == '11.0.1', m.version('cyclonedds')"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !ok {
-        return Err(format!("{} has no cyclonedds==11.0.1 (run scripts/setup.sh, or set PYTHON)", python.display()));
-    }
-    // The exact namespace recipe the test uses, with nothing in it.
-    let ns = Command::new("unshare")
-        .args(["--net", "--pid", "--fork", "--kill-child", "bash", "-c"])
-        .arg("ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .output();
-    match ns {
-        Ok(o) if o.status.success() => {}
-        Ok(o) => {
-            return Err(format!(
-                "cannot create a network namespace with multicast on lo (needs root, unshare, ip): {}",
-                String::from_utf8_lossy(&o.stderr).trim()
-            ))
-        }
-        Err(e) => return Err(format!("cannot run unshare: {e}")),
-    }
-    Ok(Prereqs { python })
+    run_cli_for(args, what, CLI_TIMEOUT)
 }
 
 /// The EuRoC imu0/data.csv of `preferred`, else of the other candidate.
@@ -249,12 +126,9 @@ struct Run {
 
 fn run_in_namespace(pre: &Prereqs, dir: &Path, csv: &Path, peer_args: &[&str]) -> Run {
     let peer_py = manifest_dir().join("tests/python/dds_peer.py");
-    // Inside the namespace: lo up with multicast (discovery ~0.1 s; without it rustdds falls
-    // back to unicast after ~7.6 s), the node in the background, the peer in the foreground;
-    // each under its own `timeout`, and the node stopped if the peer fails.
+    // Inside the namespace: the node in the background, the peer in the foreground; each
+    // under its own `timeout`, and the node stopped if the peer fails.
     let script = r#"
-set -u
-ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo || exit 90
 timeout -k 2 30 "$IMU_FSDA_BIN" node --node-name "$NODE_NAME" --model '' --idle-exit-s 3 --stats-json \
     >"$OUT/node.out" 2>"$OUT/node.err" </dev/null &
 NODE=$!
@@ -265,26 +139,11 @@ wait "$NODE"
 NODE_RC=$?
 echo "$PEER_RC $NODE_RC" >"$OUT/rc"
 "#;
-    let mut cmd = Command::new("unshare");
-    cmd.args(["--net", "--pid", "--fork", "--kill-child", "bash", "-c", script, "bash"])
-        .args(["--csv", csv.to_str().unwrap()])
-        .args(peer_args)
-        .env("IMU_FSDA_BIN", bin())
-        .env("NODE_NAME", NODE_NAME)
-        .env("PEER_PY", &pre.python)
-        .env("PEER", &peer_py)
-        .env("OUT", dir)
-        .env("ROS_DOMAIN_ID", "0")
-        .env_remove("ROS_LOCALHOST_ONLY")
-        .env_remove("ROS_AUTOMATIC_DISCOVERY_RANGE")
-        .env_remove("CYCLONEDDS_URI")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::null());
-    let t0 = Instant::now();
-    let mut g = Guarded::spawn(&mut cmd, "namespace (node + peer)");
-    let st = g.wait_timeout(NAMESPACE_TIMEOUT);
-    let wall_s = t0.elapsed().as_secs_f64();
+    let mut args = vec!["--csv", csv.to_str().unwrap()];
+    args.extend_from_slice(peer_args);
+    let envs: [(&str, &OsStr); 4] =
+        [("NODE_NAME", NODE_NAME.as_ref()), ("PEER_PY", pre.python.as_os_str()), ("PEER", peer_py.as_os_str()), ("OUT", dir.as_os_str())];
+    let (st, wall_s) = ns_run(script, &args, &envs, NAMESPACE_TIMEOUT);
     let read = |f: &str| std::fs::read_to_string(dir.join(f)).unwrap_or_default();
     let logs = format!(
         "--- node stdout\n{}\n--- node stderr (tail)\n{}\n--- peer stderr\n{}",
@@ -298,36 +157,9 @@ echo "$PEER_RC $NODE_RC" >"$OUT/rc"
     let rc: Vec<i32> = rc.split_whitespace().map(|s| s.parse().unwrap()).collect();
     assert_eq!(rc.len(), 2, "no exit codes from the namespace\n{logs}");
     let peer: Value = serde_json::from_str(&read("peer.json")).unwrap_or_else(|e| panic!("peer.json: {e}\n{logs}"));
-    let node_stats: Value = read("node.out")
-        .lines()
-        .rev()
-        .find_map(|l| serde_json::from_str(l).ok())
-        .unwrap_or_else(|| panic!("no --stats-json line from the node\n{logs}"));
+    let node_stats: Value =
+        common::last_json_line(&read("node.out")).unwrap_or_else(|| panic!("no --stats-json line from the node\n{logs}"));
     Run { peer, node_stats, peer_rc: rc[0], node_rc: rc[1], wall_s, logs }
-}
-
-fn tail(s: &str, n: usize) -> String {
-    let lines: Vec<&str> = s.lines().collect();
-    lines[lines.len().saturating_sub(n)..].join("\n")
-}
-
-/// A float64 from the peer's JSON (its bit pattern as 16 hex digits).
-fn f(v: &Value) -> f64 {
-    f64::from_bits(u64::from_str_radix(v.as_str().expect("hex float"), 16).expect("hex float"))
-}
-
-fn fs(v: &Value) -> Vec<f64> {
-    v.as_array().expect("float array").iter().map(f).collect()
-}
-
-/// Bitwise float comparison (the same f64 inputs through the same code must give the same
-/// bits; −0.0 ≠ 0.0 here on purpose).
-fn same_bits(a: &[f64], b: &[f64]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
-}
-
-fn stamp_ns(h: &Value) -> i64 {
-    h["sec"].as_i64().unwrap() * 1_000_000_000 + h["nanosec"].as_i64().unwrap()
 }
 
 fn imu_fields(m: &Imu) -> [(&'static str, Vec<f64>); 6] {

@@ -110,7 +110,12 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     if args.stats_json {
         println!(
             "{}",
-            serde_json::json!({"counters": c, "latency_p50_us": stats.latency.quantile_us(0.5), "latency_p99_us": stats.latency.quantile_us(0.99), "latency_samples": stats.latency.count(), "frame_changes": stats.frame_changes})
+            serde_json::json!({
+                "counters": c, "latency_p50_us": stats.latency.quantile_us(0.5), "latency_p99_us": stats.latency.quantile_us(0.99),
+                "latency_max_us": stats.latency.max_us(), "latency_samples": stats.latency.count(), "frame_changes": stats.frame_changes,
+                "model": stats.model, "adaptation": stats.adapt_status, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
+                "latency_by_adaptation_state": stats.split_latency.summary_json(),
+            })
         );
     }
     Ok(())
