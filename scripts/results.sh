@@ -6,8 +6,8 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$here/scripts/env.sh"
 data="${IMU_FSDA_DATA:-$here/../shared/data}"
 [ -d "$data/euroc" ] || { echo "error: datasets not found at $data (set IMU_FSDA_DATA)" >&2; exit 1; }
-"$here/scripts/setup.sh"
-bin="$here/target/release/imu-fsda"
+IMU_FSDA_NO_BUILD="${IMU_FSDA_BIN:+1}" "$here/scripts/setup.sh"
+bin="${IMU_FSDA_BIN:-$here/target/release/imu-fsda}"
 bags="$IMU_FSDA_CACHE/bags"
 mkdir -p "$bags"
 list=()

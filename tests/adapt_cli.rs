@@ -113,3 +113,50 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     let e = stderr(&o);
     assert!(e.contains("re-expressed"), "{e}");
 }
+
+/// A model whose correction is exactly zero (the Generator's last conv zeroed, as the trainer's
+/// `zero_init_correction`) on a gyro with a bias it never saw: the Embedding alone cannot move
+/// the output (its gradient passes through the zero layer), so the paper's θ_e step is
+/// rejected; `--calibration` also adapts the output bias and Ĉ_ω and removes the bias.
+#[test]
+fn calibration_head_learns_a_bias_the_embedding_cannot() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let car = d.join("car.mcap");
+    let o =
+        run(&["simulate", "--profile", "car", "--grade", "mpu-9250", "--seconds", "100", "--seed", "3", "--output", car.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (mut rec, _) = read_recording(&car, &RecordingTopics::default()).unwrap();
+    for s in &mut rec.imu {
+        s.gyro.z += 0.02; // 1.15 °/s on the vertical axis: a heading drift of 69° a minute
+    }
+    let biased = d.join("biased.mcap");
+    write_recording(&biased, &rec).unwrap();
+
+    tch::manual_seed(11);
+    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+    let cfg = Config::for_mode(Mode::FsdaF);
+    let net = Net::new(&cfg, &vs.root()).unwrap();
+    net.set_normalization(&[0.0, 0.0, 0.0, 0.0, 0.0, 9.81], &[0.5, 0.5, 0.5, 2.0, 2.0, 2.0]).unwrap();
+    let last = cfg.generator.kernel_sizes.len() - 1;
+    let vars = vs.variables();
+    tch::no_grad(|| {
+        for leaf in ["weight", "bias"] {
+            let _ = vars[&format!("generator.conv{last}.{leaf}")].shallow_clone().zero_();
+        }
+    });
+    let model = export_model(d, "zero", &vs, &net, &ExportInfo::default()).unwrap().torchscript;
+    let (m, b) = (model.to_str().unwrap(), biased.to_str().unwrap());
+
+    let o = run(&["adapt", "--model", m, "--bag", b, "-o", d.join("e.pt").to_str().unwrap(), "--steps", "60", "--json"]);
+    assert!(!o.status.success(), "the Embedding alone changed a zeroed output: {}", stderr(&o));
+    assert!(stderr(&o).contains("rejected"), "{}", stderr(&o));
+
+    let o = run(&["adapt", "--model", m, "--bag", b, "-o", d.join("c.pt").to_str().unwrap(), "--steps", "60", "--calibration", "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let before = report["query_before"]["aoe_deg"].as_f64().unwrap();
+    let after = report["query_after"]["aoe_deg"].as_f64().unwrap();
+    eprintln!("biased car / zero-correction model, --calibration: query AOE {before:.3}° → {after:.3}°");
+    assert!(after < 0.3 * before, "{before} → {after}");
+}

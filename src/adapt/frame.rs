@@ -30,6 +30,14 @@ pub struct FrameCheck {
 }
 
 impl FrameCheck {
+    /// The ground truth is in another frame: the rotation exceeds `tolerance_deg` **and**
+    /// explains the mismatch (it at least halves the residual). A gyro with large errors of its
+    /// own (an uncalibrated bias over 0.25 s increments) also makes Wahba's fit return some
+    /// rotation, but one that barely lowers the residual: that is the gyro, not the frame.
+    pub fn is_other_frame(&self, tolerance_deg: f64) -> bool {
+        self.angle_deg > tolerance_deg && self.residual_deg < 0.5 * self.residual_identity_deg
+    }
+
     pub fn rotation(&self) -> UnitQuaternion<f64> {
         let [w, x, y, z] = self.gt_from_imu;
         UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z))
@@ -134,6 +142,20 @@ mod tests {
         assert!(c.residual_deg < 0.1 && c.residual_identity_deg > 10.0);
         let same: Vec<_> = att.iter().map(|q| Some(*q)).collect();
         assert!(check_frame(&imu, &same, 40, 0.05).unwrap().angle_deg < 0.1);
+        assert!(c.is_other_frame(5.0));
+    }
+
+    #[test]
+    fn a_biased_gyro_is_not_another_frame() {
+        // Same frame, but the gyro carries a large constant bias (an uncalibrated consumer IMU):
+        // Wahba's fit tilts toward the bias, the residual barely drops.
+        let (mut imu, att) = motion(20_000, 3);
+        for s in &mut imu {
+            s.gyro += Vector3::new(0.15, -0.1, 0.12);
+        }
+        let gt: Vec<_> = att.iter().map(|q| Some(*q)).collect();
+        let c = check_frame(&imu, &gt, 40, 0.05).unwrap();
+        assert!(!c.is_other_frame(5.0), "{c:?}");
     }
 
     #[test]

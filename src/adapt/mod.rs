@@ -208,10 +208,7 @@ fn to_task(rec: &Recording, what: &'static str, cfg: &AdaptConfig) -> Result<Tas
 /// Generator's last conv (its output is scaled by σ and added to the gyro: a constant offset).
 fn calibration_head_names(vs: &VarStore) -> Vec<String> {
     let vars = vs.variables();
-    let last_conv = vars
-        .keys()
-        .filter_map(|n| n.strip_prefix("generator.conv")?.strip_suffix(".bias")?.parse::<usize>().ok())
-        .max();
+    let last_conv = vars.keys().filter_map(|n| n.strip_prefix("generator.conv")?.strip_suffix(".bias")?.parse::<usize>().ok()).max();
     let mut names: Vec<String> = last_conv.map(|l| format!("generator.conv{l}.bias")).into_iter().collect();
     if vars.contains_key("gyro_calib.delta") {
         names.push("gyro_calib.delta".into());
@@ -227,10 +224,7 @@ fn embedding_and_head_grads(
     fast: &[Tensor],
     head: &[Tensor],
 ) -> (crate::model::loss::LossTerms, Vec<Tensor>) {
-    let out = net.forward_with(
-        &batch.imu,
-        &crate::model::ForwardOptions { train: false, reconstruct: true, embedding_params: Some(fast) },
-    );
+    let out = net.forward_with(&batch.imu, &crate::model::ForwardOptions { train: false, reconstruct: true, embedding_params: Some(fast) });
     let terms = crate::model::loss::total_loss(loss, &out, &batch.dt, &batch.gt, Some(&batch.valid));
     let inputs: Vec<&Tensor> = fast.iter().chain(head).collect();
     let grads = Tensor::run_backward(&[&terms.total], &inputs, false, false);
@@ -294,7 +288,15 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     let mut frame_applied = false;
     if cfg.frame_policy != FramePolicy::Ignore {
         frame = frame_check(&s_task0.rec, cfg);
-        if let Some(f) = frame.filter(|f| f.angle_deg > cfg.frame_tolerance_deg) {
+        if let Some(f) = frame.filter(|f| f.angle_deg > cfg.frame_tolerance_deg && !f.is_other_frame(cfg.frame_tolerance_deg)) {
+            tracing::warn!(
+                "a rotation of {:.1}° between the IMU and ground-truth frames fits, but explains little (residual {:.2}° with it, {:.2}° without): the gyro's own errors, not another frame",
+                f.angle_deg,
+                f.residual_deg,
+                f.residual_identity_deg
+            );
+        }
+        if let Some(f) = frame.filter(|f| f.is_other_frame(cfg.frame_tolerance_deg)) {
             match cfg.frame_policy {
                 FramePolicy::Error => return Err(AdaptError::OtherFrame(f)),
                 FramePolicy::Apply => {

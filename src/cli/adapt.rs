@@ -133,6 +133,13 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
         r.query_before.aoe_deg,
         r.query_after.aoe_deg
     );
+    if r.accepted && r.query_after.aoe_deg > r.query_raw.aoe_deg {
+        tracing::warn!(
+            "the adapted model is better than the starting one but still worse than the raw gyro on the query data ({:.3}° against {:.3}°): on this IMU, running without a model is better",
+            r.query_after.aoe_deg,
+            r.query_raw.aoe_deg
+        );
+    }
     let Some(adapted) = outcome.adapted else {
         anyhow::bail!("{} (nothing written)", r.verdict);
     };
