@@ -160,6 +160,9 @@ pub struct AdaptReport {
     pub query_before: OrientationErrors,
     pub query_after: OrientationErrors,
     pub accepted: bool,
+    /// With the calibration head: the model's constant gyro error on the support set (rad/s),
+    /// removed from the output bias before the steps.
+    pub initial_bias_rad_s: Option<[f64; 3]>,
     /// Why it was rejected (empty when accepted).
     pub verdict: String,
     /// Support loss at each step (before that step's update).
@@ -214,6 +217,64 @@ fn calibration_head_names(vs: &VarStore) -> Vec<String> {
         names.push("gyro_calib.delta".into());
     }
     names
+}
+
+/// Closed-form first step of the calibration head: the constant gyro error e of the model on
+/// the support set, from 0.25 s increments (`Log(δR_gtᵀ δR̂) ≈ j·dt·e` for a small constant
+/// e), removed from the Generator's output bias (`ω̂ = Ĉ_ω ω + σ ⊙ g`, so bias −= e / σ). A
+/// gradient step moves that bias by about lr·σ, far too slowly for a new IMU's bias of
+/// several °/s; the steps that follow refine it. Returns e (rad/s).
+fn init_output_bias(vs: &VarStore, net: &Net, support: &Task, cfg: &AdaptConfig) -> Result<[f64; 3], AdaptError> {
+    const J: usize = 50;
+    let rec = &support.rec;
+    let corrected = crate::model::predict::correct_with_net(&net.inference(), &rec.imu)?;
+    let (gt, valid) = data::ground_truth_at_imu(rec, &dataset_cfg(cfg));
+    let mut sum = nalgebra::Vector3::zeros();
+    let mut count = 0usize;
+    let mut k = 0usize;
+    while k + J < rec.imu.len() {
+        let span_ok = valid[k..=k + J].iter().all(|v| *v);
+        if let (true, Some(a), Some(b)) = (span_ok, gt[k], gt[k + J]) {
+            let mut est = nalgebra::UnitQuaternion::identity();
+            let mut secs = 0.0;
+            for i in k..k + J {
+                let dt = (rec.imu[i + 1].stamp_ns - rec.imu[i].stamp_ns) as f64 * 1e-9;
+                est *= crate::so3::exp(&(corrected[i] * dt));
+                secs += dt;
+            }
+            let r = crate::so3::log(&((a.inverse() * b).inverse() * est));
+            if secs > 0.0 && r.iter().all(|x| x.is_finite()) {
+                sum += r / secs;
+                count += 1;
+            }
+        }
+        k += J;
+    }
+    if count < 10 {
+        return Err(AdaptError::TooLittleData {
+            what: "support",
+            detail: format!("{count} ground-truth-covered 0.25 s increments to estimate the gyro bias from, at least 10 needed"),
+        });
+    }
+    let e = sum / count as f64;
+    let sigma = Vec::<f64>::try_from(&net.output_scale().to_kind(tch::Kind::Double)).map_err(ModelError::from)?;
+    let names = calibration_head_names(vs);
+    if let Some(bias_name) = names.iter().find(|n| n.starts_with("generator.")) {
+        let vars = vs.variables();
+        let delta: Vec<f64> = (0..3).map(|i| -e[i] / sigma[i].max(1e-12)).collect();
+        let var = &vars[bias_name];
+        tch::no_grad(|| {
+            let d = Tensor::from_slice(&delta).to_kind(var.kind());
+            let _ = var.shallow_clone().g_add_(&d);
+        });
+    }
+    tracing::info!(
+        "calibration head: constant gyro error of the model on the support set ({count} increments): [{:.4}, {:.4}, {:.4}] °/s, removed before the steps",
+        e[0].to_degrees(),
+        e[1].to_degrees(),
+        e[2].to_degrees()
+    );
+    Ok([e[0], e[1], e[2]])
 }
 
 /// Gradients of the support loss w.r.t. the fast θ_e followed by the calibration head.
@@ -329,6 +390,10 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
         let vars = vs.variables();
         head_names.iter().map(|n| vars[n].shallow_clone().set_requires_grad(true)).collect()
     };
+    let mut initial_bias = None;
+    if cfg.calibration {
+        initial_bias = Some(init_output_bias(&vs, &net, &s_task, cfg)?);
+    }
     let mut head_adam = TensorAdam::new(&head);
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let win = cfg.window_samples.min(s_task.len());
@@ -404,6 +469,7 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
         query_before,
         query_after,
         accepted,
+        initial_bias_rad_s: initial_bias,
         verdict,
         steps: losses.len(),
         losses,

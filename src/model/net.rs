@@ -149,6 +149,11 @@ impl Net {
         Tensor::eye(3, (self.gyro_calib_delta.kind(), self.gyro_calib_delta.device())) + &self.gyro_calib_delta
     }
 
+    /// σ, `[3]` rad/s: the scale of the correction CNN's output.
+    pub fn output_scale(&self) -> &Tensor {
+        &self.output_scale
+    }
+
     /// The Embedding (FSDA modes).
     pub fn embedding(&self) -> Option<&Embedding> {
         match &self.body {
