@@ -237,9 +237,9 @@ fn init_output_bias(vs: &VarStore, net: &Net, support: &Task, cfg: &AdaptConfig)
         if let (true, Some(a), Some(b)) = (span_ok, gt[k], gt[k + J]) {
             let mut est = nalgebra::UnitQuaternion::identity();
             let mut secs = 0.0;
-            for i in k..k + J {
-                let dt = (rec.imu[i + 1].stamp_ns - rec.imu[i].stamp_ns) as f64 * 1e-9;
-                est *= crate::so3::exp(&(corrected[i] * dt));
+            for (w, pair) in corrected[k..k + J].iter().zip(rec.imu[k..=k + J].windows(2)) {
+                let dt = (pair[1].stamp_ns - pair[0].stamp_ns) as f64 * 1e-9;
+                est *= crate::so3::exp(&(w * dt));
                 secs += dt;
             }
             let r = crate::so3::log(&((a.inverse() * b).inverse() * est));
