@@ -88,7 +88,10 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--ground-truth-topic", "/nope"], "no ground truth");
     expect_err(&["adapt", "--model", "/nonexistent.pt", "--bag", c, "-o", bo], "missing");
     // A model that is not better is rejected with the figures (no step: the same model).
-    expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--steps", "0"], "rejected: the adapted model is not better");
+    expect_err(
+        &["adapt", "--model", m, "--bag", c, "-o", bo, "--steps", "0", "--embedding-only"],
+        "rejected: the adapted model is not better",
+    );
 
     // Ground truth not overlapping the IMU in time.
     let mut shifted = rec.clone();
@@ -116,8 +119,8 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
 
 /// A model whose correction is exactly zero (the Generator's last conv zeroed, as the trainer's
 /// `zero_init_correction`) on a gyro with a bias it never saw: the Embedding alone cannot move
-/// the output (its gradient passes through the zero layer), so the paper's θ_e step is
-/// rejected; `--calibration` also adapts the output bias and Ĉ_ω and removes the bias.
+/// the output (its gradient passes through the zero layer), so the paper's θ_e step
+/// (`--embedding-only`) is rejected; the default also adapts the output bias and Ĉ_ω.
 #[test]
 fn calibration_head_learns_a_bias_the_embedding_cannot() {
     let tmp = tempfile::tempdir().unwrap();
@@ -148,15 +151,16 @@ fn calibration_head_learns_a_bias_the_embedding_cannot() {
     let model = export_model(d, "zero", &vs, &net, &ExportInfo::default()).unwrap().torchscript;
     let (m, b) = (model.to_str().unwrap(), biased.to_str().unwrap());
 
-    let o = run(&["adapt", "--model", m, "--bag", b, "-o", d.join("e.pt").to_str().unwrap(), "--steps", "60", "--json"]);
+    let o =
+        run(&["adapt", "--model", m, "--bag", b, "-o", d.join("e.pt").to_str().unwrap(), "--steps", "60", "--embedding-only", "--json"]);
     assert!(!o.status.success(), "the Embedding alone changed a zeroed output: {}", stderr(&o));
     assert!(stderr(&o).contains("rejected"), "{}", stderr(&o));
 
-    let o = run(&["adapt", "--model", m, "--bag", b, "-o", d.join("c.pt").to_str().unwrap(), "--steps", "60", "--calibration", "--json"]);
+    let o = run(&["adapt", "--model", m, "--bag", b, "-o", d.join("c.pt").to_str().unwrap(), "--steps", "60", "--json"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let before = report["query_before"]["aoe_deg"].as_f64().unwrap();
     let after = report["query_after"]["aoe_deg"].as_f64().unwrap();
-    eprintln!("biased car / zero-correction model, --calibration: query AOE {before:.3}° → {after:.3}°");
+    eprintln!("biased car / zero-correction model, calibration head: query AOE {before:.3}° → {after:.3}°");
     assert!(after < 0.3 * before, "{before} → {after}");
 }

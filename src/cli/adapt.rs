@@ -44,10 +44,10 @@ pub struct AdaptArgs {
     /// Ground truth in another frame than the IMU: error (default), apply (re-express it), ignore.
     #[arg(long, value_enum, default_value_t = FramePolicy::Error)]
     pub frame: FramePolicy,
-    /// Also adapt the calibration head (Ĉ_ω and the Generator's output bias), not only the
-    /// Embedding: for a new IMU whose bias the model never saw (docs/adaptation.md).
+    /// Adapt the Embedding only (the paper's strategy), not the calibration head (Ĉ_ω and the
+    /// Generator's output bias, adapted by default: docs/adaptation.md).
     #[arg(long)]
-    pub calibration: bool,
+    pub embedding_only: bool,
     /// Adaptation settings as YAML (AdaptConfig); flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -80,7 +80,9 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
         cfg.optimizer = o;
     }
     cfg.frame_policy = args.frame;
-    cfg.calibration |= args.calibration;
+    if args.embedding_only {
+        cfg.calibration = false;
+    }
     anyhow::ensure!(args.support_seconds > 0.0, "--support-seconds must be positive");
     let (dir, name) = output_name(&args.output)?;
     let meta = metadata_path(&args.model);
