@@ -64,6 +64,8 @@ pub struct ModelMetadata {
     /// Sequences / bags the model was trained on (filled by the trainer).
     pub training_data: Vec<String>,
     /// Evaluation figures (filled by the trainer), e.g. `"MH_04_difficult/aoe_deg"`.
+    /// JSON has no NaN: serde_json writes it as `null`, read back as NaN.
+    #[serde(deserialize_with = "metrics_with_nan")]
     pub metrics: BTreeMap<String, f64>,
     /// Git revision of the code that wrote the model, when known.
     pub code_revision: Option<String>,
@@ -71,6 +73,11 @@ pub struct ModelMetadata {
     /// Seconds since the Unix epoch.
     pub created_unix_s: u64,
     pub files: ExportFiles,
+}
+
+fn metrics_with_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<BTreeMap<String, f64>, D::Error> {
+    let m: BTreeMap<String, Option<f64>> = Deserialize::deserialize(d)?;
+    Ok(m.into_iter().map(|(k, v)| (k, v.unwrap_or(f64::NAN))).collect())
 }
 
 /// What the trainer adds to the metadata.
@@ -316,4 +323,21 @@ pub fn load_torchscript(metadata_path: &Path) -> Result<TorchScriptModel, ModelE
         return Err(ModelError::Mismatch { path, detail: format!("maps [1, 8, 6] to {:?}, expected [1, 8, 3]", out.size()) });
     }
     Ok(model)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn null_metrics_read_as_nan() {
+        #[derive(Deserialize)]
+        struct M {
+            #[serde(deserialize_with = "metrics_with_nan")]
+            metrics: BTreeMap<String, f64>,
+        }
+        let m: M = serde_json::from_str(r#"{"metrics": {"a": 1.5, "seconds_per_epoch": null}}"#).unwrap();
+        assert_eq!(m.metrics["a"], 1.5);
+        assert!(m.metrics["seconds_per_epoch"].is_nan());
+    }
 }
