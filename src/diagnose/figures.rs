@@ -120,7 +120,7 @@ pub fn write_figures(dir: &Path, d: &Diagnosis) -> Result<Vec<PathBuf>, PlotErro
             let series = (0..3)
                 .map(|a| {
                     let c = 3 * s + a;
-                    Series::new(CHANNELS[c], t.iter().zip(&curves[c]).map(|(t, v)| (*t, *v)).collect(), color(a)).width(1)
+                    Series::new(CHANNELS[c], t.iter().zip(&curves[c]).map(|(t, v)| (*t, *v)).collect(), color(a))
                 })
                 .collect();
             res.push(Panel {

@@ -268,8 +268,9 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
         let (_, pa) = psd::welch(&after[c], dt, seg);
         curves.psd.push(f.iter().zip(pb.iter().zip(&pa)).map(|(f, (b, a))| (*f, *b, *a)).collect());
     }
-    // ~600 block means: what a figure can show of a long recording (and a small PNG).
-    let block = n.div_ceil(600).max(1);
+    // ~300 block means: the slow part of the residual (what a figure of a long recording
+    // can show; the fast part is in the PSD), and a small PNG.
+    let block = n.div_ceil(300).max(1);
     curves.residual_t = (0..n).step_by(block).map(|i| (i as f64 + (block.min(n - i) as f64 - 1.0) / 2.0) * dt).collect();
     for c in 0..6 {
         curves.residual_before[c] = block_means(&y[c], &mask, block);
