@@ -16,6 +16,10 @@ if ! command -v unshare >/dev/null || ! command -v ip >/dev/null; then
   echo "[setup] installing iproute2/util-linux for the network-namespace tests"
   (apt-get update -qq && apt-get install -y -qq iproute2 util-linux) >/dev/null 2>&1 || echo "[setup] could not install iproute2; DDS tests will skip loudly"
 fi
+if [ ! -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ] && [ -z "${IMU_FSDA_FONT:-}" ]; then
+  echo "[setup] installing fonts-dejavu-core (the text of the PNG figures)"
+  (apt-get update -qq && apt-get install -y -qq fonts-dejavu-core) >/dev/null 2>&1 || echo "[setup] could not install fonts-dejavu-core; figures will fail with a clear error (set IMU_FSDA_FONT to a .ttf)"
+fi
 cd "$here"
 # IMU_FSDA_NO_BUILD=1: venv and system packages only (scripts given a prebuilt IMU_FSDA_BIN).
 [ "${IMU_FSDA_NO_BUILD:-}" = 1 ] || cargo build --release --quiet

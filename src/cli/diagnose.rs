@@ -19,7 +19,8 @@ pub struct DiagnoseArgs {
     /// gyro_noise_density, accel_noise_density, gyro_bias_random_walk, accel_bias_random_walk).
     #[arg(long, conflicts_with = "sim")]
     pub noise_model: Option<PathBuf>,
-    /// Output directory: report.json, report.md, patch.yaml, CSVs, corrected_sim.mcap.
+    /// Output directory: report.json, report.md, patch.yaml, CSVs, PNG figures (psd, allan,
+    /// residual), corrected_sim.mcap.
     #[arg(short, long)]
     pub out: PathBuf,
     /// Seed of the simulation from ground truth.

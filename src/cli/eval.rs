@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
-use imu_fsda::eval::{evaluate, BaselineMethod, EvalOptions, OrientationErrors, RestDetector};
+use imu_fsda::eval::{evaluate_with_path, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector};
 use imu_fsda::model::predict::correct_with_torchscript;
 
 #[derive(Debug, clap::Args)]
@@ -42,6 +42,10 @@ pub struct EvalArgs {
     /// Also write the table as Markdown here.
     #[arg(long)]
     pub markdown: Option<PathBuf>,
+    /// Write figures here (created if needed), per bag: `<bag>_orientation.png` (roll, pitch,
+    /// yaw over time: ground truth and each method) and `<bag>_error.png` (error per axis).
+    #[arg(long)]
+    pub plot_dir: Option<PathBuf>,
 }
 
 /// One row of the table.
@@ -83,9 +87,17 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         } else {
             rec
         };
+        // Integrated paths of the methods that evaluated, for the figures.
+        let mut paths: Vec<(String, OrientationPath)> = Vec::new();
+        let mut keep = |name: &str, path: OrientationPath| {
+            if args.plot_dir.is_some() {
+                paths.push((name.to_string(), path));
+            }
+        };
         for &m in &methods {
-            let row = match m.apply(&rec, &detector).and_then(|(g, note)| Ok((evaluate(&rec, &g, &opts)?, note))) {
-                Ok((e, mut note)) => {
+            let row = match m.apply(&rec, &detector).and_then(|(g, note)| Ok((evaluate_with_path(&rec, &g, &opts)?, note))) {
+                Ok(((e, path), mut note)) => {
+                    keep(m.name(), path);
                     if report.skipped() > 0 {
                         note = format!("{note}{}skipped {} input samples", if note.is_empty() { "" } else { "; " }, report.skipped());
                     }
@@ -100,16 +112,30 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         }
         for model in &args.models {
             let (gyro, meta) = correct_with_torchscript(model, &rec.imu).with_context(|| format!("model {}", model.display()))?;
-            let row = match evaluate(&rec, &gyro, &opts) {
-                Ok(e) => Row {
-                    bag: name.clone(),
-                    method: meta.name.clone(),
-                    errors: Some(e),
-                    note: format!("{:?}, N = {}", meta.mode, meta.window_n),
-                },
+            let row = match evaluate_with_path(&rec, &gyro, &opts) {
+                Ok((e, path)) => {
+                    keep(&meta.name, path);
+                    Row {
+                        bag: name.clone(),
+                        method: meta.name.clone(),
+                        errors: Some(e),
+                        note: format!("{:?}, N = {}", meta.mode, meta.window_n),
+                    }
+                }
                 Err(e) => Row { bag: name.clone(), method: meta.name.clone(), errors: None, note: e.to_string() },
             };
             rows.push(row);
+        }
+        if let Some(dir) = &args.plot_dir {
+            if paths.is_empty() {
+                tracing::warn!("{name}: no method evaluated, no figure");
+            } else {
+                std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+                let files = imu_fsda::figures::orientation_figures(dir, &name, &rec, &paths).with_context(|| format!("{name}: figures"))?;
+                for f in files {
+                    tracing::info!("wrote {}", f.display());
+                }
+            }
         }
     }
     let table = markdown_table(&rows);

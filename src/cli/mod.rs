@@ -5,6 +5,7 @@ mod bag;
 mod bench;
 mod corrector;
 mod diagnose;
+mod embed;
 mod eval;
 mod import;
 mod node;
@@ -41,6 +42,8 @@ pub enum Command {
     Train(train::TrainArgs),
     /// Few-shot adaptation of a model to a new robot/IMU from a recording with ground truth.
     Adapt(adapt::AdaptArgs),
+    /// t-SNE figure of a model's Embedding on samples of sequences (EuRoC / TUM-VI / bags).
+    Embed(embed::EmbedArgs),
     /// Sim-vs-real diagnosis: locate the mismatch, name and fit the left-out physics.
     Diagnose(diagnose::DiagnoseArgs),
     /// Run the ROS 2 denoising node (subscribes raw IMU, publishes /imu/denoised).
@@ -74,6 +77,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(a) => train::run(a),
         Command::Adapt(a) => adapt::run(a),
         Command::Diagnose(a) => diagnose::run(a),
+        Command::Embed(a) => embed::run(a),
         Command::Node(a) => node::run(a),
         Command::Replay(a) => replay::run(a),
         Command::Play(a) => play::run(a),

@@ -10,7 +10,8 @@
 //! 3. [`locate`]: per axis, time segment and frequency band, χ² and band-power statistics;
 //! 4. [`catalogue`]: the candidate terms as regressors built by the physics terms themselves;
 //! 5. [`select`]: greedy forward/backward selection on held-out log-likelihood ([`fit`]);
-//! 6. [`report`]: `report.json`, `report.md`, CSVs, the simulator patch and the corrected bag.
+//! 6. [`report`]: `report.json`, `report.md`, CSVs, the simulator patch and the corrected bag;
+//!    [`figures`]: the PNGs the report shows (PSD, Allan deviation, residual over time).
 //!
 //! ```no_run
 //! use imu_fsda::diagnose::{diagnose_bags, DiagnoseOptions};
@@ -24,6 +25,7 @@
 pub mod align;
 pub mod allan;
 pub mod catalogue;
+pub mod figures;
 pub mod fit;
 pub mod kinematics;
 pub mod locate;
@@ -109,6 +111,12 @@ pub struct Curves {
     pub psd: Vec<Vec<(f64, f64, f64)>>,
     /// Allan deviation the noise model predicts, per channel (τ, σ).
     pub allan_model: Vec<Vec<(f64, f64)>>,
+    /// Block centres (s since the first sample) of the residual block means below.
+    pub residual_t: Vec<f64>,
+    /// Residual block means per channel, before (real − sim) and after (held-out prediction
+    /// of the fitted terms removed); NaN where a block has no unmasked sample.
+    pub residual_before: [Vec<f64>; 6],
+    pub residual_after: [Vec<f64>; 6],
 }
 
 /// A diagnosis.
@@ -260,6 +268,14 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
         let (_, pa) = psd::welch(&after[c], dt, seg);
         curves.psd.push(f.iter().zip(pb.iter().zip(&pa)).map(|(f, (b, a))| (*f, *b, *a)).collect());
     }
+    // ~300 block means: the slow part of the residual (what a figure of a long recording
+    // can show; the fast part is in the PSD), and a small PNG.
+    let block = n.div_ceil(300).max(1);
+    curves.residual_t = (0..n).step_by(block).map(|i| (i as f64 + (block.min(n - i) as f64 - 1.0) / 2.0) * dt).collect();
+    for c in 0..6 {
+        curves.residual_before[c] = block_means(&y[c], &mask, block);
+        curves.residual_after[c] = block_means(&after[c], &mask, block);
+    }
 
     Ok(Diagnosis {
         notes,
@@ -275,6 +291,21 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
         noise: sel.noise,
         seconds: start.elapsed().as_secs_f64(),
     })
+}
+
+/// Means of consecutive blocks of `block` samples, masked samples left out (NaN if none).
+fn block_means(x: &[f64], mask: &[bool], block: usize) -> Vec<f64> {
+    x.chunks(block)
+        .zip(mask.chunks(block))
+        .map(|(v, m)| {
+            let (s, k) = v.iter().zip(m).filter(|(_, m)| **m).fold((0.0, 0usize), |(s, k), (v, _)| (s + v, k + 1));
+            if k > 0 {
+                s / k as f64
+            } else {
+                f64::NAN
+            }
+        })
+        .collect()
 }
 
 /// The residual after the fitted terms, each block predicted by the fit without it.

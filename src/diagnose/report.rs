@@ -1,6 +1,7 @@
-//! Outputs of a diagnosis: `report.json`, `report.md`, the CSVs behind the plots, the
-//! simulator patch (`patch.yaml`, a list of physics terms in their serde form) and the
-//! corrected simulation bag (sim + fitted terms, applied by the physics code).
+//! Outputs of a diagnosis: `report.json`, `report.md` (with the PNGs of [`super::figures`]),
+//! the CSVs behind the plots, the simulator patch (`patch.yaml`, a list of physics terms in
+//! their serde form) and the corrected simulation bag (sim + fitted terms, applied by the
+//! physics code).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -40,6 +41,12 @@ pub fn patch_yaml(d: &Diagnosis) -> String {
 
 /// `report.md`, for a person.
 pub fn markdown(d: &Diagnosis) -> String {
+    markdown_with_figures(d, None)
+}
+
+/// `report.md` with a section showing the figures written beside it (file names), or saying
+/// why they could not be written.
+pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>, String>>) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# Sim-vs-real diagnosis\n");
     if !d.notes.is_empty() {
@@ -113,6 +120,24 @@ pub fn markdown(d: &Diagnosis) -> String {
         d.residual_before.heldout_loglik, d.residual_after.heldout_loglik
     );
     let _ = writeln!(s, "Curves: `allan.csv` (Allan deviation before/after and the noise model's), `psd.csv` (Welch PSD before/after).\n");
+    match figures {
+        Some(Ok(files)) if !files.is_empty() => {
+            let _ = writeln!(s, "## Figures\n");
+            for f in files {
+                let caption = match f.as_str() {
+                    "psd.png" => "Residual PSD per channel, before and after the fitted terms; located frequency bands shaded",
+                    "allan.png" => "Residual Allan deviation per channel, before and after, with the fitted noise model's prediction",
+                    "residual.png" => "Residual over time per sensor (block means), before and after; located time segments shaded",
+                    _ => "",
+                };
+                let _ = writeln!(s, "![{caption}]({f})\n\n*{caption}.*\n");
+            }
+        }
+        Some(Err(why)) => {
+            let _ = writeln!(s, "Figures were not written: {why}\n");
+        }
+        _ => {}
+    }
     let _ = writeln!(s, "Diagnosis took {:.2} s.", d.seconds);
     s
 }
@@ -211,7 +236,14 @@ pub fn write_corrected_bag(path: &Path, a: &Aligned, d: &Diagnosis) -> Result<()
 pub fn write_all(dir: &Path, a: &Aligned, d: &Diagnosis) -> Result<(), DiagnoseError> {
     std::fs::create_dir_all(dir).map_err(|source| DiagnoseError::Io { path: dir.to_path_buf(), source })?;
     write(&dir.join("report.json"), &serde_json::to_string_pretty(&json(d)).unwrap_or_default())?;
-    write(&dir.join("report.md"), &markdown(d))?;
+    // Figures are an extra: without a font the diagnosis is still written, and says why.
+    let figures = super::figures::write_figures(dir, d)
+        .map(|paths| paths.iter().filter_map(|p| p.file_name()).map(|f| f.to_string_lossy().into_owned()).collect())
+        .map_err(|e| {
+            tracing::warn!("diagnosis figures not written: {e}");
+            e.to_string()
+        });
+    write(&dir.join("report.md"), &markdown_with_figures(d, Some(&figures)))?;
     write(&dir.join("patch.yaml"), &patch_yaml(d))?;
     write_csvs(dir, d)?;
     write_corrected_bag(&dir.join("corrected_sim.mcap"), a, d)

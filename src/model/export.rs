@@ -324,3 +324,20 @@ pub fn load_torchscript(metadata_path: &Path) -> Result<TorchScriptModel, ModelE
     }
     Ok(model)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unmeasured_metrics_are_left_out_on_reading() {
+        #[derive(Deserialize)]
+        struct M {
+            #[serde(deserialize_with = "finite_metrics")]
+            metrics: BTreeMap<String, f64>,
+        }
+        let m: M = serde_json::from_str(r#"{"metrics": {"a": 1.5, "seconds_per_epoch": null}}"#).unwrap();
+        assert_eq!(m.metrics["a"], 1.5);
+        assert!(!m.metrics.contains_key("seconds_per_epoch"));
+    }
+}

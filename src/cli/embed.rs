@@ -1,0 +1,164 @@
+//! `imu-fsda embed --model M --sequence DIR... -o OUT.png`: the model's Embedding of samples
+//! of each sequence, mapped to 2-D by t-SNE, one colour per sequence and one marker per
+//! dataset. Writes OUT.png, OUT.csv (the 2-D points) and OUT.json (options and summary).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use imu_fsda::bag::{read_recording, RecordingTopics};
+use imu_fsda::core::ImuSample;
+use imu_fsda::dataset::{load_sequence, DatasetKind};
+use imu_fsda::embed::{sample_indices, short_name, EmbeddingModel};
+use imu_fsda::plot::{color, scatter, Marker, Scatter, ScatterGroup};
+use imu_fsda::tsne::{tsne, TsneOptions};
+
+#[derive(Debug, clap::Args)]
+pub struct EmbedArgs {
+    /// Exported FSDA / FSDA-F model (`.pt`, `.ot` or `.json`; the `.json` + `.ot` are read).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// EuRoC / TUM-VI sequence folders (ASL layout) or MCAP bags (repeatable).
+    #[arg(long = "sequence", required = true, num_args = 1..)]
+    pub sequences: Vec<PathBuf>,
+    /// Output PNG; the points go to the same path with `.csv` and `.json`.
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// Samples drawn (uniformly, without replacement) from each sequence.
+    #[arg(long, default_value_t = 300)]
+    pub points_per_sequence: usize,
+    /// Seed of the sampling and of the t-SNE layout.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// t-SNE perplexity.
+    #[arg(long, default_value_t = 30.0)]
+    pub perplexity: f64,
+    /// t-SNE gradient steps.
+    #[arg(long, default_value_t = 1000)]
+    pub iterations: usize,
+}
+
+/// Exact t-SNE is O(n²) in memory and time: beyond this, ask for fewer points.
+const MAX_POINTS: usize = 6000;
+
+struct Source {
+    name: String,
+    dataset: &'static str,
+    imu: Vec<ImuSample>,
+}
+
+fn load(path: &Path) -> anyhow::Result<Source> {
+    if path.is_dir() {
+        let (seq, rec, _) = load_sequence(path).with_context(|| format!("reading {}", path.display()))?;
+        let dataset = match seq.kind {
+            DatasetKind::Euroc => "EuRoC",
+            DatasetKind::TumVi => "TUM-VI",
+        };
+        Ok(Source { name: short_name(&seq.name), dataset, imu: rec.imu })
+    } else {
+        let topics = RecordingTopics { ground_truth: None, ..RecordingTopics::default() };
+        let (rec, _) = read_recording(path, &topics).with_context(|| format!("reading {}", path.display()))?;
+        let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        Ok(Source { name, dataset: "bag", imu: rec.imu })
+    }
+}
+
+pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
+    if args.points_per_sequence == 0 {
+        anyhow::bail!("--points-per-sequence must be at least 1");
+    }
+    if args.points_per_sequence * args.sequences.len() > MAX_POINTS {
+        anyhow::bail!(
+            "{} sequences × {} points exceed the {MAX_POINTS} points an exact t-SNE handles here; lower --points-per-sequence",
+            args.sequences.len(),
+            args.points_per_sequence
+        );
+    }
+    let model = EmbeddingModel::load(&args.model).with_context(|| format!("model {}", args.model.display()))?;
+    let mut labels: Vec<(String, &'static str, usize, i64)> = Vec::new();
+    let mut x: Vec<Vec<f64>> = Vec::new();
+    for (k, path) in args.sequences.iter().enumerate() {
+        let src = load(path)?;
+        let idx = sample_indices(&src.imu, args.points_per_sequence, args.seed.wrapping_add(k as u64));
+        if idx.is_empty() {
+            anyhow::bail!("{}: no finite IMU sample", path.display());
+        }
+        let picked: Vec<ImuSample> = idx.iter().map(|&i| src.imu[i]).collect();
+        let e = model.embed(&picked)?;
+        tracing::info!("{}: {} samples embedded ({} in the sequence)", src.name, e.len(), src.imu.len());
+        for (&i, v) in idx.iter().zip(e) {
+            labels.push((src.name.clone(), src.dataset, i, src.imu[i].stamp_ns));
+            x.push(v);
+        }
+    }
+    let opts = TsneOptions { perplexity: args.perplexity, iterations: args.iterations, seed: args.seed, ..Default::default() };
+    let start = std::time::Instant::now();
+    let map = tsne(&x, &opts)?;
+    tracing::info!("t-SNE of {} points in {:.1} s, KL {:.3}", x.len(), start.elapsed().as_secs_f64(), map.kl_divergence);
+
+    // One group per sequence in the order given; colours cycle within each dataset, the
+    // marker tells the dataset.
+    let mut groups: Vec<ScatterGroup> = Vec::new();
+    let mut per_dataset: std::collections::BTreeMap<&str, usize> = Default::default();
+    for (k, (name, dataset, _, _)) in labels.iter().enumerate() {
+        let p = (map.points[k][0], map.points[k][1]);
+        match groups.iter_mut().find(|g| g.label.starts_with(&format!("{name} ("))) {
+            Some(g) => g.points.push(p),
+            None => {
+                let n = per_dataset.entry(dataset).or_default();
+                let (marker, offset) = match *dataset {
+                    "EuRoC" => (Marker::Circle, 0),
+                    "TUM-VI" => (Marker::Triangle, 11),
+                    _ => (Marker::Cross, 0),
+                };
+                groups.push(ScatterGroup { label: format!("{name} ({dataset})"), points: vec![p], color: color(offset + *n), marker });
+                *n += 1;
+            }
+        }
+    }
+    if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let sc = Scatter {
+        title: format!(
+            "t-SNE of the {} Embedding ({} samples per sequence, perplexity {:.0})",
+            model.name, args.points_per_sequence, map.perplexity
+        ),
+        x_label: "t-SNE 1".into(),
+        y_label: "t-SNE 2".into(),
+        width: 1000,
+        height: 750,
+        groups,
+        marker_size: 3,
+    };
+    scatter(&args.out, &sc)?;
+
+    let mut csv = String::from("sequence,dataset,sample_index,stamp_ns,x,y\n");
+    for ((name, dataset, i, stamp), p) in labels.iter().zip(&map.points) {
+        let _ = writeln!(csv, "{name},{dataset},{i},{stamp},{:.6},{:.6}", p[0], p[1]);
+    }
+    let csv_path = args.out.with_extension("csv");
+    std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
+    let json_path = args.out.with_extension("json");
+    let summary = serde_json::json!({
+        "model": args.model,
+        "sequences": args.sequences,
+        "points_per_sequence": args.points_per_sequence,
+        "points": x.len(),
+        "embedding_dim": x.first().map_or(0, Vec::len),
+        "tsne": opts,
+        "perplexity_used": map.perplexity,
+        "kl_divergence": map.kl_divergence,
+        "points_csv": csv_path.file_name().map(|f| f.to_string_lossy().into_owned()),
+    });
+    std::fs::write(&json_path, serde_json::to_string_pretty(&summary)?).with_context(|| format!("writing {}", json_path.display()))?;
+    println!(
+        "wrote {}, {} and {} ({} points, KL {:.3})",
+        args.out.display(),
+        csv_path.display(),
+        json_path.display(),
+        x.len(),
+        map.kl_divergence
+    );
+    Ok(())
+}
