@@ -28,7 +28,7 @@ use crate::model::loss::LossConfig;
 use crate::model::{ModelError, Net};
 use crate::train::config::{DatasetConfig, SourceConfig};
 use crate::train::data::{self, DataError, Task};
-use crate::train::fit::{embedding_inner_grads, embedding_inner_step, evaluate_net, evaluate_raw};
+use crate::train::fit::{embedding_and_extra_grads, embedding_inner_step, evaluate_net, evaluate_raw};
 
 pub use frame::{check_frame, FrameCheck};
 
@@ -225,7 +225,7 @@ fn calibration_head_names(vs: &VarStore) -> Vec<String> {
 /// e), removed from the Generator's output bias (`ω̂ = Ĉ_ω ω + σ ⊙ g`, so bias −= e / σ). A
 /// gradient step moves that bias by about lr·σ, far too slowly for a new IMU's bias of
 /// several °/s; the steps that follow refine it. Returns e (rad/s).
-fn init_output_bias(vs: &VarStore, net: &Net, support: &Task, cfg: &AdaptConfig) -> Result<[f64; 3], AdaptError> {
+fn init_output_bias(vs: &VarStore, head_names: &[String], net: &Net, support: &Task, cfg: &AdaptConfig) -> Result<[f64; 3], AdaptError> {
     const J: usize = 50;
     let rec = &support.rec;
     let corrected = crate::model::predict::correct_with_net(&net.inference(), &rec.imu)?;
@@ -259,8 +259,7 @@ fn init_output_bias(vs: &VarStore, net: &Net, support: &Task, cfg: &AdaptConfig)
     }
     let e = sum / count as f64;
     let sigma = Vec::<f64>::try_from(&net.output_scale().to_kind(tch::Kind::Double)).map_err(ModelError::from)?;
-    let names = calibration_head_names(vs);
-    if let Some(bias_name) = names.iter().find(|n| n.starts_with("generator.")) {
+    if let Some(bias_name) = head_names.iter().find(|n| n.starts_with("generator.")) {
         let vars = vs.variables();
         let delta: Vec<f64> = (0..3).map(|i| -e[i] / sigma[i].max(1e-12)).collect();
         let var = &vars[bias_name];
@@ -276,21 +275,6 @@ fn init_output_bias(vs: &VarStore, net: &Net, support: &Task, cfg: &AdaptConfig)
         e[2].to_degrees()
     );
     Ok([e[0], e[1], e[2]])
-}
-
-/// Gradients of the support loss w.r.t. the fast θ_e followed by the calibration head.
-fn embedding_and_head_grads(
-    net: &Net,
-    loss: &LossConfig,
-    batch: &data::Batch,
-    fast: &[Tensor],
-    head: &[Tensor],
-) -> (crate::model::loss::LossTerms, Vec<Tensor>) {
-    let out = net.forward_with(&batch.imu, &crate::model::ForwardOptions { train: false, reconstruct: true, embedding_params: Some(fast) });
-    let terms = crate::model::loss::total_loss(loss, &out, &batch.dt, &batch.gt, Some(&batch.valid));
-    let inputs: Vec<&Tensor> = fast.iter().chain(head).collect();
-    let grads = Tensor::run_backward(&[&terms.total], &inputs, false, false);
-    (terms, grads)
 }
 
 /// A copy of `loaded` in a fresh VarStore (everything frozen: only the fast weights train).
@@ -391,10 +375,7 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
         let vars = vs.variables();
         head_names.iter().map(|n| vars[n].shallow_clone().set_requires_grad(true)).collect()
     };
-    let mut initial_bias = None;
-    if cfg.calibration {
-        initial_bias = Some(init_output_bias(&vs, &net, &s_task, cfg)?);
-    }
+    let initial_bias = if cfg.calibration { Some(init_output_bias(&vs, &head_names, &net, &s_task, cfg)?) } else { None };
     let mut head_adam = TensorAdam::new(&head);
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let win = cfg.window_samples.min(s_task.len());
@@ -414,8 +395,8 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
                 let (terms, next) = embedding_inner_step(&net, &cfg.loss, &batch, &fast, cfg.inner_lr, false, false);
                 (terms.total.double_value(&[]), next)
             }
-            Optimizer::Adam if !head.is_empty() => {
-                let (terms, grads) = embedding_and_head_grads(&net, &cfg.loss, &batch, &fast, &head);
+            Optimizer::Adam => {
+                let (terms, grads) = embedding_and_extra_grads(&net, &cfg.loss, &batch, &fast, &head, false, false);
                 let (g_fast, g_head) = grads.split_at(fast.len());
                 let new_head = head_adam.step(&head, g_head, cfg.inner_lr);
                 tch::no_grad(|| {
@@ -424,10 +405,6 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
                     }
                 });
                 (terms.total.double_value(&[]), adam.step(&fast, g_fast, cfg.inner_lr))
-            }
-            Optimizer::Adam => {
-                let (terms, grads) = embedding_inner_grads(&net, &cfg.loss, &batch, &fast, false, false);
-                (terms.total.double_value(&[]), adam.step(&fast, &grads, cfg.inner_lr))
             }
         };
         if !l.is_finite() {

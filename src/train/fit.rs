@@ -818,9 +818,24 @@ pub fn embedding_inner_grads(
     train: bool,
     second_order: bool,
 ) -> (crate::model::loss::LossTerms, Vec<Tensor>) {
+    embedding_and_extra_grads(net, loss, batch, fast, &[], train, second_order)
+}
+
+/// [`embedding_inner_grads`] followed by the gradients with respect to `extra`, variables of
+/// the model itself that require grad (the adaptation's calibration head).
+pub fn embedding_and_extra_grads(
+    net: &Net,
+    loss: &crate::model::loss::LossConfig,
+    batch: &Batch,
+    fast: &[Tensor],
+    extra: &[Tensor],
+    train: bool,
+    second_order: bool,
+) -> (crate::model::loss::LossTerms, Vec<Tensor>) {
     let out = net.forward_with(&batch.imu, &ForwardOptions { train, reconstruct: true, embedding_params: Some(fast) });
     let terms = total_loss(loss, &out, &batch.dt, &batch.gt, Some(&batch.valid));
-    let grads = Tensor::run_backward(&[&terms.total], fast, second_order, second_order);
+    let inputs: Vec<&Tensor> = fast.iter().chain(extra).collect();
+    let grads = Tensor::run_backward(&[&terms.total], &inputs, second_order, second_order);
     (terms, grads)
 }
 
