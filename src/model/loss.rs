@@ -43,6 +43,12 @@ pub struct LossConfig {
     /// Increments skipped at the start of each sequence, whose window is mostly padding
     /// (DIGDL: 5).
     pub skip_first_increments: i64,
+    /// When > 0, replaces `skip_first_increments`: every increment that starts within this
+    /// many samples of the window's start is skipped (0: DIGDL's rule). Set to the network's receptive field so that no increment is scored
+    /// on an output computed partly from padding: DIGDL's 5 × 16 samples suit its 16000-sample
+    /// windows, but a 3000-sample window would otherwise score 17 % of its samples on
+    /// outputs the deployed streaming model never produces.
+    pub skip_first_samples: i64,
     /// γ in `L = L^R + γ L^D`.
     pub gamma: f64,
     /// Run the SO(3) part in f64 (as DIGDL does) whatever the network's kind.
@@ -56,8 +62,20 @@ impl Default for LossConfig {
             huber_delta_rad: 0.005,
             scale: 1e6,
             skip_first_increments: 5,
+            skip_first_samples: 0,
             gamma: 1.0,
             so3_f64: true,
+        }
+    }
+}
+
+impl LossConfig {
+    /// Increments of `j` samples skipped at the start of each window.
+    pub fn skipped_increments(&self, j: i64) -> i64 {
+        if self.skip_first_samples > 0 {
+            (self.skip_first_samples + j - 1) / j
+        } else {
+            self.skip_first_increments
         }
     }
 }
@@ -105,7 +123,8 @@ pub fn increment_loss(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attit
         let j = term.samples;
         assert!(j >= 1, "increment length must be ≥ 1");
         let m = num_increments(t, j);
-        if m <= cfg.skip_first_increments {
+        let skipped = cfg.skipped_increments(j);
+        if m <= skipped {
             continue;
         }
         let estimate = increments_from_gyro(&omega, &dt, j);
@@ -115,7 +134,7 @@ pub fn increment_loss(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attit
         let gt_gap = sample_bad.narrow(2, 0, m * j + 1).max_pool1d([j + 1], [j], [0], [1], false).squeeze_dim(1);
         let dt_gap = dt_bad.narrow(2, 0, m * j).max_pool1d([j], [j], [0], [1], false).squeeze_dim(1);
         let not_skipped =
-            Tensor::arange(m, (kind, omega.device())).ge(cfg.skip_first_increments as f64).to_kind(kind).expand([b, m], false);
+            Tensor::arange(m, (kind, omega.device())).ge(skipped as f64).to_kind(kind).expand([b, m], false);
         let valid = (gt_gap.maximum(&dt_gap) * -1.0 + 1.0) * not_skipped; // [B, M]
         let valid3 = valid.unsqueeze(-1).expand([b, m, 3], false);
         let residual = residual.where_self(&valid3.gt(0.5), &residual.zeros_like());
@@ -225,6 +244,31 @@ mod tests {
             let fd = (at(h) - at(-h)) / (2.0 * h);
             assert!((fd - gi).abs() < 1e-7 * (1.0 + fd.abs()), "[{i}]: autograd {gi} vs fd {fd}");
         }
+    }
+
+    #[test]
+    fn warm_up_samples_are_not_scored() {
+        tch::manual_seed(5);
+        let omega = Tensor::randn([1, 60, 3], F64) * 0.5;
+        let dt = Tensor::full([1, 60], 0.005, F64);
+        let gt = integrate(&omega, &dt);
+        // A gross error at sample 10 only: inside the first 12 samples.
+        let wrong = omega.copy();
+        let _ = wrong.narrow(1, 10, 1).fill_(3.0);
+        let cfg = LossConfig { skip_first_increments: 0, ..small_cfg() };
+        assert!(increment_loss(&cfg, &wrong, &dt, &gt, None).double_value(&[]) > 1.0);
+        // Increments of 4 starting at 0, 4, 8 and of 8 starting at 0, 8 are skipped: all of them.
+        let warm = LossConfig { skip_first_samples: 12, ..cfg.clone() };
+        assert_eq!((warm.skipped_increments(4), warm.skipped_increments(8)), (3, 2));
+        assert!(increment_loss(&warm, &wrong, &dt, &gt, None).double_value(&[]).abs() < 1e-12);
+        // Elsewhere it is still scored.
+        let late = omega.copy();
+        let _ = late.narrow(1, 30, 1).fill_(3.0);
+        assert!(increment_loss(&warm, &late, &dt, &gt, None).double_value(&[]) > 1.0);
+        // It replaces DIGDL's count, per increment length.
+        let rf = LossConfig { skip_first_samples: 517, ..Default::default() };
+        assert_eq!((rf.skipped_increments(16), rf.skipped_increments(1024)), (33, 1));
+        assert_eq!(LossConfig::default().skipped_increments(1024), 5);
     }
 
     #[test]
