@@ -230,7 +230,8 @@ mod tests {
         let ps = t
             .iter()
             .map(|&t| {
-                let phi = Vector3::new(0.3 * (std::f64::consts::TAU * 0.7 * t).sin(), 0.2 * (std::f64::consts::TAU * 1.3 * t).sin(), 0.5 * t);
+                let phi =
+                    Vector3::new(0.3 * (std::f64::consts::TAU * 0.7 * t).sin(), 0.2 * (std::f64::consts::TAU * 1.3 * t).sin(), 0.5 * t);
                 let q = crate::so3::exp(&phi) * crate::so3::exp(&Vector3::new(g(noise_rad), g(noise_rad), g(noise_rad)));
                 let p = Vector3::new(t.sin() + g(noise_m), (0.5 * t).cos() + g(noise_m), 0.1 * t * t + g(noise_m));
                 PoseSample { stamp_ns: (t * 1e9).round() as i64, position_in_world: p, world_from_body: q }
