@@ -117,7 +117,7 @@ impl Aligned {
         };
         let (g, a) = (est(0, self.sim_variance.0), est(1, self.sim_variance.1));
         self.notes.push(format!(
-            "real white noise estimated from the residual's third differences: gyro {g:.3e}, accel {a:.3e} per sample ({:.2}× and {:.2}× the simulator's σ); gyro_noise_density is not judged",
+            "real white-noise variance estimated from the residual's third differences: gyro {g:.3e} (rad/s)², accel {a:.3e} (m/s²)² per sample ({:.2}× and {:.2}× the simulator's σ); gyro_noise_density is not judged",
             (g / self.real_variance.0).sqrt(),
             (a / self.real_variance.1).sqrt()
         ));
