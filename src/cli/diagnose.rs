@@ -4,7 +4,11 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
-use imu_fsda::diagnose::{align, diagnose, report, DiagnoseOptions};
+use imu_fsda::diagnose::{align, diagnose, report, DiagnoseOptions, Sensors};
+
+/// Default half-width (s) of the ground-truth smoother with --noise-model: ±10 poses at
+/// EuRoC's 200 Hz, passing motion up to ≈ 15 Hz (see `kinematics::ideal_from_poses_with`).
+const NOISE_MODEL_GT_SMOOTHING_S: f64 = 0.05;
 
 #[derive(Debug, clap::Args)]
 pub struct DiagnoseArgs {
@@ -23,6 +27,22 @@ pub struct DiagnoseArgs {
     /// residual), corrected_sim.mcap.
     #[arg(short, long)]
     pub out: PathBuf,
+    /// The sensors judged. `gyro`: the accelerometer's residual and every accelerometer term
+    /// are left out (listed under not_judged), e.g. when the simulated accelerometer comes
+    /// from a measured ground truth differentiated twice.
+    #[arg(long, value_enum, default_value_t = Sensors::Both)]
+    pub sensors: Sensors,
+    /// Half-width (s) of the local cubic fitted to the ground-truth poses before they are
+    /// differentiated (a measured ground truth's noise would otherwise be amplified by 1/dt
+    /// and 1/dt²). Default: 0.05 with --noise-model, none with --sim (a simulator's ground
+    /// truth is noise-free); 0 turns it off.
+    #[arg(long)]
+    pub gt_smoothing: Option<f64>,
+    /// Estimate the real sensor's white-noise level from the residual (third differences)
+    /// instead of taking the simulator's: for a real sensor whose in-use noise is not the
+    /// stated one (vibration). gyro_noise_density is then not judged.
+    #[arg(long)]
+    pub real_noise_from_data: bool,
     /// Seed of the simulation from ground truth.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -47,6 +67,7 @@ pub struct DiagnoseArgs {
 pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
     let mut opts = DiagnoseOptions::default();
     opts.select.threshold = args.threshold;
+    opts.sensors = args.sensors;
     if let Some(n) = args.score_generated {
         return score::run(n, args.seed, &args.out, &opts, &args.score_only, (args.score_seconds, args.score_rate));
     }
@@ -64,19 +85,40 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
 }
 
 fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &DiagnoseOptions) -> anyhow::Result<()> {
-    let aligned = match (&args.sim, &args.noise_model) {
+    let mut opts = *opts;
+    let smoothing = match (args.gt_smoothing, &args.noise_model) {
+        (Some(h), _) => Some(h).filter(|h| *h > 0.0),
+        (None, Some(_)) => Some(NOISE_MODEL_GT_SMOOTHING_S),
+        (None, None) => None,
+    };
+    opts.gt_smoothing_s = smoothing;
+    let opts = &opts;
+    let mut aligned = match (&args.sim, &args.noise_model) {
         (Some(sim), _) => align::load(sim, real_path)?,
         (None, Some(model)) => {
             let text = std::fs::read_to_string(model).with_context(|| format!("reading {}", model.display()))?;
             let noise: imu_fsda::sim::NoiseModel =
                 serde_yaml::from_str(&text).with_context(|| format!("{}: not a noise model", model.display()))?;
-            let (real, _) = read_recording(real_path, &RecordingTopics::default())?;
-            let (sim, var) = imu_fsda::diagnose::kinematics::simulate_from_ground_truth(&real, &noise, args.seed)?;
-            let notes = vec![format!("sim side simulated from the real bag's ground truth with {noise:?} (seed {})", args.seed)];
+            let (mut real, _) = read_recording(real_path, &RecordingTopics::default())?;
+            // Outside the ground truth's span there is nothing to simulate (and its first
+            // samples fix the bias walk's start, W₀ = 0, which the bias estimate rests on).
+            let (cut0, cut1) = imu_fsda::diagnose::kinematics::crop_to_ground_truth(&mut real, smoothing.unwrap_or(0.0));
+            let (sim, var) = imu_fsda::diagnose::kinematics::simulate_from_ground_truth(&real, &noise, args.seed, smoothing)?;
+            let how = match smoothing {
+                Some(h) => format!("poses smoothed by a local cubic over ±{h} s, then differentiated"),
+                None => "poses differentiated sample to sample".into(),
+            };
+            let notes = vec![
+                format!("sim side simulated from the real bag's ground truth ({how}) with {noise:?} (seed {})", args.seed),
+                format!("real IMU samples outside the ground truth's span (less the smoother's half-width) left out: {cut0} at the start, {cut1} at the end"),
+            ];
             align::align(sim, real, Some(var), notes)?
         }
         (None, None) => anyhow::bail!("give --sim SIM.mcap or --noise-model FILE.yaml"),
     };
+    if args.real_noise_from_data {
+        aligned.estimate_real_white_noise();
+    }
     let d = diagnose(&aligned, opts)?;
     report::write_all(&args.out, &aligned, &d)?;
     if d.findings.is_empty() {

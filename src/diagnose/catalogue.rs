@@ -242,6 +242,32 @@ impl Catalogue {
         Ok(cat)
     }
 
+    /// Keep only the judged sensors' channels in every atom, and drop the candidates left
+    /// without any (listed under `excluded`).
+    pub fn restrict(&mut self, sensors: super::Sensors) {
+        if sensors == super::Sensors::Both {
+            return;
+        }
+        for atom in &mut self.atoms {
+            for (c, col) in atom.column.iter_mut().enumerate() {
+                if !sensors.judges(c / 3) {
+                    *col = None;
+                }
+            }
+        }
+        let atoms = &self.atoms;
+        let (keep, drop): (Vec<Candidate>, Vec<Candidate>) = std::mem::take(&mut self.candidates)
+            .into_iter()
+            .partition(|cand| cand.atoms.iter().any(|&a| atoms[a].column.iter().any(Option::is_some)));
+        self.candidates = keep;
+        for cand in drop {
+            self.excluded.push((cand.name.into(), format!("--sensors {}: the term acts only on the sensor not judged", sensors.name())));
+        }
+        if !sensors.judges(1) {
+            self.excluded.push(("vibration".into(), format!("--sensors {}: the accelerometer is not judged", sensors.name())));
+        }
+    }
+
     /// Add a vibration candidate at `frequency_hz` (sin and cos atoms per axis); replaces a
     /// previous one.
     pub fn set_vibration(&mut self, frequency_hz: f64, base: &ImuSignals) -> Result<usize, DiagnoseError> {

@@ -69,9 +69,42 @@ pub fn evaluate(blocks: &[BlockStats], a: &DMatrix<f64>) -> Fit {
     let mut beta_folds = Vec::with_capacity(blocks.len());
     for b in blocks {
         let (gb, xb) = project(b, a);
-        let (beta_b, _) = if p == 0 { (DVector::zeros(0), DMatrix::zeros(0, 0)) } else { solve(&(&g - &gb), &(&x - &xb)) };
+        let beta_b = if p == 0 { DVector::zeros(0) } else { fold_fit(&g, &(&g - &gb), &(&x - &xb), &beta) };
         loglik_blocks.push(b.loglik(&(a * &beta_b)));
         beta_folds.push(beta_b);
     }
     Fit { beta, cov, loglik, loglik_cv: loglik_blocks.iter().sum(), loglik_blocks, beta_folds }
+}
+
+/// Share of a parameter's information (diagonal of the Gram matrix) the other blocks must
+/// carry for it to be cross-validated.
+pub const MIN_FOLD_INFORMATION: f64 = 0.1;
+
+/// β fitted on the blocks other than one (Gram `gf`, cross products `xf`). A parameter the
+/// other blocks hardly determine (less than [`MIN_FOLD_INFORMATION`] of its information
+/// outside the block) cannot be predicted from them — a constant bias against the bias walk
+/// is one: it is told from the walk only by the walk's known start, i.e. by the first block.
+/// Estimated from the other blocks it would be noise of variance 1/g_fold and its prediction
+/// of the block meaningless (and it would make every later comparison of models that include
+/// it meaningless too). Such parameters are held at their full-sample estimate `beta` (they
+/// are judged in-sample, like the biases in the selection) and the others are refitted
+/// given them.
+fn fold_fit(g: &DMatrix<f64>, gf: &DMatrix<f64>, xf: &DVector<f64>, beta: &DVector<f64>) -> DVector<f64> {
+    let p = g.nrows();
+    let weak: Vec<usize> = (0..p).filter(|&i| gf[(i, i)] < MIN_FOLD_INFORMATION * g[(i, i)]).collect();
+    if weak.is_empty() {
+        return solve(gf, xf).0;
+    }
+    let free: Vec<usize> = (0..p).filter(|i| !weak.contains(i)).collect();
+    let mut out = beta.clone();
+    if free.is_empty() {
+        return out;
+    }
+    let gr = DMatrix::from_fn(free.len(), free.len(), |r, c| gf[(free[r], free[c])]);
+    let xr = DVector::from_fn(free.len(), |r, _| xf[free[r]] - weak.iter().map(|&w| gf[(free[r], w)] * beta[w]).sum::<f64>());
+    let (br, _) = solve(&gr, &xr);
+    for (k, &i) in free.iter().enumerate() {
+        out[i] = br[k];
+    }
+    out
 }

@@ -71,11 +71,46 @@ pub struct DiagnoseOptions {
     pub half_window_s: f64,
     /// Model selection.
     pub select: SelectOptions,
+    /// The sensors judged: with one sensor only, the other's channels are left out of the
+    /// residual and every candidate term is restricted to the judged sensor's channels.
+    pub sensors: Sensors,
+    /// Half-width (s) of the local cubic the ground truth is smoothed by before ω̇ is taken
+    /// from it for the regressors: for a measured ground truth (`--noise-model` on a real
+    /// bag); `None` (a simulator's noise-free ground truth) differentiates sample to sample.
+    pub gt_smoothing_s: Option<f64>,
 }
 
 impl Default for DiagnoseOptions {
     fn default() -> Self {
-        DiagnoseOptions { half_window_s: 0.01, select: SelectOptions::default() }
+        DiagnoseOptions { half_window_s: 0.01, select: SelectOptions::default(), sensors: Sensors::Both, gt_smoothing_s: None }
+    }
+}
+
+/// Which sensors a diagnosis judges.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Sensors {
+    /// Gyroscope and accelerometer.
+    #[default]
+    Both,
+    /// The gyroscope alone (e.g. when the simulated accelerometer is not trusted: a real
+    /// bag's ground truth differentiated twice).
+    Gyro,
+    /// The accelerometer alone.
+    Accel,
+}
+
+impl Sensors {
+    /// Is sensor `s` (0 gyro, 1 accel) judged?
+    pub fn judges(self, s: usize) -> bool {
+        matches!((self, s), (Sensors::Both, _) | (Sensors::Gyro, 0) | (Sensors::Accel, 1))
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Sensors::Both => "both",
+            Sensors::Gyro => "gyro",
+            Sensors::Accel => "accel",
+        }
     }
 }
 
@@ -153,8 +188,22 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
     let n = a.len();
     let dt = a.dt();
     let mut notes = a.notes.clone();
-    let base = base_signals(a, opts.half_window_s);
-    let y: [Vec<f64>; 6] = std::array::from_fn(|c| a.real[c].iter().zip(&a.sim[c]).map(|(r, s)| r - s).collect());
+    let base = base_signals(a, opts.half_window_s, opts.gt_smoothing_s);
+    let y_all: [Vec<f64>; 6] = std::array::from_fn(|c| a.real[c].iter().zip(&a.sim[c]).map(|(r, s)| r - s).collect());
+    // A sensor that is not judged leaves the fit: its residual channels are set to zero (a
+    // constant in every model's likelihood) and no regressor touches them.
+    let judged = |c: usize| opts.sensors.judges(residual::sensor_of(c));
+    let y: [Vec<f64>; 6] = std::array::from_fn(|c| if judged(c) { y_all[c].clone() } else { vec![0.0; n] });
+    if opts.sensors != Sensors::Both {
+        notes.push(format!(
+            "--sensors {}: only the {} is judged; the other sensor's residual is left out of the fit and its terms are not judged (its rows in the figures are the raw residual)",
+            opts.sensors.name(),
+            if opts.sensors == Sensors::Gyro { "gyroscope" } else { "accelerometer" }
+        ));
+    }
+    if let Some(h) = opts.gt_smoothing_s {
+        notes.push(format!("ground truth smoothed by a local cubic over ±{h} s before ω̇ is taken from it"));
+    }
 
     // Terms read directly off the real samples.
     let mut direct: Vec<(Term, serde_json::Value)> = Vec::new();
@@ -163,7 +212,7 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
     let sim_var = [a.sim_variance.0, a.sim_variance.1];
     let mut ranges = [f64::INFINITY; 2];
     let mut lsbs = [0.0; 2];
-    for s in 0..2 {
+    for s in (0..2).filter(|s| opts.sensors.judges(*s)) {
         if let Some((range, idx)) = catalogue::detect_saturation(&a.real[3 * s..3 * s + 3], &a.sim[3 * s..3 * s + 3], sim_var[s].sqrt()) {
             ranges[s] = range;
             for &i in &idx {
@@ -188,7 +237,8 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
 
     let temperature =
         a.temperature_c.as_ref().map(|t| t.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(*v), hi.max(*v))));
-    let catalogue = Catalogue::build(&base, a.world_from_imu.is_some(), temperature.map(|(lo, hi)| hi - lo))?;
+    let mut catalogue = Catalogue::build(&base, a.world_from_imu.is_some(), temperature.map(|(lo, hi)| hi - lo))?;
+    catalogue.restrict(opts.sensors);
     let excluded = catalogue.excluded.clone();
     let sensor_noise = |s: usize| ChannelNoise { white_sim: sim_var[s], white_real: white_real[s], pole: 0.0, walk: sim_var[s] * 1e-6 };
     let noise = NoiseModel { sensors: [sensor_noise(0), sensor_noise(1)] };
@@ -199,9 +249,10 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
         catalogue,
         noise,
         stated: a.real_variance,
-        judge_noise_density: a.real_variance == a.sim_variance && lsbs[0] == 0.0,
+        judge_noise_density: a.real_variance == a.sim_variance && lsbs[0] == 0.0 && opts.sensors.judges(0),
         temperature,
         opts: opts.select,
+        sensors: opts.sensors,
     };
     let sel = select::select(problem)?;
 
@@ -232,22 +283,28 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
 
     // Locate under the no-term model.
     let w0 = residual::whitened(&y, &sel.baseline_noise, &mask);
-    let located = locate::locate(&w0, dt);
+    let mut located = locate::locate(&w0, dt);
+    located.retain(|l| (0..2).any(|s| opts.sensors.judges(s) && l.channel.starts_with(["gyro", "accel"][s])));
 
     // Before / after on held-out blocks.
     let bl = residual::blocks(n, opts.select.folds);
-    let after = heldout_residual(&sel, &bl);
+    let mut after = heldout_residual(&sel, &bl);
+    for c in (0..6).filter(|c| !judged(*c)) {
+        after[c] = y_all[c].clone(); // nothing fitted on a sensor that is not judged
+    }
     let w1 = residual::whitened(&after, &sel.noise, &mask);
     let summary = |r: &[Vec<f64>; 6], w: &[Vec<f64>; 6], ll: f64, note: &str| {
         let mut s = ResidualSummary { heldout_loglik: ll, note: note.into(), ..Default::default() };
         for c in 0..6 {
             let m: Vec<f64> = r[c].iter().zip(&mask).filter(|(_, m)| **m).map(|(v, _)| *v).collect();
             s.rms.insert(CHANNELS[c].into(), (m.iter().map(|v| v * v).sum::<f64>() / m.len().max(1) as f64).sqrt());
-            s.chi2_per_sample.insert(CHANNELS[c].into(), w[c].iter().map(|v| v * v).sum::<f64>() / m.len().max(1) as f64);
+            if judged(c) {
+                s.chi2_per_sample.insert(CHANNELS[c].into(), w[c].iter().map(|v| v * v).sum::<f64>() / m.len().max(1) as f64);
+            }
         }
         s
     };
-    let residual_before = summary(&y, &w0, sel.baseline.loglik_cv, "real − sim, simulator noise model (bias walk estimated)");
+    let residual_before = summary(&y_all, &w0, sel.baseline.loglik_cv, "real − sim, simulator noise model (bias walk estimated)");
     let residual_after = summary(
         &after,
         &w1,
@@ -257,14 +314,14 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
 
     let mut curves = Curves::default();
     for c in 0..6 {
-        let ab = allan::allan_deviation(&y[c], dt);
+        let ab = allan::allan_deviation(&y_all[c], dt);
         let aa = allan::allan_deviation(&after[c], dt);
         curves.allan.push(ab.iter().zip(&aa).map(|(b, a)| (b.0, b.1, a.1)).collect());
         let ns = sel.noise.sensors[residual::sensor_of(c)];
         let white = ns.white_sim + ns.white_real * (1.0 - ns.pole) / (1.0 + ns.pole);
         curves.allan_model.push(ab.iter().map(|(tau, _)| (*tau, allan::model_allan(white, ns.walk, dt, *tau))).collect());
         let seg = ((20.0 / dt) as usize).next_power_of_two();
-        let (f, pb) = psd::welch(&y[c], dt, seg);
+        let (f, pb) = psd::welch(&y_all[c], dt, seg);
         let (_, pa) = psd::welch(&after[c], dt, seg);
         curves.psd.push(f.iter().zip(pb.iter().zip(&pa)).map(|(f, (b, a))| (*f, *b, *a)).collect());
     }
@@ -273,7 +330,7 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
     let block = n.div_ceil(300).max(1);
     curves.residual_t = (0..n).step_by(block).map(|i| (i as f64 + (block.min(n - i) as f64 - 1.0) / 2.0) * dt).collect();
     for c in 0..6 {
-        curves.residual_before[c] = block_means(&y[c], &mask, block);
+        curves.residual_before[c] = block_means(&y_all[c], &mask, block);
         curves.residual_after[c] = block_means(&after[c], &mask, block);
     }
 

@@ -60,7 +60,9 @@ pub fn filter(x: &[f64], w: &[f64], edge: impl Fn(usize) -> f64) -> Vec<f64> {
 /// local quadratic over ±`half_window_s`), ω̇ by a Savitzky–Golay derivative of the sim gyro
 /// over ±2·`half_window_s`, attitude from ground truth (identity when there is none) and
 /// temperature (25 °C when there is none).
-pub fn base_signals(a: &Aligned, half_window_s: f64) -> ImuSignals {
+/// `gt_smoothing`: half-width of the local cubic the ground truth is smoothed by before ω̇ is
+/// taken from it (a measured ground truth; `None` for a simulator's).
+pub fn base_signals(a: &Aligned, half_window_s: f64, gt_smoothing: Option<f64>) -> ImuSignals {
     let dt = a.dt();
     let k = ((half_window_s / dt).round() as usize).max(1);
     let kd = ((2.0 * half_window_s / dt).round() as usize).max(1);
@@ -83,7 +85,7 @@ pub fn base_signals(a: &Aligned, half_window_s: f64) -> ImuSignals {
     // ω̇ from the noise-free ground truth when there is one (a derivative of the noisy sim gyro
     // is noise-dominated on gentle motion), else from the sim gyro.
     let gt = &a.sim_recording.ground_truth;
-    let alpha_in_imu = match (gt.len() >= 4, super::kinematics::ideal_from_poses(gt, &a.stamps_ns)) {
+    let alpha_in_imu = match (gt.len() >= 4, super::kinematics::ideal_from_poses_with(gt, &a.stamps_ns, gt_smoothing)) {
         (true, Ok(s)) => s.alpha_in_imu,
         _ => (0..n).map(|i| v3(&deriv, i)).collect(),
     };

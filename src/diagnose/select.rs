@@ -80,6 +80,8 @@ pub struct Problem<'a> {
     pub judge_noise_density: bool,
     pub temperature: Option<(f64, f64)>,
     pub opts: SelectOptions,
+    /// The sensors judged (the others' channels are zero in `y` and in every atom).
+    pub sensors: super::Sensors,
 }
 
 /// The result.
@@ -158,7 +160,7 @@ pub fn golden(mut lo: f64, mut hi: f64, iters: usize, mut f: impl FnMut(f64) -> 
 
 /// Maximum-likelihood walk variance per sensor for the chosen model.
 fn estimate_walk(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &mut NoiseModel) {
-    for s in 0..2 {
+    for s in (0..2).filter(|s| p.sensors.judges(*s)) {
         let white = noise.sensors[s].white_sim + noise.sensors[s].white_real;
         let lo = (white * 1e-12).log10();
         let hi = (white * 1e-1).log10();
@@ -227,7 +229,8 @@ fn noise_candidates(
     }
     if !have.iter().any(|t| matches!(t, NoiseTerm::LowPass { .. })) {
         let fs = 1.0 / p.base.nominal_dt();
-        for sensor in [LowPassSensor::Gyro, LowPassSensor::Accel, LowPassSensor::Both] {
+        let judged = |sensor: &LowPassSensor| sensor.sensors().iter().all(|s| p.sensors.judges(*s as usize));
+        for sensor in [LowPassSensor::Gyro, LowPassSensor::Accel, LowPassSensor::Both].into_iter().filter(judged) {
             let ll = |lc: f64| {
                 let t = NoiseTerm::LowPass { cutoff_hz: lc.exp(), sensor };
                 apply_noise_term(p, &t, y, noise).map(|(y2, n2)| fit_reduced(p, &y2, chosen, &n2).loglik).unwrap_or(f64::NEG_INFINITY)
@@ -318,7 +321,7 @@ pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
 
     for _round in 0..12 {
         // A vibration candidate at the strongest accelerometer line of the current residual.
-        if !chosen.iter().any(|c| p.catalogue.candidates[c.cand].name == "vibration") {
+        if p.sensors.judges(1) && !chosen.iter().any(|c| p.catalogue.candidates[c.cand].name == "vibration") {
             let r = model_residual(&p.catalogue, &y, &chosen, &current.beta);
             let w = whitened(&r, &noise, &p.mask);
             if let Some(f) = periodogram_peak(&w[3..], p.base.nominal_dt(), p.opts.vibration_alpha) {
