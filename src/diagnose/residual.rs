@@ -31,15 +31,82 @@ pub const CHANNELS: [&str; 6] = ["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel
 /// Weights of a leave-centre-out local quadratic fit over ±k samples, evaluated at the
 /// centre (index 0 of the returned vec is offset −k; the centre weight is 0).
 pub fn leave_out_weights(k: usize) -> Vec<f64> {
-    let offs: Vec<f64> = (-(k as i64)..=k as i64).filter(|&j| j != 0).map(|j| j as f64).collect();
-    let deg = if k == 1 { 1 } else { 2 };
-    let v = DMatrix::from_fn(offs.len(), deg + 1, |r, c| offs[r].powi(c as i32));
+    leave_out_poly_weights(k, if k == 1 { 1 } else { 2 })
+}
+
+/// Weights of a leave-centre-out local polynomial fit of degree `deg` (lowered to what the
+/// points allow) to the samples at `offsets` (none 0), evaluated at offset 0.
+fn leave_out_fit_weights(offsets: &[i64], deg: usize) -> Vec<f64> {
+    let scale = offsets.iter().map(|o| o.unsigned_abs()).max().unwrap_or(1).max(1) as f64;
+    let deg = deg.min(offsets.len().saturating_sub(1));
+    let v = DMatrix::from_fn(offsets.len(), deg + 1, |r, c| (offsets[r] as f64 / scale).powi(c as i32));
     let pinv = (v.transpose() * &v).try_inverse().unwrap_or_else(|| DMatrix::identity(deg + 1, deg + 1)) * v.transpose();
+    (0..offsets.len()).map(|r| pinv[(0, r)]).collect()
+}
+
+/// Weights of a leave-centre-out local polynomial fit of degree `deg` over ±k samples,
+/// evaluated at the centre (index 0 of the returned vec is offset −k; the centre weight is 0).
+pub fn leave_out_poly_weights(k: usize, deg: usize) -> Vec<f64> {
+    let offs: Vec<i64> = (-(k as i64)..=k as i64).filter(|&j| j != 0).collect();
+    let fit = leave_out_fit_weights(&offs, deg);
     let mut w = vec![0.0; 2 * k + 1];
-    for (r, &j) in offs.iter().enumerate() {
-        w[(j as i64 + k as i64) as usize] = pinv[(0, r)];
+    for (o, f) in offs.iter().zip(fit) {
+        w[(o + k as i64) as usize] = f;
     }
     w
+}
+
+/// Leave-centre-out smoothing of `x`: each sample replaced by the local polynomial (degree
+/// `deg`) through its ±k neighbours, itself left out, so the sample's own noise is not in
+/// its smoothed value. Within k samples of an end the window is cut at the end (a one-sided
+/// fit, still without the sample itself), so no sample keeps its own noise.
+pub fn smooth_leave_out(x: &[f64], k: usize, deg: usize) -> Vec<f64> {
+    let n = x.len();
+    let w = leave_out_poly_weights(k, deg);
+    (0..n)
+        .map(|i| {
+            if i >= k && i + k < n {
+                return w.iter().enumerate().map(|(j, wj)| wj * x[i + j - k]).sum();
+            }
+            let lo = -(i.min(k) as i64);
+            let hi = (n - 1 - i).min(k) as i64;
+            let offs: Vec<i64> = (lo..=hi).filter(|&j| j != 0).collect();
+            if offs.is_empty() {
+                return x[i];
+            }
+            let fw = leave_out_fit_weights(&offs, deg);
+            offs.iter().zip(fw).map(|(o, f)| f * x[(i as i64 + o) as usize]).sum()
+        })
+        .collect()
+}
+
+/// The leave-centre-out smoother of one sensor's channels (half-width k, degree), chosen by
+/// leave-one-out cross-validation: among local polynomials of degree 2 or 4 over ±k
+/// samples, k·dt up to `max_half_s`, the one whose prediction of each sim sample from its
+/// neighbours has the smallest mean squared error. That error is σ² + E(b − x)² (the
+/// prediction does not use the sample's own noise), so the choice minimises the smoothed
+/// signal's own error (distortion² + leftover noise), instead of a fixed window, which at
+/// low rates (±1 sample at 100 Hz) distorts the motion's higher harmonics by (2πf·dt)²/2
+/// and leaves a misfit of every term applied to it that other terms then mop up.
+pub fn cv_smoother(x: &[Vec<f64>], dt: f64, max_half_s: f64) -> (usize, usize) {
+    let k_max = ((max_half_s / dt).round() as usize).max(1);
+    let mut best: Option<(f64, (usize, usize))> = None;
+    for k in [1usize, 2, 3, 4, 6, 8, 11, 16, 22, 32, 45, 64].into_iter().filter(|&k| k <= k_max) {
+        // A symmetric fit of even degree d needs k ≥ d/2 + 1 offsets per side; k = 1 is the
+        // mean of the two neighbours.
+        let degs: &[usize] = if k == 1 { &[1] } else { &[2, 4] };
+        for &deg in degs.iter().filter(|&&d| k > d / 2) {
+            let (sse, cnt) = x.iter().fold((0.0, 0usize), |(s, c), ch| {
+                let b = smooth_leave_out(ch, k, deg);
+                (s + ch.iter().zip(&b).map(|(v, b)| (v - b) * (v - b)).sum::<f64>(), c + ch.len())
+            });
+            let mse = sse / cnt.max(1) as f64;
+            if best.is_none_or(|(m, _)| mse < m) {
+                best = Some((mse, (k, deg)));
+            }
+        }
+    }
+    best.map_or((1, 1), |(_, kd)| kd)
 }
 
 /// Savitzky–Golay first-derivative weights over ±k samples (per unit sample spacing).
@@ -57,16 +124,16 @@ pub fn filter(x: &[f64], w: &[f64], edge: impl Fn(usize) -> f64) -> Vec<f64> {
 }
 
 /// The signals the terms are applied to: the sim bag's gyro and accel smoothed (leave-out
-/// local quadratic over ±`half_window_s`), ω̇ by a Savitzky–Golay derivative of the sim gyro
+/// local polynomial, window and degree per sensor by cross-validation, [`cv_smoother`],
+/// up to ±`max_smoothing_s`), ω̇ by a Savitzky–Golay derivative of the sim gyro
 /// over ±2·`half_window_s`, attitude from ground truth (identity when there is none) and
 /// temperature (25 °C when there is none).
-pub fn base_signals(a: &Aligned, half_window_s: f64) -> ImuSignals {
+pub fn base_signals(a: &Aligned, half_window_s: f64, max_smoothing_s: f64) -> ImuSignals {
     let dt = a.dt();
-    let k = ((half_window_s / dt).round() as usize).max(1);
     let kd = ((2.0 * half_window_s / dt).round() as usize).max(1);
-    let wv = leave_out_weights(k);
+    let kdeg = [cv_smoother(&a.sim[..3], dt, max_smoothing_s), cv_smoother(&a.sim[3..], dt, max_smoothing_s)];
     let wd = derivative_weights(kd);
-    let smooth: [Vec<f64>; 6] = std::array::from_fn(|c| filter(&a.sim[c], &wv, |i| a.sim[c][i]));
+    let smooth: [Vec<f64>; 6] = std::array::from_fn(|c| smooth_leave_out(&a.sim[c], kdeg[c / 3].0, kdeg[c / 3].1));
     let deriv: [Vec<f64>; 3] = std::array::from_fn(|c| {
         let x = &a.sim[c];
         let n = x.len();
