@@ -88,9 +88,7 @@ pub fn evaluate_fixed(blocks: &[BlockStats], a: &DMatrix<f64>, fixed: &[usize]) 
             // right-hand side: G_ff β_f = x_f − G_fx β_x.
             let (go, xo) = (&g - &gb, &x - &xb);
             let gff = DMatrix::from_fn(free.len(), free.len(), |i, j| go[(free[i], free[j])]);
-            let xf = DVector::from_fn(free.len(), |i, _| {
-                xo[free[i]] - fixed.iter().map(|&k| go[(free[i], k)] * beta[k]).sum::<f64>()
-            });
+            let xf = DVector::from_fn(free.len(), |i, _| xo[free[i]] - fixed.iter().map(|&k| go[(free[i], k)] * beta[k]).sum::<f64>());
             let (bf, _) = solve(&gff, &xf);
             let mut out = beta.clone();
             for (i, &f) in free.iter().enumerate() {

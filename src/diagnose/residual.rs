@@ -332,3 +332,57 @@ pub fn blocks(n: usize, k: usize) -> Vec<std::ops::Range<usize>> {
 pub fn whitened(y: &[Vec<f64>; 6], noise: &NoiseModel, mask: &[bool]) -> [Vec<f64>; 6] {
     std::array::from_fn(|c| Whitener::new(&noise.sensors[sensor_of(c)], mask).whiten(&y[c]))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The leave-out smoother reproduces polynomials up to its degree exactly, also within k
+    /// samples of the ends (one-sided fits), and never uses the sample itself.
+    #[test]
+    fn leave_out_smoother_is_exact_on_polynomials_and_ignores_the_sample() {
+        let n = 60;
+        let x: Vec<f64> = (0..n)
+            .map(|i| {
+                let t = i as f64 / 10.0;
+                1.0 - 2.0 * t + 0.5 * t * t - 0.3 * t.powi(3) + 0.05 * t.powi(4)
+            })
+            .collect();
+        // k ≥ deg + 1: enough points for the full degree also at the ends.
+        for (k, deg) in [(5, 4), (8, 4), (3, 2)] {
+            let quadratic_only = deg == 2;
+            let xs: Vec<f64> =
+                if quadratic_only { (0..n).map(|i| 1.0 + 0.1 * i as f64 - 0.01 * (i * i) as f64).collect() } else { x.clone() };
+            let b = smooth_leave_out(&xs, k, deg);
+            for i in 0..n {
+                assert!((b[i] - xs[i]).abs() < 1e-7 * xs[i].abs().max(1.0), "k {k} deg {deg} i {i}: {} vs {}", b[i], xs[i]);
+            }
+            // A spike at sample i changes the smoothed value at i not at all.
+            for i in [0, k / 2, n / 2, n - 1] {
+                let mut y = xs.clone();
+                y[i] += 100.0;
+                assert!((smooth_leave_out(&y, k, deg)[i] - b[i]).abs() < 1e-9);
+            }
+        }
+    }
+
+    /// Cross-validation picks a wide window on a slow signal in noise and a narrow one on a
+    /// fast signal with little noise.
+    #[test]
+    fn cv_smoother_widens_for_slow_signals_and_narrows_for_fast_ones() {
+        let dt = 0.001;
+        let n = 20_000;
+        // Deterministic pseudo-noise (LCG → uniform, variance 1/12).
+        let mut s = 12345u64;
+        let mut noise = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let slow: Vec<f64> = (0..n).map(|i| (std::f64::consts::TAU * 0.5 * i as f64 * dt).sin() + noise()).collect();
+        let fast: Vec<f64> = (0..n).map(|i| (std::f64::consts::TAU * 60.0 * i as f64 * dt).sin() + 1e-4 * noise()).collect();
+        let (k_slow, _) = cv_smoother(&[slow], dt, 0.05);
+        let (k_fast, _) = cv_smoother(&[fast], dt, 0.05);
+        assert!(k_slow >= 32, "slow: k {k_slow}");
+        assert!(k_fast <= 4, "fast: k {k_fast}");
+    }
+}
