@@ -62,6 +62,10 @@ pub struct DiagnoseArgs {
     pub score_seconds: Option<f64>,
     #[arg(long, hide = true)]
     pub score_rate: Option<f64>,
+    /// With --score-generated: diagnose only these case indices (the others are still drawn,
+    /// so every case is the same as in the full run; for development).
+    #[arg(long, hide = true, value_delimiter = ',')]
+    pub score_cases: Vec<usize>,
 }
 
 pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
@@ -69,7 +73,7 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
     opts.select.threshold = args.threshold;
     opts.sensors = args.sensors;
     if let Some(n) = args.score_generated {
-        return score::run(n, args.seed, &args.out, &opts, &args.score_only, (args.score_seconds, args.score_rate));
+        return score::run(n, args.seed, &args.out, &opts, &args.score_only, (args.score_seconds, args.score_rate), &args.score_cases);
     }
     let real_path = args.real.clone().context("--real is required")?;
     match diagnose_to(&args, &real_path, &opts) {
@@ -303,6 +307,7 @@ mod score {
         opts: &DiagnoseOptions,
         only: &[String],
         fixed: (Option<f64>, Option<f64>),
+        subset: &[usize],
     ) -> anyhow::Result<()> {
         std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
@@ -368,6 +373,9 @@ mod score {
                     .map(|(i, &s)| TemperatureSample { stamp_ns: s, celsius: tm.at(i as f64 * dt) + 0.05 * rng.gen_range(-1.7..1.7) })
                     .collect(),
             };
+            if !subset.is_empty() && !subset.contains(&case) {
+                continue;
+            }
             let a = align::align(recording(&sim, &poses, &temps), recording(&real, &poses, &temps), Some(var), vec![])?;
             let d = diagnose(&a, opts)?;
             truths += truth.len();

@@ -66,9 +66,12 @@ pub enum DiagnoseError {
 /// Options of a diagnosis.
 #[derive(Debug, Clone, Copy)]
 pub struct DiagnoseOptions {
-    /// Half-width of the smoothing window applied to the sim signals before the terms are
-    /// applied to them, s (the derivative uses twice this).
+    /// Half of the half-width of the Savitzky–Golay derivative of the sim gyro (used for ω̇
+    /// when there is no ground truth), s.
     pub half_window_s: f64,
+    /// Largest half-width of the leave-centre-out smoother of the sim signals, s (the
+    /// window itself is chosen by cross-validation, `residual::cv_smoother`).
+    pub max_smoothing_s: f64,
     /// Model selection.
     pub select: SelectOptions,
     /// The sensors judged: with one sensor only, the other's channels are left out of the
@@ -82,7 +85,13 @@ pub struct DiagnoseOptions {
 
 impl Default for DiagnoseOptions {
     fn default() -> Self {
-        DiagnoseOptions { half_window_s: 0.01, select: SelectOptions::default(), sensors: Sensors::Both, gt_smoothing_s: None }
+        DiagnoseOptions {
+            half_window_s: 0.01,
+            max_smoothing_s: 0.05,
+            select: SelectOptions::default(),
+            sensors: Sensors::Both,
+            gt_smoothing_s: None,
+        }
     }
 }
 
@@ -188,7 +197,7 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
     let n = a.len();
     let dt = a.dt();
     let mut notes = a.notes.clone();
-    let base = base_signals(a, opts.half_window_s, opts.gt_smoothing_s);
+    let base = base_signals(a, opts.half_window_s, opts.max_smoothing_s, opts.gt_smoothing_s);
     let y_all: [Vec<f64>; 6] = std::array::from_fn(|c| a.real[c].iter().zip(&a.sim[c]).map(|(r, s)| r - s).collect());
     // A sensor that is not judged leaves the fit: its residual channels are set to zero (a
     // constant in every model's likelihood) and no regressor touches them.

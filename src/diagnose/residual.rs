@@ -31,15 +31,82 @@ pub const CHANNELS: [&str; 6] = ["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel
 /// Weights of a leave-centre-out local quadratic fit over ±k samples, evaluated at the
 /// centre (index 0 of the returned vec is offset −k; the centre weight is 0).
 pub fn leave_out_weights(k: usize) -> Vec<f64> {
-    let offs: Vec<f64> = (-(k as i64)..=k as i64).filter(|&j| j != 0).map(|j| j as f64).collect();
-    let deg = if k == 1 { 1 } else { 2 };
-    let v = DMatrix::from_fn(offs.len(), deg + 1, |r, c| offs[r].powi(c as i32));
+    leave_out_poly_weights(k, if k == 1 { 1 } else { 2 })
+}
+
+/// Weights of a leave-centre-out local polynomial fit of degree `deg` (lowered to what the
+/// points allow) to the samples at `offsets` (none 0), evaluated at offset 0.
+fn leave_out_fit_weights(offsets: &[i64], deg: usize) -> Vec<f64> {
+    let scale = offsets.iter().map(|o| o.unsigned_abs()).max().unwrap_or(1).max(1) as f64;
+    let deg = deg.min(offsets.len().saturating_sub(1));
+    let v = DMatrix::from_fn(offsets.len(), deg + 1, |r, c| (offsets[r] as f64 / scale).powi(c as i32));
     let pinv = (v.transpose() * &v).try_inverse().unwrap_or_else(|| DMatrix::identity(deg + 1, deg + 1)) * v.transpose();
+    (0..offsets.len()).map(|r| pinv[(0, r)]).collect()
+}
+
+/// Weights of a leave-centre-out local polynomial fit of degree `deg` over ±k samples,
+/// evaluated at the centre (index 0 of the returned vec is offset −k; the centre weight is 0).
+pub fn leave_out_poly_weights(k: usize, deg: usize) -> Vec<f64> {
+    let offs: Vec<i64> = (-(k as i64)..=k as i64).filter(|&j| j != 0).collect();
+    let fit = leave_out_fit_weights(&offs, deg);
     let mut w = vec![0.0; 2 * k + 1];
-    for (r, &j) in offs.iter().enumerate() {
-        w[(j as i64 + k as i64) as usize] = pinv[(0, r)];
+    for (o, f) in offs.iter().zip(fit) {
+        w[(o + k as i64) as usize] = f;
     }
     w
+}
+
+/// Leave-centre-out smoothing of `x`: each sample replaced by the local polynomial (degree
+/// `deg`) through its ±k neighbours, itself left out, so the sample's own noise is not in
+/// its smoothed value. Within k samples of an end the window is cut at the end (a one-sided
+/// fit, still without the sample itself), so no sample keeps its own noise.
+pub fn smooth_leave_out(x: &[f64], k: usize, deg: usize) -> Vec<f64> {
+    let n = x.len();
+    let w = leave_out_poly_weights(k, deg);
+    (0..n)
+        .map(|i| {
+            if i >= k && i + k < n {
+                return w.iter().enumerate().map(|(j, wj)| wj * x[i + j - k]).sum();
+            }
+            let lo = -(i.min(k) as i64);
+            let hi = (n - 1 - i).min(k) as i64;
+            let offs: Vec<i64> = (lo..=hi).filter(|&j| j != 0).collect();
+            if offs.is_empty() {
+                return x[i];
+            }
+            let fw = leave_out_fit_weights(&offs, deg);
+            offs.iter().zip(fw).map(|(o, f)| f * x[(i as i64 + o) as usize]).sum()
+        })
+        .collect()
+}
+
+/// The leave-centre-out smoother of one sensor's channels (half-width k, degree), chosen by
+/// leave-one-out cross-validation: among local polynomials of degree 2 or 4 over ±k
+/// samples, k·dt up to `max_half_s`, the one whose prediction of each sim sample from its
+/// neighbours has the smallest mean squared error. That error is σ² + E(b − x)² (the
+/// prediction does not use the sample's own noise), so the choice minimises the smoothed
+/// signal's own error (distortion² + leftover noise), instead of a fixed window, which at
+/// low rates (±1 sample at 100 Hz) distorts the motion's higher harmonics by (2πf·dt)²/2
+/// and leaves a misfit of every term applied to it that other terms then mop up.
+pub fn cv_smoother(x: &[Vec<f64>], dt: f64, max_half_s: f64) -> (usize, usize) {
+    let k_max = ((max_half_s / dt).round() as usize).max(1);
+    let mut best: Option<(f64, (usize, usize))> = None;
+    for k in [1usize, 2, 3, 4, 6, 8, 11, 16, 22, 32, 45, 64].into_iter().filter(|&k| k <= k_max) {
+        // A symmetric fit of even degree d needs k ≥ d/2 + 1 offsets per side; k = 1 is the
+        // mean of the two neighbours.
+        let degs: &[usize] = if k == 1 { &[1] } else { &[2, 4] };
+        for &deg in degs.iter().filter(|&&d| k > d / 2) {
+            let (sse, cnt) = x.iter().fold((0.0, 0usize), |(s, c), ch| {
+                let b = smooth_leave_out(ch, k, deg);
+                (s + ch.iter().zip(&b).map(|(v, b)| (v - b) * (v - b)).sum::<f64>(), c + ch.len())
+            });
+            let mse = sse / cnt.max(1) as f64;
+            if best.is_none_or(|(m, _)| mse < m) {
+                best = Some((mse, (k, deg)));
+            }
+        }
+    }
+    best.map_or((1, 1), |(_, kd)| kd)
 }
 
 /// Savitzky–Golay first-derivative weights over ±k samples (per unit sample spacing).
@@ -57,18 +124,18 @@ pub fn filter(x: &[f64], w: &[f64], edge: impl Fn(usize) -> f64) -> Vec<f64> {
 }
 
 /// The signals the terms are applied to: the sim bag's gyro and accel smoothed (leave-out
-/// local quadratic over ±`half_window_s`), ω̇ by a Savitzky–Golay derivative of the sim gyro
+/// local polynomial, window and degree per sensor by cross-validation, [`cv_smoother`],
+/// up to ±`max_smoothing_s`), ω̇ by a Savitzky–Golay derivative of the sim gyro
 /// over ±2·`half_window_s`, attitude from ground truth (identity when there is none) and
 /// temperature (25 °C when there is none).
 /// `gt_smoothing`: half-width of the local cubic the ground truth is smoothed by before ω̇ is
 /// taken from it (a measured ground truth; `None` for a simulator's).
-pub fn base_signals(a: &Aligned, half_window_s: f64, gt_smoothing: Option<f64>) -> ImuSignals {
+pub fn base_signals(a: &Aligned, half_window_s: f64, max_smoothing_s: f64, gt_smoothing: Option<f64>) -> ImuSignals {
     let dt = a.dt();
-    let k = ((half_window_s / dt).round() as usize).max(1);
     let kd = ((2.0 * half_window_s / dt).round() as usize).max(1);
-    let wv = leave_out_weights(k);
+    let kdeg = [cv_smoother(&a.sim[..3], dt, max_smoothing_s), cv_smoother(&a.sim[3..], dt, max_smoothing_s)];
     let wd = derivative_weights(kd);
-    let smooth: [Vec<f64>; 6] = std::array::from_fn(|c| filter(&a.sim[c], &wv, |i| a.sim[c][i]));
+    let smooth: [Vec<f64>; 6] = std::array::from_fn(|c| smooth_leave_out(&a.sim[c], kdeg[c / 3].0, kdeg[c / 3].1));
     let deriv: [Vec<f64>; 3] = std::array::from_fn(|c| {
         let x = &a.sim[c];
         let n = x.len();
@@ -266,4 +333,58 @@ pub fn blocks(n: usize, k: usize) -> Vec<std::ops::Range<usize>> {
 /// Whitened residual channels (innovations / √S) under a noise model.
 pub fn whitened(y: &[Vec<f64>; 6], noise: &NoiseModel, mask: &[bool]) -> [Vec<f64>; 6] {
     std::array::from_fn(|c| Whitener::new(&noise.sensors[sensor_of(c)], mask).whiten(&y[c]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The leave-out smoother reproduces polynomials up to its degree exactly, also within k
+    /// samples of the ends (one-sided fits), and never uses the sample itself.
+    #[test]
+    fn leave_out_smoother_is_exact_on_polynomials_and_ignores_the_sample() {
+        let n = 60;
+        let x: Vec<f64> = (0..n)
+            .map(|i| {
+                let t = i as f64 / 10.0;
+                1.0 - 2.0 * t + 0.5 * t * t - 0.3 * t.powi(3) + 0.05 * t.powi(4)
+            })
+            .collect();
+        // k ≥ deg + 1: enough points for the full degree also at the ends.
+        for (k, deg) in [(5, 4), (8, 4), (3, 2)] {
+            let quadratic_only = deg == 2;
+            let xs: Vec<f64> =
+                if quadratic_only { (0..n).map(|i| 1.0 + 0.1 * i as f64 - 0.01 * (i * i) as f64).collect() } else { x.clone() };
+            let b = smooth_leave_out(&xs, k, deg);
+            for i in 0..n {
+                assert!((b[i] - xs[i]).abs() < 1e-7 * xs[i].abs().max(1.0), "k {k} deg {deg} i {i}: {} vs {}", b[i], xs[i]);
+            }
+            // A spike at sample i changes the smoothed value at i not at all.
+            for i in [0, k / 2, n / 2, n - 1] {
+                let mut y = xs.clone();
+                y[i] += 100.0;
+                assert!((smooth_leave_out(&y, k, deg)[i] - b[i]).abs() < 1e-9);
+            }
+        }
+    }
+
+    /// Cross-validation picks a wide window on a slow signal in noise and a narrow one on a
+    /// fast signal with little noise.
+    #[test]
+    fn cv_smoother_widens_for_slow_signals_and_narrows_for_fast_ones() {
+        let dt = 0.001;
+        let n = 20_000;
+        // Deterministic pseudo-noise (LCG → uniform, variance 1/12).
+        let mut s = 12345u64;
+        let mut noise = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let slow: Vec<f64> = (0..n).map(|i| (std::f64::consts::TAU * 0.5 * i as f64 * dt).sin() + noise()).collect();
+        let fast: Vec<f64> = (0..n).map(|i| (std::f64::consts::TAU * 60.0 * i as f64 * dt).sin() + 1e-4 * noise()).collect();
+        let (k_slow, _) = cv_smoother(&[slow], dt, 0.05);
+        let (k_fast, _) = cv_smoother(&[fast], dt, 0.05);
+        assert!(k_slow >= 32, "slow: k {k_slow}");
+        assert!(k_fast <= 4, "fast: k {k_fast}");
+    }
 }

@@ -18,7 +18,7 @@
 use nalgebra::DMatrix;
 
 use super::catalogue::{atom_map, Catalogue};
-use super::fit::{evaluate, Fit};
+use super::fit::{evaluate_fixed, Fit};
 use super::psd::periodogram_peak;
 use super::residual::{block_stats, blocks, whitened, BlockStats, Column, NoiseModel};
 use super::DiagnoseError;
@@ -128,7 +128,26 @@ fn reduced(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &NoiseModel
 
 fn fit_reduced(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &NoiseModel) -> Fit {
     let (s, a) = reduced(p, y, chosen, noise);
-    evaluate(&s, &a)
+    evaluate_fixed(&s, &a, &fixed_in_folds(&p.catalogue, chosen))
+}
+
+/// The β indices of the constant biases among `chosen`: held at their all-block values in
+/// the held-out fits. A constant bias is told from the bias walk only by the walk's known
+/// start (see [`drift_gain`]), i.e. by the first block; the other blocks leave it (nearly)
+/// unidentified, so extrapolating it from them makes the first block's held-out prediction
+/// arbitrary, and any term correlated with the bias there (accel scale along gravity,
+/// gravity magnitude, lever arm, …) then "gains" by repairing that prediction.
+fn fixed_in_folds(cat: &Catalogue, chosen: &[Chosen]) -> Vec<usize> {
+    let mut out = Vec::new();
+    let mut o = 0;
+    for c in chosen {
+        let cand = &cat.candidates[c.cand];
+        if matches!(cand.name, "gyro_bias" | "accel_bias") {
+            out.extend(o..o + cand.params);
+        }
+        o += cand.params;
+    }
+    out
 }
 
 /// Golden-section maximisation of f on [lo, hi].
@@ -340,7 +359,7 @@ pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
             let try_with = |nl: f64| {
                 let mut m = chosen.clone();
                 m.push(Chosen { cand: ci, nonlinear: nl });
-                evaluate(&stats, &design(&p.catalogue, &m))
+                evaluate_fixed(&stats, &design(&p.catalogue, &m), &fixed_in_folds(&p.catalogue, &m))
             };
             let (nl, fit) = if cand.name == "gyro_bias_temperature" {
                 let (lo, hi) = p.temperature.unwrap_or((0.0, 50.0));
