@@ -133,8 +133,7 @@ pub fn increment_loss(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attit
                                                               // Increment m is valid when samples mj … (m+1)j have ground truth and mj … (m+1)j − 1 a good dt.
         let gt_gap = sample_bad.narrow(2, 0, m * j + 1).max_pool1d([j + 1], [j], [0], [1], false).squeeze_dim(1);
         let dt_gap = dt_bad.narrow(2, 0, m * j).max_pool1d([j], [j], [0], [1], false).squeeze_dim(1);
-        let not_skipped =
-            Tensor::arange(m, (kind, omega.device())).ge(skipped as f64).to_kind(kind).expand([b, m], false);
+        let not_skipped = Tensor::arange(m, (kind, omega.device())).ge(skipped as f64).to_kind(kind).expand([b, m], false);
         let valid = (gt_gap.maximum(&dt_gap) * -1.0 + 1.0) * not_skipped; // [B, M]
         let valid3 = valid.unsqueeze(-1).expand([b, m, 3], false);
         let residual = residual.where_self(&valid3.gt(0.5), &residual.zeros_like());

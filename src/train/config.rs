@@ -366,15 +366,16 @@ impl TrainConfig {
             return Err("window counts must be ≥ 1".into());
         }
         let loss = &self.train.loss;
-        let min_window =
-            loss.increments.iter().map(|i| i.samples * (loss.skipped_increments(i.samples) + 1)).max().unwrap_or(1) as usize;
+        let min_window = loss.increments.iter().map(|i| i.samples * (loss.skipped_increments(i.samples) + 1)).max().unwrap_or(1) as usize;
         for (what, w) in [
             ("train.window_samples", t.window_samples),
             ("train.maml.support_window_samples", t.maml.support_window_samples),
             ("train.maml.query_window_samples", t.maml.query_window_samples),
         ] {
             if w <= min_window {
-                return Err(format!("{what} = {w}: must exceed {min_window} samples (every increment length × (its skipped increments + 1))"));
+                return Err(format!(
+                    "{what} = {w}: must exceed {min_window} samples (every increment length × (its skipped increments + 1))"
+                ));
             }
         }
         if self.model.mode == Mode::FsdaF && !positive(self.dataset.support_seconds) {
