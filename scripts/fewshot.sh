@@ -22,9 +22,7 @@ model="${MODEL:-$here/models/fsda-f-euroc.pt}"
 digdl="${DIGDL:-$here/models/digdl-euroc.pt}"
 support_s="${SUPPORT_S:-60}"
 scratch_epochs="${SCRATCH_EPOCHS:-300}"
-for m in "$model" "$digdl"; do
-  [ -f "$m" ] || { echo "error: $m not found (train it: imu-fsda train --config params/train/$(basename "${m%.pt}").yaml)" >&2; exit 1; }
-done
+require_models "$model" "$digdl"
 work="$IMU_FSDA_CACHE/fewshot"
 mkdir -p "$work/bags" "$work/adapted" "$work/scratch" "$work/eval"
 

@@ -21,25 +21,15 @@ model="${MODEL:-$here/models/fsda-f.pt}"
 digdl="${DIGDL:-$here/models/digdl-euroc.pt}"
 support_s=60
 adapt_s=45 # of the support set: the rest of it (15 s) judges the adaptation
-for m in "$model" "$digdl"; do
-  [ -f "$m" ] || { echo "error: $m not found (train it: imu-fsda train --config params/train/$(basename "${m%.pt}").yaml)" >&2; exit 1; }
-done
-bags="$IMU_FSDA_CACHE/bags"
+require_models "$model" "$digdl"
 work="$IMU_FSDA_CACHE/metatest"
-mkdir -p "$bags" "$work"
+mkdir -p "$work"
 rm -f "$work"/*.json "$work"/*.log
-sequences=()
-for s in MH_02_easy MH_04_difficult V1_01_easy V1_03_difficult V2_02_medium; do
-  [ -f "$bags/$s.mcap" ] || "$bin" import "$data/euroc/$s" -o "$bags/$s.mcap" >/dev/null
-  sequences+=("$s")
-done
-for r in 2 4 6; do
-  [ -f "$bags/room$r.mcap" ] || "$bin" import "$data/tumvi/dataset-room${r}_512_16" -o "$bags/room$r.mcap" >/dev/null
-  sequences+=("room$r")
-done
+mapfile -t bag_list < <(paper_test_bags "$bin" "$data")
+[ ${#bag_list[@]} -eq 8 ] || { echo "error: importing the test split failed" >&2; exit 1; }
 mstem="$(basename "${model%.pt}")"
-for s in "${sequences[@]}"; do
-  bag="$bags/$s.mcap"
+for bag in "${bag_list[@]}"; do
+  s="$(basename "${bag%.mcap}")"
   models=(--model "$model" --model "$digdl")
   for variant in adapted embedding-only; do
     flag=()

@@ -8,17 +8,8 @@ data="${IMU_FSDA_DATA:-$here/../shared/data}"
 [ -d "$data/euroc" ] || { echo "error: datasets not found at $data (set IMU_FSDA_DATA)" >&2; exit 1; }
 IMU_FSDA_NO_BUILD="${IMU_FSDA_BIN:+1}" "$here/scripts/setup.sh"
 bin="${IMU_FSDA_BIN:-$here/target/release/imu-fsda}"
-bags="$IMU_FSDA_CACHE/bags"
-mkdir -p "$bags"
-list=()
-for s in MH_02_easy MH_04_difficult V1_01_easy V1_03_difficult V2_02_medium; do
-  [ -f "$bags/$s.mcap" ] || "$bin" import "$data/euroc/$s" -o "$bags/$s.mcap"
-  list+=("$bags/$s.mcap")
-done
-for r in 2 4 6; do
-  [ -f "$bags/room$r.mcap" ] || "$bin" import "$data/tumvi/dataset-room${r}_512_16" -o "$bags/room$r.mcap"
-  list+=("$bags/room$r.mcap")
-done
+mapfile -t list < <(paper_test_bags "$bin" "$data")
+[ ${#list[@]} -eq 8 ] || { echo "error: importing the test split failed" >&2; exit 1; }
 table="$(mktemp)"
 model_args=(--method raw --method static-bias)
 [ -f "$here/models/digdl-euroc.pt" ] && model_args+=(--model "$here/models/digdl-euroc.pt")
