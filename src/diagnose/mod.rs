@@ -262,6 +262,8 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
         temperature,
         opts: opts.select,
         sensors: opts.sensors,
+        sim: &a.sim,
+        motion_lines: None,
     };
     let sel = select::select(problem)?;
 

@@ -5,11 +5,17 @@
 //! time left out in turn, [`super::fit::evaluate`]). The best candidate enters when its gain
 //! exceeds [`SelectOptions::threshold`] + [`SelectOptions::per_param`] × its parameter count,
 //! a held-out likelihood-ratio threshold set on null recordings (no term left out) so that
-//! they give no term. A backward pass then drops any chosen term whose removal costs less
-//! than the threshold, so a term that entered early and was made redundant by a better
-//! explanation leaves. Competing explanations (delay vs low-pass, bias vs g-sensitivity,
-//! misalignment vs mount rotation, walk vs temperature) meet as rival candidates of one
-//! step; the one that predicts the held-out blocks better wins.
+//! they give no term. A backward pass then drops any chosen term (noise terms included)
+//! whose removal costs less than the threshold, so a term that entered early and was made
+//! redundant by a better explanation leaves. Competing explanations (delay vs low-pass, bias
+//! vs g-sensitivity, misalignment vs mount rotation, walk vs temperature) meet as rival
+//! candidates of one step; the one that predicts the held-out blocks better wins. Delay vs
+//! low-pass and misalignment vs mount rotation are re-decided after every backward pass
+//! ([`exchange`]), since the step that chose one may have come before a confounder was in.
+//!
+//! The vibration candidate's frequency is the strongest residual line the sim's motion does
+//! not carry itself ([`MotionLines`]): at a motion line, the small misfit of any
+//! motion-proportional term also makes a residual line.
 //!
 //! The bias-walk density of the residual is re-estimated (maximum likelihood, golden-section
 //! search on log q) after every change of the model, so a slow drift is explained by the walk
@@ -19,7 +25,7 @@ use nalgebra::DMatrix;
 
 use super::catalogue::{atom_map, Catalogue};
 use super::fit::{evaluate_fixed, Fit};
-use super::psd::periodogram_peak;
+use super::psd::{periodogram_peak, MotionLines};
 use super::residual::{block_stats, blocks, whitened, BlockStats, Column, NoiseModel};
 use super::DiagnoseError;
 use crate::physics::{self, ImuSignals, LowPass, LowPassSensor, Term};
@@ -82,6 +88,11 @@ pub struct Problem<'a> {
     pub opts: SelectOptions,
     /// The sensors judged (the others' channels are zero in `y` and in every atom).
     pub sensors: super::Sensors,
+    /// The sim recording's six channels (gyro, accel), unsmoothed: the motion's own spectral
+    /// lines, where a residual line is a misfit of the motion rather than a vibration.
+    pub sim: &'a [Vec<f64>; 6],
+    /// The motion's lines ([`MotionLines`] of `sim`), built at the first vibration search.
+    pub motion_lines: Option<MotionLines>,
 }
 
 /// The result.
@@ -148,6 +159,100 @@ fn fixed_in_folds(cat: &Catalogue, chosen: &[Chosen]) -> Vec<usize> {
         o += cand.params;
     }
     out
+}
+
+/// The model with these noise terms: the residual with their fixed mean effects removed and
+/// the noise model they imply (applied in order to the problem's own), the walk re-estimated,
+/// and its fit.
+fn with_noise_terms(p: &Problem, chosen: &[Chosen], terms: &[NoiseTerm]) -> Result<(Fit, [Vec<f64>; 6], NoiseModel), DiagnoseError> {
+    let (mut y, mut noise) = (p.y.clone(), p.noise);
+    for t in terms {
+        (y, noise) = apply_noise_term(p, t, &y, &noise)?;
+    }
+    estimate_walk(p, &y, chosen, &mut noise);
+    let fit = fit_reduced(p, &y, chosen, &noise);
+    Ok((fit, y, noise))
+}
+
+/// A model in which one explanation replaced its rival.
+struct Exchange {
+    removed: String,
+    added: String,
+    chosen: Vec<Chosen>,
+    noise_terms: Vec<NoiseTerm>,
+    fit: Fit,
+}
+
+/// Linear rivals: the same effect to first order, told apart by the rest of the signal.
+const LINEAR_RIVALS: [(&str, &str); 2] = [("gyro_misalignment", "mount_rotation"), ("mount_rotation", "gyro_misalignment")];
+
+/// Re-decide the rival explanations (delay vs low-pass, misalignment vs mount rotation) under
+/// the current model: the greedy step that chose one of them may have been taken before a
+/// confounding term was in. The rival replaces the chosen term when its model predicts the
+/// held-out blocks better (per-parameter allowance included).
+fn exchange(
+    p: &Problem,
+    chosen: &[Chosen],
+    noise_terms: &[NoiseTerm],
+    y: &[Vec<f64>; 6],
+    noise: &NoiseModel,
+    current: &Fit,
+) -> Result<Option<Exchange>, DiagnoseError> {
+    let per_param = p.opts.per_param;
+    let score = |fit: &Fit, params: usize| fit.loglik_cv - per_param * params as f64;
+    let params_of =
+        |p: &Problem, m: &[Chosen], t: &[NoiseTerm]| m.iter().map(|c| p.catalogue.candidates[c.cand].params).sum::<usize>() + t.len();
+    let now = score(current, params_of(p, chosen, noise_terms));
+    let mut best: Option<(f64, Exchange)> = None;
+    let mut consider = |s: f64, x: Exchange| {
+        if s > now + 1e-6 && best.as_ref().is_none_or(|b| s > b.0) {
+            best = Some((s, x));
+        }
+    };
+    let to = p.catalogue.candidate("time_offset");
+    let to_chosen = to.and_then(|k| chosen.iter().position(|c| c.cand == k));
+    // A low-pass in the model, time_offset not: try the delay instead.
+    if let (Some(k), None) = (to, to_chosen) {
+        for (j, t) in noise_terms.iter().enumerate().filter(|(_, t)| matches!(t, NoiseTerm::LowPass { .. })) {
+            let mut terms = noise_terms.to_vec();
+            terms.remove(j);
+            let mut m = chosen.to_vec();
+            m.push(Chosen { cand: k, nonlinear: 0.0 });
+            let (fit, _, _) = with_noise_terms(p, &m, &terms)?;
+            let s = score(&fit, params_of(p, &m, &terms));
+            consider(s, Exchange { removed: noise_term_name(t).into(), added: "time_offset".into(), chosen: m, noise_terms: terms, fit });
+        }
+    }
+    // time_offset in the model, no low-pass: try the best low-pass instead.
+    if let Some(pos) = to_chosen.filter(|_| !noise_terms.iter().any(|t| matches!(t, NoiseTerm::LowPass { .. }))) {
+        let mut m = chosen.to_vec();
+        m.remove(pos);
+        let (_, y0, n0) = with_noise_terms(p, &m, noise_terms)?;
+        for (t, fit, _, _) in noise_candidates(p, &y0, &m, &n0, noise_terms)? {
+            if !matches!(t, NoiseTerm::LowPass { .. }) {
+                continue;
+            }
+            let mut terms = noise_terms.to_vec();
+            terms.push(t);
+            let s = score(&fit, params_of(p, &m, &terms));
+            consider(s, Exchange { removed: "time_offset".into(), added: "low_pass".into(), chosen: m.clone(), noise_terms: terms, fit });
+        }
+    }
+    for (have, rival) in LINEAR_RIVALS {
+        let (Some(h), Some(r)) = (p.catalogue.candidate(have), p.catalogue.candidate(rival)) else { continue };
+        let Some(pos) = chosen.iter().position(|c| c.cand == h) else { continue };
+        if chosen.iter().any(|c| c.cand == r) {
+            continue;
+        }
+        let mut m = chosen.to_vec();
+        m[pos] = Chosen { cand: r, nonlinear: 0.0 };
+        let mut n2 = *noise;
+        estimate_walk(p, y, &m, &mut n2);
+        let fit = fit_reduced(p, y, &m, &n2);
+        let s = score(&fit, params_of(p, &m, noise_terms));
+        consider(s, Exchange { removed: have.into(), added: rival.into(), chosen: m, noise_terms: noise_terms.to_vec(), fit });
+    }
+    Ok(best.map(|b| b.1))
 }
 
 /// Golden-section maximisation of f on [lo, hi].
@@ -343,7 +448,15 @@ pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
         if p.sensors.judges(1) && !chosen.iter().any(|c| p.catalogue.candidates[c.cand].name == "vibration") {
             let r = model_residual(&p.catalogue, &y, &chosen, &current.beta);
             let w = whitened(&r, &noise, &p.mask);
-            if let Some(f) = periodogram_peak(&w[3..], p.base.nominal_dt(), p.opts.vibration_alpha) {
+            let dt = p.base.nominal_dt();
+            // A line the motion itself carries (a gait harmonic) is where any
+            // motion-proportional term's small misfit also makes a residual line: not
+            // evidence of an added vibration, which the sim does not carry at all.
+            let motion_lines =
+                p.motion_lines.get_or_insert_with(|| MotionLines::new(&[&p.sim[..3], &p.sim[3..]], dt, p.opts.vibration_alpha));
+            let motion_line = |f: f64| motion_lines.carries(f);
+            if let Some(f) = periodogram_peak(&w[3..], dt, p.opts.vibration_alpha, motion_line) {
+                tracing::debug!("vibration candidate at {f:.4} Hz");
                 vibration_hz = f;
                 p.catalogue.set_vibration(f, p.base)?;
             }
@@ -408,9 +521,10 @@ pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
         estimate_walk(&p, &y, &chosen, &mut noise);
         current = fit_reduced(&p, &y, &chosen, &noise);
 
-        // Backward: drop a chosen linear term whose removal costs less than its threshold.
-        loop {
-            let mut worst: Option<(usize, f64)> = None;
+        // Backward: drop a chosen term whose removal costs less than its threshold; then
+        // re-decide the rival explanations under the model as it now stands.
+        for _ in 0..24 {
+            let mut worst: Option<(Option<usize>, usize, f64)> = None;
             for k in 0..chosen.len() {
                 let mut m = chosen.clone();
                 let removed = m.remove(k);
@@ -423,20 +537,37 @@ pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
                 } else {
                     current.loglik_cv - fit_reduced(&p, &y, &m, &noise).loglik_cv
                 };
-                if loss < need(params, &p.opts) && worst.is_none_or(|w| loss < w.1) {
-                    worst = Some((k, loss));
+                if loss < need(params, &p.opts) && worst.is_none_or(|w| loss < w.2) {
+                    worst = Some((Some(k), usize::MAX, loss));
                 }
             }
-            let Some((k, loss)) = worst else { break };
-            let removed = chosen.remove(k);
+            for j in 0..noise_terms.len() {
+                let mut terms = noise_terms.clone();
+                terms.remove(j);
+                let (fit, _, _) = with_noise_terms(&p, &chosen, &terms)?;
+                let loss = current.loglik_cv - fit.loglik_cv;
+                if loss < need(1, &p.opts) && worst.is_none_or(|w| loss < w.2) {
+                    worst = Some((None, j, loss));
+                }
+            }
+            if let Some((k, j, loss)) = worst {
+                let term = match k {
+                    Some(k) => p.catalogue.candidates[chosen.remove(k).cand].name.to_string(),
+                    None => noise_term_name(&noise_terms.remove(j)).to_string(),
+                };
+                steps.push(Step { action: "drop".into(), term, heldout_gain: -loss, runner_up: None });
+                (current, y, noise) = with_noise_terms(&p, &chosen, &noise_terms)?;
+                continue;
+            }
+            let Some(x) = exchange(&p, &chosen, &noise_terms, &y, &noise, &current)? else { break };
             steps.push(Step {
-                action: "drop".into(),
-                term: p.catalogue.candidates[removed.cand].name.into(),
-                heldout_gain: -loss,
-                runner_up: None,
+                action: "swap".into(),
+                term: x.added.clone(),
+                heldout_gain: x.fit.loglik_cv - current.loglik_cv,
+                runner_up: Some((x.removed.clone(), 0.0)),
             });
-            estimate_walk(&p, &y, &chosen, &mut noise);
-            current = fit_reduced(&p, &y, &chosen, &noise);
+            (chosen, noise_terms) = (x.chosen, x.noise_terms);
+            (current, y, noise) = with_noise_terms(&p, &chosen, &noise_terms)?;
         }
     }
     let fit = fit_reduced(&p, &y, &chosen, &noise);
