@@ -349,6 +349,7 @@ mod score {
             let temp_model = names.contains(&"gyro_bias_temperature").then(TemperatureModel::default);
             let ideal = ideal_signals(&traj, &st, |t| temp_model.map_or(25.0, |m| m.at(t)));
             let truth: Vec<Term> = names.iter().map(|n| draw(n, &mut rng, &ideal, var)).collect();
+            tracing::debug!("case {case} truth: {truth:?}");
             let mut sim = ideal.clone();
             apply_terms(&noise.terms(), &mut sim, &mut TermContext::new(2 * case as u64 + 1))?;
             let mut real = ideal.clone();

@@ -90,8 +90,8 @@ fn gamma_tail(d: usize, x: f64) -> f64 {
 /// The spectral lines a recording's motion carries, for telling a residual line that is a
 /// misfit of the motion (a gait harmonic) from an added one. Per sensor, the three channels'
 /// 4-term Blackman–Harris tapered periodograms (weighted mean removed) are summed; a line at
-/// f is a value at f's bin (± the main lobe's half-width in bins of the unpadded record)
-/// that stands out of the local continuum: the bins 8–40 record-bins away on each side,
+/// f is a local maximum within ± 2 padded bins of f's bin (not the flank of a line further
+/// away, whose tapered main lobe spans ± 4 record bins) that stands out of the local continuum: the bins 8–40 record-bins away on each side,
 /// whose median scales the Gamma(3, 1) null (median 2.674) of a locally flat spectrum. The
 /// taper's side lobes (−92 dB) keep a strong line or the low-frequency motion from leaking
 /// into its neighbours; a broadband motion (random impacts) is a continuum, not a line.
@@ -147,7 +147,16 @@ impl MotionLines {
         self.spectra.iter().any(|p| {
             let len = p.len() as i64;
             let at = |j: i64| (0..len).contains(&j).then(|| p[j as usize]);
-            let peak = (k - lobe..=k + lobe).filter_map(at).fold(0.0, f64::max);
+            // The sim's own peak must sit within the window: the flank of a line a few bins
+            // away (the taper's main lobe is ±4 record bins wide) is not a line at f.
+            let Some(j) = (k - lobe..=k + lobe).filter(|j| at(*j).is_some()).max_by(|a, b| p[*a as usize].total_cmp(&p[*b as usize]))
+            else {
+                return false;
+            };
+            let peak = p[j as usize];
+            if at(j - 1).is_some_and(|v| v > peak) || at(j + 1).is_some_and(|v| v > peak) || j == k - lobe || j == k + lobe {
+                return false;
+            }
             let mut around: Vec<f64> = (k - far..=k - near).chain(k + near..=k + far).filter_map(at).collect();
             if around.len() < 16 {
                 return false;
@@ -158,7 +167,9 @@ impl MotionLines {
                 return peak > 0.0;
             }
             let tests = (2 * lobe + 1) as f64 / self.pad as f64;
-            gamma_tail(3, peak / (median / 2.674)) * tests < self.alpha
+            let line = gamma_tail(3, peak / (median / 2.674)) * tests < self.alpha;
+            tracing::trace!("motion line test at {f:.4} Hz: peak / continuum median {:.3e}, line {line}", peak / median);
+            line
         })
     }
 }
@@ -250,6 +261,10 @@ mod tests {
         for f in [3.0, 11.1, 26.9, 37.3] {
             assert!(!ml.carries(f), "no line between the harmonics at {f} Hz");
         }
+        // Half a record bin (0.01 Hz) off a harmonic is on it; four bins off is on the flank
+        // of its tapered main lobe, not a line.
+        assert!(ml.carries(10.005) && ml.carries(25.995));
+        assert!(!ml.carries(10.04) && !ml.carries(25.96));
         for f in [2.0, 10.0, 13.7, 26.0, 41.3] {
             assert!(!mc.carries(f), "random impacts are a continuum, no line at {f} Hz");
             assert!(!mn.carries(f), "white noise carries no line at {f} Hz");
