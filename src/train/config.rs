@@ -366,6 +366,18 @@ impl TrainConfig {
             return Err("window counts must be ≥ 1".into());
         }
         let loss = &self.train.loss;
+        if loss.increments.is_empty() || loss.increments.iter().any(|i| i.samples < 1 || !non_negative(i.weight)) {
+            return Err("train.loss.increments: at least one, each with samples ≥ 1 and a finite weight ≥ 0".into());
+        }
+        if loss.skip_first_samples < 0 || loss.skip_first_increments < 0 {
+            return Err(format!(
+                "train.loss.skip_first_samples ({}) and skip_first_increments ({}) must be ≥ 0",
+                loss.skip_first_samples, loss.skip_first_increments
+            ));
+        }
+        if !positive(loss.huber_delta_rad) || !positive(loss.scale) || !non_negative(loss.gamma) {
+            return Err("train.loss: huber_delta_rad and scale must be > 0, gamma ≥ 0".into());
+        }
         let min_window = loss.increments.iter().map(|i| i.samples * (loss.skipped_increments(i.samples) + 1)).max().unwrap_or(1) as usize;
         for (what, w) in [
             ("train.window_samples", t.window_samples),
@@ -432,5 +444,22 @@ mod tests {
         assert!(TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3, bogus: 1}\n").is_err());
         let both = TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a, bag: b}]}\ntrain: {epochs: 3}\n").unwrap();
         assert!(both.validate().unwrap_err().contains("exactly one"));
+    }
+
+    #[test]
+    fn bad_loss_settings_are_refused() {
+        let with = |loss: &str| {
+            TrainConfig::parse(&format!("model: {{}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 3, loss: {loss}}}\n"))
+                .unwrap()
+                .validate()
+        };
+        assert!(with("{skip_first_samples: 517}").is_ok());
+        assert!(with("{skip_first_samples: -1}").unwrap_err().contains("skip_first_samples"));
+        assert!(with("{skip_first_increments: -2}").unwrap_err().contains("skip_first_increments"));
+        assert!(with("{increments: []}").unwrap_err().contains("increments"));
+        assert!(with("{increments: [{samples: 0, weight: 1.0}]}").unwrap_err().contains("increments"));
+        assert!(with("{increments: [{samples: 16, weight: -1.0}]}").unwrap_err().contains("increments"));
+        assert!(with("{huber_delta_rad: 0.0}").unwrap_err().contains("huber_delta_rad"));
+        assert!(with("{gamma: -1.0}").unwrap_err().contains("gamma"));
     }
 }
