@@ -49,8 +49,12 @@ pub struct LossConfig {
     /// windows, but a 3000-sample window would otherwise score 17 % of its samples on
     /// outputs the deployed streaming model never produces.
     pub skip_first_samples: i64,
-    /// γ in `L = L^R + γ L^D`.
+    /// γ in `L = w_R L^R + γ L^D`.
     pub gamma: f64,
+    /// w_R in `L = w_R L^R + γ L^D` (the paper: 1). Unlike γ it leaves the orientation
+    /// loss's scale, and so its balance against weight decay, unchanged; 0 trains the
+    /// Embedding for the denoising alone (an ablation of the Restructor).
+    pub reconstruction_weight: f64,
     /// Run the SO(3) part in f64 (as DIGDL does) whatever the network's kind.
     pub so3_f64: bool,
 }
@@ -64,6 +68,7 @@ impl Default for LossConfig {
             skip_first_increments: 5,
             skip_first_samples: 0,
             gamma: 1.0,
+            reconstruction_weight: 1.0,
             so3_f64: true,
         }
     }
@@ -145,12 +150,12 @@ pub fn increment_loss(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attit
     total.to_kind(gyro_hat.kind())
 }
 
-/// `L = L^R + γ L^D` from a forward's output.
+/// `L = w_R L^R + γ L^D` from a forward's output.
 pub fn total_loss(cfg: &LossConfig, out: &NetOutput, dt: &Tensor, gt_attitude: &Tensor, gt_valid: Option<&Tensor>) -> LossTerms {
     let increment = increment_loss(cfg, &out.gyro, dt, gt_attitude, gt_valid);
     let reconstruction = out.reconstruction.as_ref().map(|r| reconstruction_loss(r, &out.input_normalised));
     let total = match &reconstruction {
-        Some(r) => r + &increment * cfg.gamma,
+        Some(r) => r * cfg.reconstruction_weight + &increment * cfg.gamma,
         None => &increment * cfg.gamma,
     };
     LossTerms { total, reconstruction, increment }
@@ -287,5 +292,27 @@ mod tests {
         let cfg = LossConfig::default();
         assert_eq!(cfg.increments, [IncrementTerm { samples: 16, weight: 1.0 }, IncrementTerm { samples: 32, weight: 0.5 }]);
         assert_eq!((cfg.huber_delta_rad, cfg.scale, cfg.skip_first_increments), (0.005, 1e6, 5));
+    }
+
+    /// `L = w_R L^R + γ L^D`: each weight scales its own term only.
+    #[test]
+    fn total_weights_each_term() {
+        tch::manual_seed(5);
+        let omega = Tensor::randn([1, 41, 3], F64);
+        let dt = Tensor::rand([1, 41], F64) * 0.002 + 0.004;
+        let gt = integrate(&omega, &dt);
+        let input = Tensor::randn([1, 41, 6], F64);
+        let out = NetOutput { gyro: &omega + 0.01, reconstruction: Some(&input + 0.1), input_normalised: input, embedding: None };
+        let total = |w_r: f64, gamma: f64| {
+            let cfg = LossConfig { reconstruction_weight: w_r, gamma, ..small_cfg() };
+            total_loss(&cfg, &out, &dt, &gt, None)
+        };
+        let base = total(1.0, 1.0);
+        let (r, d) = (base.reconstruction.as_ref().unwrap().double_value(&[]), base.increment.double_value(&[]));
+        assert!((r - 0.01).abs() < 1e-12 && d > 0.0);
+        for (w_r, gamma) in [(0.0, 1.0), (0.25, 3.0), (2.0, 0.0)] {
+            let t = total(w_r, gamma).total.double_value(&[]);
+            assert!((t - (w_r * r + gamma * d)).abs() < 1e-9 * (1.0 + t.abs()), "w_R {w_r} γ {gamma}: {t}");
+        }
     }
 }

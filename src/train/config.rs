@@ -375,8 +375,12 @@ impl TrainConfig {
                 loss.skip_first_samples, loss.skip_first_increments
             ));
         }
-        if !positive(loss.huber_delta_rad) || !positive(loss.scale) || !non_negative(loss.gamma) {
-            return Err("train.loss: huber_delta_rad and scale must be > 0, gamma ≥ 0".into());
+        if !positive(loss.huber_delta_rad)
+            || !positive(loss.scale)
+            || !non_negative(loss.gamma)
+            || !non_negative(loss.reconstruction_weight)
+        {
+            return Err("train.loss: huber_delta_rad and scale must be > 0, gamma and reconstruction_weight ≥ 0".into());
         }
         let min_window = loss.increments.iter().map(|i| i.samples * (loss.skipped_increments(i.samples) + 1)).max().unwrap_or(1) as usize;
         for (what, w) in [
@@ -461,5 +465,6 @@ mod tests {
         assert!(with("{increments: [{samples: 16, weight: -1.0}]}").unwrap_err().contains("increments"));
         assert!(with("{huber_delta_rad: 0.0}").unwrap_err().contains("huber_delta_rad"));
         assert!(with("{gamma: -1.0}").unwrap_err().contains("gamma"));
+        assert!(with("{reconstruction_weight: -0.5}").unwrap_err().contains("reconstruction_weight"));
     }
 }
