@@ -170,6 +170,14 @@ pub struct MamlConfig {
     /// statistics are that one task's (a domain's constant features are normalised away in
     /// training but not at test time).
     pub batch_tasks: bool,
+    /// λ: weight of the query loss at the meta weights θ_e themselves (before the inner
+    /// step), added to the outer loss. The deployed model is θ_e, not a task's θ_e', so this
+    /// trains what is shipped as well as its adaptability (0: the paper's outer loss only).
+    pub unadapted_query_weight: f64,
+    /// λ_s: the same for the support windows (the first `support_seconds` of each task, which
+    /// the paper's outer loss never scores; the shipped model runs over them too). Free: it
+    /// reuses the inner step's forward at θ_e.
+    pub unadapted_support_weight: f64,
 }
 
 impl Default for MamlConfig {
@@ -183,6 +191,8 @@ impl Default for MamlConfig {
             query_windows: 1,
             query_window_samples: 4000,
             batch_tasks: false,
+            unadapted_query_weight: 0.0,
+            unadapted_support_weight: 0.0,
         }
     }
 }
@@ -400,6 +410,9 @@ impl TrainConfig {
         if !non_negative(t.maml.inner_lr) || t.maml.inner_steps == 0 {
             return Err("train.maml.inner_lr must be ≥ 0 and inner_steps ≥ 1".into());
         }
+        if !non_negative(t.maml.unadapted_query_weight) || !non_negative(t.maml.unadapted_support_weight) {
+            return Err("train.maml.unadapted_query_weight and unadapted_support_weight must be ≥ 0".into());
+        }
         if !(0.0..1.0).contains(&t.ema_decay) {
             return Err(format!("train.ema_decay must be in [0, 1), got {}", t.ema_decay));
         }
@@ -466,5 +479,13 @@ mod tests {
         assert!(with("{huber_delta_rad: 0.0}").unwrap_err().contains("huber_delta_rad"));
         assert!(with("{gamma: -1.0}").unwrap_err().contains("gamma"));
         assert!(with("{reconstruction_weight: -0.5}").unwrap_err().contains("reconstruction_weight"));
+        let maml = |m: &str| {
+            TrainConfig::parse(&format!("model: {{}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 3, maml: {m}}}\n"))
+                .unwrap()
+                .validate()
+        };
+        assert!(maml("{unadapted_query_weight: 1.0}").is_ok());
+        assert!(maml("{unadapted_query_weight: -1.0}").unwrap_err().contains("unadapted_query_weight"));
+        assert!(maml("{unadapted_support_weight: -1.0}").unwrap_err().contains("unadapted_support_weight"));
     }
 }

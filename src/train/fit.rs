@@ -169,20 +169,32 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
         let q = data::sample_windows(&[task], |x| (x.support_end, x.len()), m.query_windows, m.query_window_samples, rng);
         let mut fast: Vec<Tensor> = theta.iter().map(Tensor::shallow_clone).collect();
         let su = augment(&s.imu, &t.augment);
+        let mut support_at_meta: Option<Tensor> = None;
         for k in 0..m.inner_steps {
             let out = net.forward_with(&su, &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast) });
             let l = total_loss(&t.loss, &out, &s.dt, &s.gt, Some(&s.valid)).total;
             if k == 0 {
                 sup += scalar(&l) / n;
+                if m.unadapted_support_weight > 0.0 {
+                    support_at_meta = Some(&l * (m.unadapted_support_weight / n));
+                }
             }
             let second = !m.first_order;
-            let grads = Tensor::run_backward(&[&l], &fast, second, second);
+            let keep = second || (k == 0 && support_at_meta.is_some());
+            let grads = Tensor::run_backward(&[&l], &fast, keep, second);
             fast = fast.iter().zip(&grads).map(|(p, g)| if second { p - g * m.inner_lr } else { p - g.detach() * m.inner_lr }).collect();
         }
         let qu = augment(&q.imu, &t.augment);
         let out = net.forward_with(&qu, &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast) });
         let terms = total_loss(&t.loss, &out, &q.dt, &q.gt, Some(&q.valid));
-        (&terms.total / n).backward();
+        let mut parts = vec![&terms.total / n];
+        if m.unadapted_query_weight > 0.0 {
+            // The shipped model: the query through the meta weights θ_e.
+            let out0 = net.forward_with(&qu, &ForwardOptions { train: true, reconstruct: true, embedding_params: None });
+            parts.push(total_loss(&t.loss, &out0, &q.dt, &q.gt, Some(&q.valid)).total * (m.unadapted_query_weight / n));
+        }
+        parts.extend(support_at_meta);
+        parts.into_iter().reduce(|a, b| a + b).expect("the query loss").backward();
         loss += scalar(&terms.total) / n;
         inc += scalar(&terms.increment) / n;
         rec += terms.reconstruction.as_ref().map_or(0.0, scalar) / n;
@@ -376,16 +388,23 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
     let su = augment(&s.imu, &t.augment);
     let sper = m.support_windows as i64;
     let mut sup = 0.0;
+    // λ_s · Σ w_i L_support,i(θ_e): the support windows through the shipped weights.
+    let mut support_at_meta: Option<Tensor> = None;
     for k in 0..m.inner_steps {
         let out = forward(&su, sper, &fast);
         let ls = task_losses(&out, &s, sper);
         if k == 0 {
             sup = ls.iter().zip(&weights).map(|(l, w)| scalar(&l.total) * w).sum();
+            if m.unadapted_support_weight > 0.0 {
+                let l0 = ls.iter().zip(&weights).map(|(l, w)| &l.total * *w).reduce(|a, b| a + b).expect("≥ 1 task");
+                support_at_meta = Some(l0 * m.unadapted_support_weight);
+            }
         }
         let sum = ls.iter().map(|l| l.total.shallow_clone()).reduce(|a, b| a + b).expect("≥ 1 task");
         let flat: Vec<Tensor> = fast.iter().flatten().map(Tensor::shallow_clone).collect();
         let second = !m.first_order;
-        let grads = Tensor::run_backward(&[&sum], &flat, second, second);
+        let keep = second || (k == 0 && support_at_meta.is_some());
+        let grads = Tensor::run_backward(&[&sum], &flat, keep, second);
         let p = theta.len();
         fast = (0..n)
             .map(|i| {
@@ -407,7 +426,16 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
     let out = forward(&qu, qper, &fast);
     let ls = task_losses(&out, &q, qper);
     let outer = ls.iter().zip(&weights).map(|(l, w)| &l.total * *w).reduce(|a, b| a + b).expect("≥ 1 task");
-    outer.backward();
+    let mut parts = vec![outer.shallow_clone()];
+    if m.unadapted_query_weight > 0.0 {
+        // The shipped model: every task through the meta weights θ_e.
+        let meta: Vec<Vec<Tensor>> = (0..n).map(|_| theta.iter().map(Tensor::shallow_clone).collect()).collect();
+        let out0 = forward(&qu, qper, &meta);
+        let l0 = task_losses(&out0, &q, qper).iter().zip(&weights).map(|(l, w)| &l.total * *w).reduce(|a, b| a + b).expect("≥ 1 task");
+        parts.push(l0 * m.unadapted_query_weight);
+    }
+    parts.extend(support_at_meta);
+    parts.into_iter().reduce(|a, b| a + b).expect("the query loss").backward();
     let wsum = |f: &dyn Fn(&crate::model::loss::LossTerms) -> f64| ls.iter().zip(&weights).map(|(l, w)| f(l) * w).sum::<f64>();
     StepLosses {
         loss: scalar(&outer),
@@ -850,5 +878,72 @@ mod tests {
         assert!((w[..6].iter().sum::<f64>() - 0.5).abs() < 1e-12 && (w[6..].iter().sum::<f64>() - 0.5).abs() < 1e-12);
         let u = domain_weights(&d, TaskWeighting::Uniform);
         assert!(u.iter().all(|x| (x - 1.0 / 9.0).abs() < 1e-12));
+    }
+
+    /// A 200 Hz task turning about z at 0.3 rad/s, its gyro biased; ground truth at every
+    /// sample, the query set's masked (so the outer loss's L^D sees nothing).
+    fn turning_task(support_seconds: f64) -> Task {
+        use crate::core::{ImuSample, PoseSample, Recording};
+        use nalgebra::{UnitQuaternion, Vector3};
+        let n = 4000;
+        let stamp = |i: usize| i as i64 * 5_000_000;
+        let imu = (0..n)
+            .map(|i| ImuSample { stamp_ns: stamp(i), gyro: Vector3::new(0.01, -0.02, 0.3 + 0.05), accel: Vector3::new(0.0, 0.0, 9.81) })
+            .collect();
+        let ground_truth = (0..n)
+            .map(|i| PoseSample {
+                stamp_ns: stamp(i),
+                position_in_world: Vector3::zeros(),
+                world_from_body: UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3 * i as f64 * 0.005),
+            })
+            .collect();
+        let rec = Recording { name: "turn".into(), imu, ground_truth, temperature: vec![] };
+        let src = crate::train::config::SourceConfig { sequence: Some("sim/turn".into()), ..Default::default() };
+        let dcfg = crate::train::config::DatasetConfig {
+            root: ".".into(),
+            train: vec![],
+            validation: vec![],
+            test: vec![],
+            support_seconds,
+            max_interpolation_gap_ms: 50.0,
+            max_nearest_gt_ms: 10.0,
+        };
+        let task = data::task_from_recording(rec, &src, &dcfg, Some(support_seconds)).unwrap();
+        let _ = task.valid.narrow(0, task.support_end as i64, (task.len() - task.support_end) as i64).fill_(0.0);
+        task
+    }
+
+    #[test]
+    fn support_windows_are_scored_at_the_meta_weights_only_when_asked() {
+        let generator_grad = |weight: f64| {
+            let text = format!(
+                "model: {{mode: fsda_f}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 1, loss: {{skip_first_samples: 0}}, \
+                 maml: {{first_order: true, batch_tasks: true, support_window_samples: 700, query_window_samples: 700, unadapted_support_weight: {weight}}}}}\n"
+            );
+            let cfg = TrainConfig::parse(&text).unwrap();
+            cfg.validate().unwrap();
+            let tasks = vec![turning_task(10.0)];
+            let vs = VarStore::new(tch::Device::Cpu);
+            let net = Net::new(&cfg.model, &vs.root()).unwrap();
+            let heads = Heads::new(&vs, &net).unwrap();
+            let mut rng = ChaCha8Rng::seed_from_u64(3);
+            maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng);
+            vs.variables()
+                .iter()
+                .filter(|(k, _)| k.starts_with("generator."))
+                .map(|(_, v)| {
+                    let g = v.grad();
+                    if g.defined() {
+                        g.abs().sum(tch::Kind::Double).double_value(&[])
+                    } else {
+                        0.0
+                    }
+                })
+                .sum::<f64>()
+        };
+        // Without λ_s the Generator learns from the query set alone (masked here); with it, the
+        // support windows' denoising loss at θ_e reaches it.
+        assert_eq!(generator_grad(0.0), 0.0);
+        assert!(generator_grad(1.0) > 0.0);
     }
 }
