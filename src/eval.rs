@@ -113,6 +113,32 @@ pub fn evaluate_with_path(
     Ok((errors, OrientationPath { start, estimate, ground_truth: gt.to_vec() }))
 }
 
+/// The constant that, subtracted from `gyro`, best fits the ground truth's angular velocity
+/// in the least-squares sense: the mean over consecutive covered sample pairs of
+/// `gyro_n − Log(R_gt,nᵀ R_gt,n+1)/dt_n` (never across a ground-truth gap). It reads the
+/// ground truth of the whole span, so `gyro − mean_rate_error` is a bound (what a perfectly
+/// calibrated constant bias would give), not a method.
+pub fn mean_rate_error(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOptions) -> Result<Vector3<f64>, EvalError> {
+    if gyro.len() != rec.imu.len() {
+        return Err(EvalError::Length { name: rec.name.clone(), got: gyro.len(), expected: rec.imu.len() });
+    }
+    let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), opts.max_gap_ns);
+    let (mut sum, mut n) = (Vector3::zeros(), 0usize);
+    for k in 0..rec.imu.len().saturating_sub(1) {
+        if let (Some(a), Some(b)) = (gt[k], gt[k + 1]) {
+            let dt = (rec.imu[k + 1].stamp_ns - rec.imu[k].stamp_ns) as f64 * 1e-9;
+            if dt > 0.0 {
+                sum += gyro[k] - log(&(a.inverse() * b)) / dt;
+                n += 1;
+            }
+        }
+    }
+    if n == 0 {
+        return Err(EvalError::NoGroundTruth(rec.name.clone()));
+    }
+    Ok(sum / n as f64)
+}
+
 #[derive(Default)]
 struct ErrorAccumulator {
     n: usize,
@@ -331,6 +357,20 @@ mod tests {
         assert!((biased.final_error_deg - (0.1f64).to_degrees()).abs() < 1e-6);
         // Heading only: tilt error is zero.
         assert!(biased.tilt_rmse_deg < 1e-9 && (biased.heading_rmse_deg - expected).abs() / expected < 1e-3);
+    }
+
+    #[test]
+    fn the_oracle_bias_is_the_constant_rate_error() {
+        let w = Vector3::new(0.3, -0.1, 0.5);
+        let mut rec = spinning(2001, 200.0, w);
+        rec.ground_truth.retain(|p| !(p.stamp_ns > 2_000_000_000 && p.stamp_ns < 4_000_000_000));
+        let b = Vector3::new(0.01, -0.02, 0.003);
+        let got = mean_rate_error(&rec, &vec![w + b; rec.imu.len()], &EvalOptions::default()).unwrap();
+        assert!((got - b).norm() < 1e-9, "{got:?}");
+        let fixed: Vec<_> = vec![w; rec.imu.len()];
+        assert!(evaluate(&rec, &fixed, &EvalOptions::default()).unwrap().aoe_deg < 1e-6);
+        rec.ground_truth.clear();
+        assert!(mean_rate_error(&rec, &fixed, &EvalOptions::default()).is_err());
     }
 
     #[test]

@@ -95,6 +95,29 @@ fn static_bias_baseline_beats_raw_on_euroc_v1_03() {
 }
 
 #[test]
+fn oracle_bias_bound_matches_independent_computation() {
+    let (Some(data), Some(py)) = (shared_data(), python()) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("v202.mcap");
+    let seq = data.join("euroc/V2_02_medium");
+    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag));
+    let json = dir.path().join("o.json");
+    run(Command::new(bin()).args(["eval", "--method", "raw", "--oracle-bias", "--json"]).arg(&json).arg(&bag));
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+    let (raw, ours) = (&v["rows"][0], &v["rows"][1]);
+    assert_eq!(ours["method"], "raw − oracle bias", "{v}");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/independent_eval.py");
+    let theirs: serde_json::Value = serde_json::from_str(&run(Command::new(py).arg(script).arg(&seq).arg("--oracle-bias"))).unwrap();
+    let (a, b) = (ours["aoe_deg"].as_f64().unwrap(), theirs["aoe_deg"].as_f64().unwrap());
+    assert!((a - b).abs() <= 1e-3 * b.max(1.0), "oracle AOE: ours {a} independent {b}");
+    // The ADIS16448's uncalibrated bias is most of the raw error: the bound is far below raw.
+    assert!(a < raw["aoe_deg"].as_f64().unwrap() / 20.0, "{v}");
+    let bias = theirs["bias"].as_array().unwrap();
+    let note = ours["note"].as_str().unwrap();
+    assert!(note.contains(&format!("{:.5}", bias[2].as_f64().unwrap())), "{note} vs {bias:?}");
+}
+
+#[test]
 fn import_errors_name_the_problem() {
     let dir = tempfile::tempdir().unwrap();
     let out = Command::new(bin()).arg("import").arg(dir.path()).arg("-o").arg(dir.path().join("x.mcap")).output().unwrap();

@@ -4,8 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
-use imu_fsda::eval::{evaluate_with_path, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector};
+use imu_fsda::eval::{evaluate_with_path, mean_rate_error, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector};
 use imu_fsda::model::predict::correct_with_torchscript;
+use nalgebra::Vector3;
 
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
@@ -36,6 +37,12 @@ pub struct EvalArgs {
     /// Score only up to this many seconds after the first IMU sample covered by ground truth.
     #[arg(long)]
     pub end_s: Option<f64>,
+    /// Also score every method and model with its own constant error removed (`M − oracle
+    /// bias`): the mean of its rate error against the ground truth over the scored span.
+    /// It reads the ground truth, so it is a bound (what the best constant calibration on top
+    /// of that method would reach), not a method.
+    #[arg(long)]
+    pub oracle_bias: bool,
     /// Also write the table as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -47,6 +54,9 @@ pub struct EvalArgs {
     #[arg(long)]
     pub plot_dir: Option<PathBuf>,
 }
+
+/// A method's corrected gyro and note, or why it has none.
+type Stream = Result<(Vec<Vector3<f64>>, String), String>;
 
 /// One row of the table.
 #[derive(Debug, serde::Serialize)]
@@ -94,37 +104,50 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 paths.push((name.to_string(), path));
             }
         };
+        // Every method's and model's gyro stream (or why it has none), then one scoring loop.
+        let mut streams: Vec<(String, Stream)> = Vec::new();
         for &m in &methods {
-            let row = match m.apply(&rec, &detector).and_then(|(g, note)| Ok((evaluate_with_path(&rec, &g, &opts)?, note))) {
-                Ok(((e, path), mut note)) => {
-                    keep(m.name(), path);
-                    if report.skipped() > 0 {
-                        note = format!("{note}{}skipped {} input samples", if note.is_empty() { "" } else { "; " }, report.skipped());
-                    }
-                    Row { bag: name.clone(), method: m.name().into(), errors: Some(e), note }
-                }
-                Err(imu_fsda::eval::EvalError::Method { why, .. }) => {
-                    Row { bag: name.clone(), method: m.name().into(), errors: None, note: why }
-                }
-                Err(e) => Row { bag: name.clone(), method: m.name().into(), errors: None, note: e.to_string() },
+            let got = match m.apply(&rec, &detector) {
+                Ok(g) => Ok(g),
+                Err(imu_fsda::eval::EvalError::Method { why, .. }) => Err(why),
+                Err(e) => Err(e.to_string()),
             };
-            rows.push(row);
+            streams.push((m.name().into(), got));
         }
         for model in &args.models {
             let (gyro, meta) = correct_with_torchscript(model, &rec.imu).with_context(|| format!("model {}", model.display()))?;
-            let row = match evaluate_with_path(&rec, &gyro, &opts) {
-                Ok((e, path)) => {
-                    keep(&meta.name, path);
-                    Row {
-                        bag: name.clone(),
-                        method: meta.name.clone(),
-                        errors: Some(e),
-                        note: format!("{:?}, N = {}", meta.mode, meta.window_n),
-                    }
+            streams.push((meta.name.clone(), Ok((gyro, format!("{:?}, N = {}", meta.mode, meta.window_n)))));
+        }
+        for (method, got) in streams {
+            let (gyro, note) = match got {
+                Ok(g) => g,
+                Err(why) => {
+                    rows.push(Row { bag: name.clone(), method, errors: None, note: why });
+                    continue;
                 }
-                Err(e) => Row { bag: name.clone(), method: meta.name.clone(), errors: None, note: e.to_string() },
             };
-            rows.push(row);
+            let note = if report.skipped() > 0 {
+                format!("{note}{}skipped {} input samples", if note.is_empty() { "" } else { "; " }, report.skipped())
+            } else {
+                note
+            };
+            match evaluate_with_path(&rec, &gyro, &opts) {
+                Ok((e, path)) => {
+                    keep(&method, path);
+                    rows.push(Row { bag: name.clone(), method: method.clone(), errors: Some(e), note });
+                }
+                Err(e) => rows.push(Row { bag: name.clone(), method: method.clone(), errors: None, note: e.to_string() }),
+            }
+            if args.oracle_bias {
+                let bound = format!("{method} − oracle bias");
+                let row = mean_rate_error(&rec, &gyro, &opts).and_then(|b| {
+                    let fixed: Vec<Vector3<f64>> = gyro.iter().map(|g| g - b).collect();
+                    let (e, _) = evaluate_with_path(&rec, &fixed, &opts)?;
+                    let note = format!("bound, reads the ground truth: constant [{:.5}, {:.5}, {:.5}] rad/s removed", b.x, b.y, b.z);
+                    Ok(Row { bag: name.clone(), method: bound.clone(), errors: Some(e), note })
+                });
+                rows.push(row.unwrap_or_else(|e| Row { bag: name.clone(), method: bound, errors: None, note: e.to_string() }));
+            }
         }
         if let Some(dir) = &args.plot_dir {
             if paths.is_empty() {

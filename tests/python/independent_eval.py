@@ -2,7 +2,8 @@
 
 Written apart from the Rust code (numpy, rotation matrices instead of quaternions for the
 integration) so that `imu-fsda import` + `imu-fsda eval` can be checked against it.
-Usage: independent_eval.py SEQUENCE_DIR [--bias bx by bz]  → JSON on stdout.
+Usage: independent_eval.py SEQUENCE_DIR [--bias bx by bz | --oracle-bias]  → JSON on stdout.
+--oracle-bias removes the mean of (gyro − ground-truth rate) over consecutive covered samples.
 """
 import argparse
 import json
@@ -53,6 +54,12 @@ def slerp_mat(Ra, Rb, s):
     return Ra @ rodrigues(axis * th * s)
 
 
+def log_mat(D):
+    th = angle(D)
+    v = np.array([D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]]) / 2
+    return v if th < 1e-9 else v * th / np.sin(th)
+
+
 def zyx(R):
     return np.array([np.arctan2(R[2, 1], R[2, 2]), np.arcsin(np.clip(-R[2, 0], -1, 1)), np.arctan2(R[1, 0], R[0, 0])])
 
@@ -61,6 +68,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("seq")
     ap.add_argument("--bias", nargs=3, type=float, default=[0.0, 0.0, 0.0])
+    ap.add_argument("--oracle-bias", action="store_true")
     ap.add_argument("--max-gap-ms", type=float, default=50.0)
     a = ap.parse_args()
     import os
@@ -70,7 +78,6 @@ def main():
         gt_path = os.path.join(mav0, "mocap0", "data.csv")
     t_imu, imu = load(os.path.join(mav0, "imu0", "data.csv"), ["w_RS_S_x", "w_RS_S_y", "w_RS_S_z"])
     t_gt, q = load(gt_path, ["q_RS_w", "q_RS_x", "q_RS_y", "q_RS_z"])
-    gyro = imu - np.array(a.bias)
     max_gap = int(a.max_gap_ms * 1e6)
     # ground truth at each IMU stamp, or None inside a gap / outside the span
     j = np.searchsorted(t_gt, t_imu, side="right") - 1
@@ -86,6 +93,12 @@ def main():
             gt.append(slerp_mat(quat_to_mat(q[jj]), quat_to_mat(q[jj + 1]), s))
         else:
             gt.append(None)
+    bias = np.array(a.bias)
+    if a.oracle_bias:
+        errs = [imu[k] - log_mat(gt[k].T @ gt[k + 1]) / ((t_imu[k + 1] - t_imu[k]) * 1e-9)
+                for k in range(len(t_imu) - 1) if gt[k] is not None and gt[k + 1] is not None]
+        bias = np.mean(errs, axis=0)
+    gyro = imu - bias
     start = next(k for k, g in enumerate(gt) if g is not None)
     R = gt[start].copy()
     sq, sq_e, n = 0.0, np.zeros(3), 0
@@ -103,7 +116,7 @@ def main():
             u, _, vt = np.linalg.svd(R)
             R = u @ vt
     rms = lambda s: float(np.degrees(np.sqrt(s / n)))
-    json.dump({"aoe_deg": rms(sq), "roll_rmse_deg": rms(sq_e[0]), "pitch_rmse_deg": rms(sq_e[1]), "yaw_rmse_deg": rms(sq_e[2]), "evaluated_samples": n}, sys.stdout)
+    json.dump({"aoe_deg": rms(sq), "roll_rmse_deg": rms(sq_e[0]), "pitch_rmse_deg": rms(sq_e[1]), "yaw_rmse_deg": rms(sq_e[2]), "evaluated_samples": n, "bias": bias.tolist()}, sys.stdout)
 
 
 if __name__ == "__main__":
