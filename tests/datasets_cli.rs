@@ -110,7 +110,7 @@ fn oracle_bias_bound_matches_independent_computation() {
     let theirs: serde_json::Value = serde_json::from_str(&run(Command::new(py).arg(script).arg(&seq).arg("--oracle-bias"))).unwrap();
     let (a, b) = (ours["aoe_deg"].as_f64().unwrap(), theirs["aoe_deg"].as_f64().unwrap());
     assert!((a - b).abs() <= 1e-3 * b.max(1.0), "oracle AOE: ours {a} independent {b}");
-    // The ADIS16448's uncalibrated bias is most of the raw error: the bound is far below raw.
+    // The ADIS16448's uncalibrated bias is most of the raw error: the oracle is far below raw.
     assert!(a < raw["aoe_deg"].as_f64().unwrap() / 20.0, "{v}");
     let bias = theirs["bias"].as_array().unwrap();
     let note = ours["note"].as_str().unwrap();

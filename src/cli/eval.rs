@@ -38,9 +38,10 @@ pub struct EvalArgs {
     #[arg(long)]
     pub end_s: Option<f64>,
     /// Also score every method and model with its own constant error removed (`M − oracle
-    /// bias`): the mean of its rate error against the ground truth over the scored span.
-    /// It reads the ground truth, so it is a bound (what the best constant calibration on top
-    /// of that method would reach), not a method.
+    /// bias`): the mean of its rate error against the ground truth's rate over the scored
+    /// span (pairs of samples inside a ground-truth gap left out). It reads the ground truth,
+    /// so it is an oracle reference — what a constant calibration fitted to that very
+    /// recording gives — not a method; least squares on the rate, not the AOE-optimal constant.
     #[arg(long)]
     pub oracle_bias: bool,
     /// Also write the table as JSON here.
@@ -143,7 +144,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 let row = mean_rate_error(&rec, &gyro, &opts).and_then(|b| {
                     let fixed: Vec<Vector3<f64>> = gyro.iter().map(|g| g - b).collect();
                     let (e, _) = evaluate_with_path(&rec, &fixed, &opts)?;
-                    let note = format!("bound, reads the ground truth: constant [{:.5}, {:.5}, {:.5}] rad/s removed", b.x, b.y, b.z);
+                    let note = format!("oracle, reads the ground truth: constant [{:.5}, {:.5}, {:.5}] rad/s removed", b.x, b.y, b.z);
                     Ok(Row { bag: name.clone(), method: bound.clone(), errors: Some(e), note })
                 });
                 rows.push(row.unwrap_or_else(|e| Row { bag: name.clone(), method: bound, errors: None, note: e.to_string() }));
