@@ -629,3 +629,63 @@ pub fn terms_of(sel: &Selection) -> Vec<(Term, Vec<f64>)> {
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::residual::ChannelNoise;
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    /// A gyro bias k (T − 30 °C) on a warming die. Entered beside a constant bias, the
+    /// temperature term's T_ref is arbitrary (here 0 °C); re-fitted without the bias it
+    /// comes back to the true reference, so the bias is judged against the nested model.
+    #[test]
+    fn reference_temperature_is_refitted_without_the_bias() {
+        let n = 20_000;
+        let dt = 0.01;
+        let temp: Vec<f64> = (0..n).map(|i| 20.0 + 20.0 * (1.0 - (-(i as f64 * dt) / 60.0).exp())).collect();
+        let base = ImuSignals {
+            stamps_ns: (0..n as i64).map(|i| i * 10_000_000).collect(),
+            world_from_imu: vec![UnitQuaternion::identity(); n],
+            alpha_in_imu: vec![Vector3::zeros(); n],
+            temperature_c: temp.clone(),
+            gyro: (0..n).map(|i| Vector3::new((i as f64 * 0.01).sin(), 0.2, 0.0)).collect(),
+            accel: vec![Vector3::new(0.0, 0.0, 9.81); n],
+        };
+        let cat = Catalogue::build(&base, true, Some(20.0)).unwrap();
+        let k = [3e-4, -2e-4, 5e-4];
+        let mut s = 7u64;
+        let mut noise = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 1e-3
+        };
+        let y: [Vec<f64>; 6] =
+            std::array::from_fn(|c| (0..n).map(|i| if c < 3 { k[c] * (temp[i] - 30.0) + noise() } else { noise() }).collect());
+        let white = 1e-6 / 12.0;
+        let ch = ChannelNoise { white_sim: white / 2.0, white_real: white / 2.0, pole: 0.0, walk: white * 1e-9 };
+        let sim: [Vec<f64>; 6] = std::array::from_fn(|_| vec![0.0; n]);
+        let p = Problem {
+            y: y.clone(),
+            mask: vec![true; n],
+            base: &base,
+            catalogue: cat,
+            noise: NoiseModel { sensors: [ch, ch] },
+            stated: (white / 2.0, white / 2.0),
+            judge_noise_density: false,
+            temperature: Some((20.0, 40.0)),
+            opts: SelectOptions::default(),
+            sensors: super::super::Sensors::Both,
+            sim: &sim,
+            motion_lines: None,
+        };
+        let temp_cand = p.catalogue.candidate("gyro_bias_temperature").unwrap();
+        let mut m = vec![Chosen { cand: temp_cand, nonlinear: 0.0 }];
+        refit_reference(&p, &y, &mut m, &p.noise);
+        assert!((m[0].nonlinear - 30.0).abs() < 0.5, "T_ref {}", m[0].nonlinear);
+        // Without a temperature term nothing changes.
+        let bias = p.catalogue.candidate("gyro_bias").unwrap();
+        let mut only_bias = vec![Chosen { cand: bias, nonlinear: 0.0 }];
+        refit_reference(&p, &y, &mut only_bias, &p.noise);
+        assert_eq!(only_bias[0].nonlinear, 0.0);
+    }
+}
