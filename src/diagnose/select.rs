@@ -255,6 +255,35 @@ fn exchange(
     Ok(best.map(|b| b.1))
 }
 
+/// Re-fit the reference temperature of a temperature term in `m` (in place), by in-sample
+/// likelihood under `noise`. With a constant gyro bias beside it, k (T − T_ref) + b leaves
+/// T_ref unidentified (the bias takes the constant), so whatever T_ref the term entered with
+/// is arbitrary; the model without the bias must be judged at its own best T_ref — the bias
+/// is nested in the temperature term's offset −k T_ref only once T_ref is free.
+fn refit_reference(p: &Problem, y: &[Vec<f64>; 6], m: &mut [Chosen], noise: &NoiseModel) {
+    let Some(j) = m.iter().position(|c| p.catalogue.candidates[c.cand].name == "gyro_bias_temperature") else { return };
+    // Atoms of the model at a non-zero T_ref, so the bias atoms the reference acts through are in.
+    let mut probe = m.to_vec();
+    probe[j].nonlinear = 1.0;
+    let full = design(&p.catalogue, &probe);
+    let used: Vec<usize> = (0..full.nrows()).filter(|&r| full.row(r).iter().any(|v| *v != 0.0)).collect();
+    let cols: Vec<&Column> = used.iter().map(|&i| &p.catalogue.atoms[i].column).collect();
+    let stats = block_stats(y, &cols, noise, &p.mask, &blocks(y[0].len(), p.opts.folds));
+    let fixed = fixed_in_folds(&p.catalogue, m);
+    let ll = |t: f64| {
+        let mut mm = m.to_vec();
+        mm[j].nonlinear = t;
+        let a = design(&p.catalogue, &mm);
+        let ar = DMatrix::from_fn(used.len(), a.ncols(), |r, c| a[(used[r], c)]);
+        evaluate_fixed(&stats, &ar, &fixed).loglik
+    };
+    let (lo, hi) = p.temperature.unwrap_or((0.0, 50.0));
+    let (t, best) = golden(lo - 40.0, hi + 40.0, 30, ll);
+    if best > ll(m[j].nonlinear) {
+        m[j].nonlinear = t;
+    }
+}
+
 /// Golden-section maximisation of f on [lo, hi].
 pub fn golden(mut lo: f64, mut hi: f64, iters: usize, mut f: impl FnMut(f64) -> f64) -> (f64, f64) {
     let r = (5f64.sqrt() - 1.0) / 2.0;
@@ -524,10 +553,11 @@ pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
         // Backward: drop a chosen term whose removal costs less than its threshold; then
         // re-decide the rival explanations under the model as it now stands.
         for _ in 0..24 {
-            let mut worst: Option<(Option<usize>, usize, f64)> = None;
+            let mut worst: Option<(Option<Vec<Chosen>>, usize, f64)> = None;
             for k in 0..chosen.len() {
                 let mut m = chosen.clone();
                 let removed = m.remove(k);
+                refit_reference(&p, &y, &mut m, &noise);
                 let name = p.catalogue.candidates[removed.cand].name;
                 let params = p.catalogue.candidates[removed.cand].params;
                 let loss = if DRIFT_TERMS.contains(&name) {
@@ -537,8 +567,8 @@ pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
                 } else {
                     current.loglik_cv - fit_reduced(&p, &y, &m, &noise).loglik_cv
                 };
-                if loss < need(params, &p.opts) && worst.is_none_or(|w| loss < w.2) {
-                    worst = Some((Some(k), usize::MAX, loss));
+                if loss < need(params, &p.opts) && worst.as_ref().is_none_or(|w| loss < w.2) {
+                    worst = Some((Some(m), k, loss));
                 }
             }
             for j in 0..noise_terms.len() {
@@ -546,13 +576,17 @@ pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
                 terms.remove(j);
                 let (fit, _, _) = with_noise_terms(&p, &chosen, &terms)?;
                 let loss = current.loglik_cv - fit.loglik_cv;
-                if loss < need(1, &p.opts) && worst.is_none_or(|w| loss < w.2) {
+                if loss < need(1, &p.opts) && worst.as_ref().is_none_or(|w| loss < w.2) {
                     worst = Some((None, j, loss));
                 }
             }
             if let Some((k, j, loss)) = worst {
                 let term = match k {
-                    Some(k) => p.catalogue.candidates[chosen.remove(k).cand].name.to_string(),
+                    Some(m) => {
+                        let name = p.catalogue.candidates[chosen[j].cand].name.to_string();
+                        chosen = m;
+                        name
+                    }
                     None => noise_term_name(&noise_terms.remove(j)).to_string(),
                 };
                 steps.push(Step { action: "drop".into(), term, heldout_gain: -loss, runner_up: None });
@@ -594,4 +628,64 @@ pub fn terms_of(sel: &Selection) -> Vec<(Term, Vec<f64>)> {
         out.push((term, vec![]));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::residual::ChannelNoise;
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    /// A gyro bias k (T − 30 °C) on a warming die. Entered beside a constant bias, the
+    /// temperature term's T_ref is arbitrary (here 0 °C); re-fitted without the bias it
+    /// comes back to the true reference, so the bias is judged against the nested model.
+    #[test]
+    fn reference_temperature_is_refitted_without_the_bias() {
+        let n = 20_000;
+        let dt = 0.01;
+        let temp: Vec<f64> = (0..n).map(|i| 20.0 + 20.0 * (1.0 - (-(i as f64 * dt) / 60.0).exp())).collect();
+        let base = ImuSignals {
+            stamps_ns: (0..n as i64).map(|i| i * 10_000_000).collect(),
+            world_from_imu: vec![UnitQuaternion::identity(); n],
+            alpha_in_imu: vec![Vector3::zeros(); n],
+            temperature_c: temp.clone(),
+            gyro: (0..n).map(|i| Vector3::new((i as f64 * 0.01).sin(), 0.2, 0.0)).collect(),
+            accel: vec![Vector3::new(0.0, 0.0, 9.81); n],
+        };
+        let cat = Catalogue::build(&base, true, Some(20.0)).unwrap();
+        let k = [3e-4, -2e-4, 5e-4];
+        let mut s = 7u64;
+        let mut noise = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 1e-3
+        };
+        let y: [Vec<f64>; 6] =
+            std::array::from_fn(|c| (0..n).map(|i| if c < 3 { k[c] * (temp[i] - 30.0) + noise() } else { noise() }).collect());
+        let white = 1e-6 / 12.0;
+        let ch = ChannelNoise { white_sim: white / 2.0, white_real: white / 2.0, pole: 0.0, walk: white * 1e-9 };
+        let sim: [Vec<f64>; 6] = std::array::from_fn(|_| vec![0.0; n]);
+        let p = Problem {
+            y: y.clone(),
+            mask: vec![true; n],
+            base: &base,
+            catalogue: cat,
+            noise: NoiseModel { sensors: [ch, ch] },
+            stated: (white / 2.0, white / 2.0),
+            judge_noise_density: false,
+            temperature: Some((20.0, 40.0)),
+            opts: SelectOptions::default(),
+            sensors: super::super::Sensors::Both,
+            sim: &sim,
+            motion_lines: None,
+        };
+        let temp_cand = p.catalogue.candidate("gyro_bias_temperature").unwrap();
+        let mut m = vec![Chosen { cand: temp_cand, nonlinear: 0.0 }];
+        refit_reference(&p, &y, &mut m, &p.noise);
+        assert!((m[0].nonlinear - 30.0).abs() < 0.5, "T_ref {}", m[0].nonlinear);
+        // Without a temperature term nothing changes.
+        let bias = p.catalogue.candidate("gyro_bias").unwrap();
+        let mut only_bias = vec![Chosen { cand: bias, nonlinear: 0.0 }];
+        refit_reference(&p, &y, &mut only_bias, &p.noise);
+        assert_eq!(only_bias[0].nonlinear, 0.0);
+    }
 }
