@@ -489,6 +489,21 @@ pub fn whitened(y: &[Vec<f64>; 6], noise: &NoiseModel, mask: &[bool]) -> [Vec<f6
 mod tests {
     use super::*;
 
+    /// Deterministic uniform pseudo-noise in [0, 1) (an LCG), so the tests need no RNG crate.
+    fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    /// Near-Gaussian pseudo-noise of variance 1: the sum of 12 uniforms, less 6.
+    fn near_gaussian(seed: u64) -> impl FnMut() -> f64 {
+        let mut u = uniform(seed);
+        move || (0..12).map(|_| u()).sum::<f64>() - 6.0
+    }
+
     /// The leave-out smoother reproduces polynomials up to its degree exactly, also within k
     /// samples of the ends (one-sided fits), and never uses the sample itself.
     #[test]
@@ -524,12 +539,9 @@ mod tests {
     fn cv_smoother_widens_for_slow_signals_and_narrows_for_fast_ones() {
         let dt = 0.001;
         let n = 20_000;
-        // Deterministic pseudo-noise (LCG → uniform, variance 1/12).
-        let mut s = 12345u64;
-        let mut noise = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        // Deterministic pseudo-noise, variance 1/12.
+        let mut u = uniform(12345);
+        let mut noise = || u() - 0.5;
         let slow: Vec<f64> = (0..n).map(|i| (std::f64::consts::TAU * 0.5 * i as f64 * dt).sin() + noise()).collect();
         let fast: Vec<f64> = (0..n).map(|i| (std::f64::consts::TAU * 60.0 * i as f64 * dt).sin() + 1e-4 * noise()).collect();
         let (k_slow, _) = cv_smoother(&[slow], dt, 0.05);
@@ -545,16 +557,7 @@ mod tests {
     fn sharp_angular_acceleration_puts_back_what_the_ground_truth_misses() {
         let dt = 0.0025;
         let n = 40_000;
-        let mut s = 4242u64;
-        let mut gauss = || {
-            (0..12)
-                .map(|_| {
-                    s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-                    (s >> 11) as f64 / (1u64 << 53) as f64
-                })
-                .sum::<f64>()
-                - 6.0
-        };
+        let mut gauss = near_gaussian(4242);
         let sigma = 0.01;
         let t = |i: usize| i as f64 * dt;
         let tau = std::f64::consts::TAU;
@@ -602,17 +605,7 @@ mod tests {
     fn sharp_motion_is_restored_only_where_the_smoother_rounds_it() {
         let dt = 0.01;
         let n = 20_000;
-        let mut s = 777u64;
-        let mut gauss = || {
-            // Sum of 12 uniforms: near-Gaussian, variance 1.
-            (0..12)
-                .map(|_| {
-                    s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-                    (s >> 11) as f64 / (1u64 << 53) as f64
-                })
-                .sum::<f64>()
-                - 6.0
-        };
+        let mut gauss = near_gaussian(777);
         let sigma = 0.05;
         let t = |i: usize| i as f64 * dt;
         let smooth_truth: Vec<Vec<f64>> =
