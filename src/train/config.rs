@@ -248,6 +248,12 @@ pub struct TrainSettings {
     /// initialised to 0), so the untrained model is the raw gyro through Ĉ_ω = I.
     #[serde(default)]
     pub zero_init_correction: bool,
+    /// Keep Ĉ_ω at its initial value (the identity with the FSDA defaults) instead of
+    /// learning it: one calibration matrix shared by every IMU of the training data cannot
+    /// fit two differently calibrated sensors, and the correction ω' then has to undo it on
+    /// one of them. The exported model still carries Ĉ_ω, so `imu-fsda adapt` can fit it.
+    #[serde(default)]
+    pub freeze_gyro_calibration: bool,
     /// Wall-time budget of the training loop, seconds (0: none). When an epoch ends past it,
     /// training stops there and that epoch is exported (recorded as `stopped_at_budget` in the
     /// metrics); the schedule is not rescaled, so size `epochs` to fit and keep this a guard.

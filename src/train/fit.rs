@@ -244,6 +244,14 @@ fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Takes Ĉ_ω out of training (the optimiser only steps variables that require grad).
+fn freeze_gyro_calibration(vs: &VarStore) -> anyhow::Result<()> {
+    let vars = vs.variables();
+    let v = vars.get("gyro_calib.delta").ok_or_else(|| anyhow::anyhow!("freeze_gyro_calibration: no variable gyro_calib.delta"))?;
+    let _ = v.shallow_clone().set_requires_grad(false);
+    Ok(())
+}
+
 /// One conv layer of a functional view of the model's dilated CNN (the VarStore's own
 /// tensors, so gradients and BatchNorm running statistics land in the model).
 struct FnLayer {
@@ -496,6 +504,9 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     net.set_normalization(&mean, &std)?;
     if cfg.train.zero_init_correction && resume.is_none() {
         zero_init_correction(&vs, &net)?;
+    }
+    if cfg.train.freeze_gyro_calibration {
+        freeze_gyro_calibration(&vs)?;
     }
     let heads = if mode == Mode::FsdaF && cfg.train.maml.batch_tasks { Some(Heads::new(&vs, &net)?) } else { None };
     if mode == Mode::FsdaF {
@@ -945,5 +956,46 @@ mod tests {
         // support windows' denoising loss at θ_e reaches it.
         assert_eq!(generator_grad(0.0), 0.0);
         assert!(generator_grad(1.0) > 0.0);
+    }
+
+    /// With `freeze_gyro_calibration` an optimiser step leaves Ĉ_ω at the identity while the
+    /// rest trains; without it Ĉ_ω moves (the biased, turning task has a gradient on it).
+    #[test]
+    fn a_frozen_gyro_calibration_stays_the_identity() {
+        let calib_after_step = |freeze: bool| {
+            let text = format!(
+                "model: {{mode: fsda_f}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 1, freeze_gyro_calibration: {freeze}, \
+                 loss: {{skip_first_samples: 0}}, maml: {{first_order: true, batch_tasks: true, support_window_samples: 700, \
+                 query_window_samples: 700, unadapted_support_weight: 1.0}}}}\n"
+            );
+            let cfg = TrainConfig::parse(&text).unwrap();
+            let tasks = vec![turning_task(10.0)];
+            let vs = VarStore::new(tch::Device::Cpu);
+            let net = Net::new(&cfg.model, &vs.root()).unwrap();
+            if freeze {
+                freeze_gyro_calibration(&vs).unwrap();
+            }
+            let heads = Heads::new(&vs, &net).unwrap();
+            let mut adam = Adam::new(&vs);
+            let generator = || -> f64 {
+                vs.variables()
+                    .iter()
+                    .filter(|(k, _)| k.starts_with("generator."))
+                    .map(|(_, v)| v.abs().sum(tch::Kind::Double).double_value(&[]))
+                    .sum()
+            };
+            let before = generator();
+            let mut rng = ChaCha8Rng::seed_from_u64(3);
+            maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng);
+            adam.step(1e-3, 0.0);
+            let eye = Tensor::eye(3, (tch::Kind::Float, tch::Device::Cpu));
+            let moved = (net.gyro_calibration() - eye).abs().max().double_value(&[]);
+            (moved, generator() != before)
+        };
+        let (frozen, trained) = calib_after_step(true);
+        assert_eq!(frozen, 0.0);
+        assert!(trained);
+        let (free, _) = calib_after_step(false);
+        assert!(free > 1e-5, "Ĉ_ω moved by only {free}");
     }
 }
