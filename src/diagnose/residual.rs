@@ -486,11 +486,11 @@ pub fn whitened(y: &[Vec<f64>; 6], noise: &NoiseModel, mask: &[bool]) -> [Vec<f6
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// Deterministic uniform pseudo-noise in [0, 1) (an LCG), so the tests need no RNG crate.
-    fn uniform(seed: u64) -> impl FnMut() -> f64 {
+    pub(crate) fn uniform(seed: u64) -> impl FnMut() -> f64 {
         let mut s = seed;
         move || {
             s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);

@@ -654,11 +654,8 @@ mod tests {
         };
         let cat = Catalogue::build(&base, true, Some(20.0)).unwrap();
         let k = [3e-4, -2e-4, 5e-4];
-        let mut s = 7u64;
-        let mut noise = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 1e-3
-        };
+        let mut u = crate::diagnose::residual::tests::uniform(7);
+        let mut noise = || (u() - 0.5) * 1e-3;
         let y: [Vec<f64>; 6] =
             std::array::from_fn(|c| (0..n).map(|i| if c < 3 { k[c] * (temp[i] - 30.0) + noise() } else { noise() }).collect());
         let white = 1e-6 / 12.0;
