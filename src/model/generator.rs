@@ -7,18 +7,21 @@
 use tch::{nn, Tensor};
 
 use super::cnn::{DilatedCausalCnn, FoldedConv};
-use super::{Config, OUTPUT_CHANNELS};
+use super::{Config, INPUT_CHANNELS, OUTPUT_CHANNELS};
 
-/// `embedding [B, T, E] → unscaled correction [B, T, 3]`.
+/// `embedding [B, T, E] → unscaled correction [B, T, 3]` (with `generator_sees_imu`, the
+/// input is `[embedding, normalised IMU]`, `[B, T, E + 6]`).
 #[derive(Debug)]
 pub struct Generator {
     cnn: DilatedCausalCnn,
 }
 
 impl Generator {
-    /// Builds the CNN under `path` (`cfg.generator`, input `cfg.embedding.dim` channels).
+    /// Builds the CNN under `path` (`cfg.generator`; input `cfg.embedding.dim` channels, plus
+    /// the 6 normalised IMU channels when `cfg.generator_sees_imu`).
     pub fn new(cfg: &Config, path: &nn::Path) -> Self {
-        Self { cnn: DilatedCausalCnn::new(&cfg.generator, cfg.embedding.dim, OUTPUT_CHANNELS, cfg.batch_norm, cfg.dropout, path) }
+        let inputs = cfg.embedding.dim + if cfg.generator_sees_imu { INPUT_CHANNELS } else { 0 };
+        Self { cnn: DilatedCausalCnn::new(&cfg.generator, inputs, OUTPUT_CHANNELS, cfg.batch_norm, cfg.dropout, path) }
     }
 
     /// Number of trainable scalars.

@@ -183,6 +183,12 @@ pub struct Config {
     /// Std of the Gaussian noise added to the embedding before the Restructor (training
     /// only; embedding units, the embedding lies in (−1, 1)).
     pub restructor_noise_std: f64,
+    /// FSDA modes: the Generator also sees the normalised IMU window beside the embedding
+    /// (a skip connection around the Embedding). Off in the paper. Why: the per-sample
+    /// tanh Embedding squeezes 6 channels where a gyro bias is < 1 % of the motion's range,
+    /// and with DIGDL's data and no MAML the paper's network is 1.8× worse than DIGDL's,
+    /// which convolves the raw input (docs/training.md).
+    pub generator_sees_imu: bool,
 }
 
 impl Config {
@@ -200,6 +206,7 @@ impl Config {
             generator: CnnConfig::fsda(),
             restructor: CnnConfig::fsda(),
             restructor_noise_std: 0.1,
+            generator_sees_imu: false,
         };
         match mode {
             Mode::Digdl => Self { gyro_calib_init_std: 0.05, ..fsda },
@@ -236,6 +243,9 @@ impl Config {
             return Err(ModelError::InvalidConfig("standard deviations must be ≥ 0".into()));
         }
         match self.mode {
+            Mode::Digdl if self.generator_sees_imu => {
+                Err(ModelError::InvalidConfig("generator_sees_imu is for the FSDA modes (DIGDL's CNN already sees the IMU)".into()))
+            }
             Mode::Digdl => self.digdl.validate("digdl"),
             Mode::Fsda | Mode::FsdaF => {
                 if self.embedding.dim < 1 || self.embedding.hidden.iter().any(|&w| w < 1) {

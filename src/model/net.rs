@@ -208,7 +208,8 @@ impl Net {
                     None => embedding.forward(&u_norm),
                 };
                 let reconstruction = opts.reconstruct.then(|| restructor.forward_t(&e, opts.train));
-                (generator.forward_t(&e, opts.train), Some(e), reconstruction)
+                let generator_input = generator_input(&e, &u_norm, self.cfg.generator_sees_imu);
+                (generator.forward_t(&generator_input, opts.train), Some(e), reconstruction)
             }
         };
         let omega = u.narrow(2, 0, 3);
@@ -242,8 +243,18 @@ impl Net {
             scale: detach(&self.output_scale),
             left_pad: folded_receptive_field(&convs) - 1,
             embedding,
+            generator_sees_imu: self.cfg.generator_sees_imu,
             convs,
         }
+    }
+}
+
+/// What the Generator convolves: the embedding, or `[embedding, normalised IMU]`.
+pub(crate) fn generator_input(embedding: &Tensor, u_norm: &Tensor, sees_imu: bool) -> Tensor {
+    if sees_imu {
+        Tensor::cat(&[embedding, u_norm], 2)
+    } else {
+        embedding.shallow_clone()
     }
 }
 
@@ -281,6 +292,8 @@ pub struct InferenceNet {
     pub scale: Tensor,
     /// Embedding parameters `[w0, b0, …]` (empty for DIGDL).
     pub embedding: Vec<Tensor>,
+    /// The Generator's input is `[embedding, normalised IMU]` (`Config::generator_sees_imu`).
+    pub generator_sees_imu: bool,
     /// The Generator's (or DIGDL's) convs, BatchNorm folded.
     pub convs: Vec<FoldedConv>,
     left_pad: i64,
@@ -300,7 +313,7 @@ impl InferenceNet {
     /// `[B, T, 6]` raw IMU → `[B, T, 3]` corrected gyro, rad/s.
     pub fn forward(&self, u: &Tensor) -> Tensor {
         let x = (u - &self.mean) / &self.std;
-        let h = if self.embedding.is_empty() { x } else { mlp_forward(&x, &self.embedding) };
+        let h = if self.embedding.is_empty() { x } else { generator_input(&mlp_forward(&x, &self.embedding), &x, self.generator_sees_imu) };
         let correction = folded_forward(&self.convs, self.left_pad, &h.transpose(1, 2)).transpose(1, 2);
         u.narrow(2, 0, 3).matmul(&self.calib.tr()) + correction * &self.scale
     }
@@ -321,6 +334,7 @@ impl InferenceNet {
             calib: c(&self.calib),
             scale: c(&self.scale),
             embedding: self.embedding.iter().map(c).collect(),
+            generator_sees_imu: self.generator_sees_imu,
             convs: self
                 .convs
                 .iter()
@@ -338,9 +352,13 @@ mod tests {
 
     /// A net with non-trivial BatchNorm statistics and normalisation, seeded.
     pub(crate) fn random_net(mode: Mode, seed: i64, kind: Kind) -> (VarStore, Net) {
+        random_net_with(&Config::for_mode(mode), seed, kind)
+    }
+
+    fn random_net_with(cfg: &Config, seed: i64, kind: Kind) -> (VarStore, Net) {
         tch::manual_seed(seed);
         let mut vs = VarStore::new(Device::Cpu);
-        let net = Net::new(&Config::for_mode(mode), &vs.root()).unwrap();
+        let net = Net::new(cfg, &vs.root()).unwrap();
         if kind == Kind::Double {
             vs.double();
         }
@@ -397,6 +415,37 @@ mod tests {
             let diff = (a - b).abs().max().double_value(&[]);
             assert!(diff < 1e-12, "{mode:?}: folded vs eval {diff:e}");
         }
+    }
+
+    /// The skip connection around the Embedding: the Generator gets 6 more input channels,
+    /// the output still depends on the IMU only causally over N samples, folding is exact,
+    /// and the IMU reaches the output by the skip alone (embedding weights zeroed).
+    #[test]
+    fn generator_sees_imu_skip_connection() {
+        let cfg = Config { generator_sees_imu: true, ..Config::for_mode(Mode::FsdaF) };
+        let (vs, net) = random_net_with(&cfg, 5, Kind::Double);
+        let plain = Net::new(&Config::for_mode(Mode::FsdaF), &VarStore::new(Device::Cpu).root()).unwrap();
+        assert_eq!(net.parameter_counts().generator - plain.parameter_counts().generator, 6 * 16 * 7);
+        assert_eq!(net.receptive_field(), 517);
+        let u = Tensor::randn([1, 900, 6], (Kind::Double, Device::Cpu));
+        let a = net.forward_t(&u, false);
+        let diff = (&a - net.inference().forward(&u)).abs().max().double_value(&[]);
+        assert!(diff < 1e-12, "folded vs eval {diff:e}");
+        // With the Embedding's output layer at zero the embedding is constant (tanh 0):
+        // a change of the input can only reach the output through the skip.
+        tch::no_grad(|| {
+            for (name, t) in vs.variables() {
+                if name.starts_with("embedding.fc2") {
+                    let _ = t.shallow_clone().zero_();
+                }
+            }
+        });
+        let u2 = u.copy();
+        let _ = u2.narrow(1, 500, 1).fill_(2.0);
+        let d = (net.forward_t(&u, false) - net.forward_t(&u2, false)).narrow(1, 501, 10).abs().max().double_value(&[]);
+        assert!(d > 0.0, "the skip connection carries the IMU to the Generator");
+        let digdl = Config { generator_sees_imu: true, ..Config::for_mode(Mode::Digdl) };
+        assert!(matches!(digdl.validate(), Err(ModelError::InvalidConfig(_))));
     }
 
     #[test]

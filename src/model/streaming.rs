@@ -132,6 +132,8 @@ pub struct StreamingDenoiser {
     calib: Matrix3<f64>,
     scale: Vector3<f64>,
     embedding: Vec<Dense>,
+    /// The first conv's input ends with the normalised IMU (`Config::generator_sees_imu`).
+    generator_sees_imu: bool,
     convs: Vec<StreamConv>,
     receptive_field: usize,
     samples_seen: u64,
@@ -203,13 +205,17 @@ impl StreamingDenoiser {
                 head: 0,
             });
         }
-        // Shapes must chain: 6 → embedding → convs → 3.
+        // Shapes must chain: 6 → embedding (→ [embedding, IMU]) → convs → 3.
         let mut width = usize_of(INPUT_CHANNELS);
         for d in &embedding {
             if d.n_in != width {
                 return Err(ModelError::InvalidConfig(format!("embedding layer expects {} inputs, gets {width}", d.n_in)));
             }
             width = d.n_out;
+        }
+        let generator_sees_imu = net.generator_sees_imu && !embedding.is_empty();
+        if generator_sees_imu {
+            width += usize_of(INPUT_CHANNELS);
         }
         for c in &convs {
             if c.n_in != width {
@@ -228,6 +234,7 @@ impl StreamingDenoiser {
             calib,
             scale,
             embedding,
+            generator_sees_imu,
             convs,
             receptive_field,
             samples_seen: 0,
@@ -279,17 +286,23 @@ impl StreamingDenoiser {
     /// [`StreamingDenoiser::try_step`]).
     pub fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64> {
         let first = self.samples_seen == 0;
-        let Self { mean, inv_std, embedding, convs, scratch, max_width, out, .. } = self;
+        let Self { mean, inv_std, embedding, generator_sees_imu, convs, scratch, max_width, out, .. } = self;
         let (buf0, buf1) = scratch.split_at_mut(*max_width);
+        let mut imu = [0.0; 6];
         for c in 0..3 {
-            buf0[c] = (gyro[c] - mean[c]) * inv_std[c];
-            buf0[c + 3] = (accel[c] - mean[c + 3]) * inv_std[c + 3];
+            imu[c] = (gyro[c] - mean[c]) * inv_std[c];
+            imu[c + 3] = (accel[c] - mean[c + 3]) * inv_std[c + 3];
         }
+        buf0[..6].copy_from_slice(&imu);
         {
             let slot = convs[0].next_slot();
             let n = embedding.len();
             if n == 0 {
                 slot.copy_from_slice(&buf0[..slot.len()]);
+            }
+            if *generator_sees_imu {
+                let at = slot.len() - imu.len();
+                slot[at..].copy_from_slice(&imu);
             }
             for (l, layer) in embedding.iter().enumerate() {
                 let (src, dst): (&[f64], &mut [f64]) = if l % 2 == 0 { (buf0, buf1) } else { (buf1, buf0) };
@@ -409,9 +422,13 @@ mod tests {
     use tch::{nn::VarStore, Device};
 
     fn random_net(mode: Mode, seed: i64) -> (VarStore, Net) {
+        random_net_with(&Config::for_mode(mode), seed)
+    }
+
+    fn random_net_with(cfg: &Config, seed: i64) -> (VarStore, Net) {
         tch::manual_seed(seed);
         let vs = VarStore::new(Device::Cpu);
-        let net = Net::new(&Config::for_mode(mode), &vs.root()).unwrap();
+        let net = Net::new(cfg, &vs.root()).unwrap();
         net.set_normalization(&[0.01, -0.02, 0.03, 9.0, 0.1, -0.3], &[0.3, 0.4, 0.2, 1.5, 1.2, 1.1]).unwrap();
         for _ in 0..3 {
             let _ = net.forward_t(&(Tensor::randn([2, 300, 6], (Kind::Float, Device::Cpu)) * 0.5 + 0.2), true);
@@ -476,8 +493,10 @@ mod tests {
     fn streaming_equals_batch() {
         tch::set_num_threads(1);
         let samples = random_imu(3000, 7);
-        for mode in [Mode::Digdl, Mode::FsdaF] {
-            let (_vs, net) = random_net(mode, 11);
+        let skip = Config { generator_sees_imu: true, ..Config::for_mode(Mode::FsdaF) };
+        for cfg in [Config::for_mode(Mode::Digdl), Config::for_mode(Mode::FsdaF), skip] {
+            let mode = (cfg.mode, cfg.generator_sees_imu);
+            let (_vs, net) = random_net_with(&cfg, 11);
             let mut d = StreamingDenoiser::from_net(&net).unwrap();
             assert_eq!(d.receptive_field() as i64, net.receptive_field());
             let start = std::time::Instant::now();

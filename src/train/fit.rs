@@ -339,7 +339,8 @@ impl Heads {
     fn forward(&self, net: &Net, u: &Tensor, u_norm: Tensor, e: &Tensor) -> crate::model::NetOutput {
         let noisy = if self.noise_std > 0.0 { e + e.randn_like() * self.noise_std } else { e.shallow_clone() };
         let reconstruction = self.cnn(&self.restructor, self.rest_pad, &noisy);
-        let correction = self.cnn(&self.generator, self.gen_pad, e);
+        let generator_input = crate::model::net::generator_input(e, &u_norm, net.config().generator_sees_imu);
+        let correction = self.cnn(&self.generator, self.gen_pad, &generator_input);
         let gyro = u.narrow(2, 0, 3).matmul(&net.gyro_calibration().tr()) + correction * &self.sigma;
         crate::model::NetOutput { gyro, reconstruction: Some(reconstruction), input_normalised: u_norm, embedding: None }
     }
@@ -956,6 +957,27 @@ mod tests {
         // support windows' denoising loss at θ_e reaches it.
         assert_eq!(generator_grad(0.0), 0.0);
         assert!(generator_grad(1.0) > 0.0);
+    }
+
+    /// The batched MAML step feeds the Generator `[embedding, IMU]` when the model asks for
+    /// it: the skip columns of the Generator's first conv get a gradient.
+    #[test]
+    fn the_batched_step_trains_a_generator_that_sees_the_imu() {
+        let text = "model: {mode: fsda_f, generator_sees_imu: true}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 1, \
+                    loss: {skip_first_samples: 0}, maml: {first_order: true, batch_tasks: true, support_window_samples: 700, \
+                    query_window_samples: 700, unadapted_support_weight: 1.0}}\n";
+        let cfg = TrainConfig::parse(text).unwrap();
+        cfg.validate().unwrap();
+        let tasks = vec![turning_task(10.0)];
+        let vs = VarStore::new(tch::Device::Cpu);
+        let net = Net::new(&cfg.model, &vs.root()).unwrap();
+        let heads = Heads::new(&vs, &net).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng);
+        let w = &vs.variables()["generator.conv0.weight"];
+        assert_eq!(w.size()[1], cfg.model.embedding.dim + 6);
+        let skip_grad = w.grad().narrow(1, cfg.model.embedding.dim, 6).abs().sum(tch::Kind::Double).double_value(&[]);
+        assert!(skip_grad > 0.0);
     }
 
     /// With `freeze_gyro_calibration` an optimiser step leaves Ĉ_ω at the identity while the
