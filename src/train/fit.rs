@@ -925,21 +925,30 @@ mod tests {
         task
     }
 
+    /// One batched MAML step of the model and `train.maml` given (YAML flow mappings) on the
+    /// biased, turning task; the VarStore then holds the step's gradients.
+    fn one_batched_step(model: &str, maml: &str) -> (VarStore, TrainConfig) {
+        let text = format!(
+            "model: {model}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 1, loss: {{skip_first_samples: 0}}, maml: {maml}}}\n"
+        );
+        let cfg = TrainConfig::parse(&text).unwrap();
+        cfg.validate().unwrap();
+        let tasks = vec![turning_task(10.0)];
+        let vs = VarStore::new(tch::Device::Cpu);
+        let net = Net::new(&cfg.model, &vs.root()).unwrap();
+        let heads = Heads::new(&vs, &net).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng);
+        (vs, cfg)
+    }
+
     #[test]
     fn support_windows_are_scored_at_the_meta_weights_only_when_asked() {
         let generator_grad = |weight: f64| {
-            let text = format!(
-                "model: {{mode: fsda_f}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 1, loss: {{skip_first_samples: 0}}, \
-                 maml: {{first_order: true, batch_tasks: true, support_window_samples: 700, query_window_samples: 700, unadapted_support_weight: {weight}}}}}\n"
+            let maml = format!(
+                "{{first_order: true, batch_tasks: true, support_window_samples: 700, query_window_samples: 700, unadapted_support_weight: {weight}}}"
             );
-            let cfg = TrainConfig::parse(&text).unwrap();
-            cfg.validate().unwrap();
-            let tasks = vec![turning_task(10.0)];
-            let vs = VarStore::new(tch::Device::Cpu);
-            let net = Net::new(&cfg.model, &vs.root()).unwrap();
-            let heads = Heads::new(&vs, &net).unwrap();
-            let mut rng = ChaCha8Rng::seed_from_u64(3);
-            maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng);
+            let (vs, _) = one_batched_step("{mode: fsda_f}", &maml);
             vs.variables()
                 .iter()
                 .filter(|(k, _)| k.starts_with("generator."))
@@ -963,17 +972,10 @@ mod tests {
     /// it: the skip columns of the Generator's first conv get a gradient.
     #[test]
     fn the_batched_step_trains_a_generator_that_sees_the_imu() {
-        let text = "model: {mode: fsda_f, generator_sees_imu: true}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 1, \
-                    loss: {skip_first_samples: 0}, maml: {first_order: true, batch_tasks: true, support_window_samples: 700, \
-                    query_window_samples: 700, unadapted_support_weight: 1.0}}\n";
-        let cfg = TrainConfig::parse(text).unwrap();
-        cfg.validate().unwrap();
-        let tasks = vec![turning_task(10.0)];
-        let vs = VarStore::new(tch::Device::Cpu);
-        let net = Net::new(&cfg.model, &vs.root()).unwrap();
-        let heads = Heads::new(&vs, &net).unwrap();
-        let mut rng = ChaCha8Rng::seed_from_u64(3);
-        maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng);
+        let (vs, cfg) = one_batched_step(
+            "{mode: fsda_f, generator_sees_imu: true}",
+            "{first_order: true, batch_tasks: true, support_window_samples: 700, query_window_samples: 700, unadapted_support_weight: 1.0}",
+        );
         let w = &vs.variables()["generator.conv0.weight"];
         assert_eq!(w.size()[1], cfg.model.embedding.dim + 6);
         let skip_grad = w.grad().narrow(1, cfg.model.embedding.dim, 6).abs().sum(tch::Kind::Double).double_value(&[]);
