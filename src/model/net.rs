@@ -418,8 +418,8 @@ mod tests {
     }
 
     /// The skip connection around the Embedding: the Generator gets 6 more input channels,
-    /// the output still depends on the IMU only causally over N samples, folding is exact,
-    /// and the IMU reaches the output by the skip alone (embedding weights zeroed).
+    /// folding is exact, and with the embedding held constant the IMU still reaches the
+    /// output through the skip alone, causally and over exactly N samples.
     #[test]
     fn generator_sees_imu_skip_connection() {
         let cfg = Config { generator_sees_imu: true, ..Config::for_mode(Mode::FsdaF) };
@@ -427,7 +427,7 @@ mod tests {
         let plain = Net::new(&Config::for_mode(Mode::FsdaF), &VarStore::new(Device::Cpu).root()).unwrap();
         assert_eq!(net.parameter_counts().generator - plain.parameter_counts().generator, 6 * 16 * 7);
         assert_eq!(net.receptive_field(), 517);
-        let u = Tensor::randn([1, 900, 6], (Kind::Double, Device::Cpu));
+        let u = Tensor::randn([1, 1200, 6], (Kind::Double, Device::Cpu));
         let a = net.forward_t(&u, false);
         let diff = (&a - net.inference().forward(&u)).abs().max().double_value(&[]);
         assert!(diff < 1e-12, "folded vs eval {diff:e}");
@@ -442,8 +442,11 @@ mod tests {
         });
         let u2 = u.copy();
         let _ = u2.narrow(1, 500, 1).fill_(2.0);
-        let d = (net.forward_t(&u, false) - net.forward_t(&u2, false)).narrow(1, 501, 10).abs().max().double_value(&[]);
+        let change = net.forward_t(&u, false) - net.forward_t(&u2, false);
+        assert_eq!(change.narrow(1, 0, 500).abs().max().double_value(&[]), 0.0, "the output depends on the future");
+        let d = change.narrow(1, 501, 10).abs().max().double_value(&[]);
         assert!(d > 0.0, "the skip connection carries the IMU to the Generator");
+        assert_eq!(change.narrow(1, 500 + 517, 1200 - 500 - 517).abs().max().double_value(&[]), 0.0, "seen beyond N samples");
         let digdl = Config { generator_sees_imu: true, ..Config::for_mode(Mode::Digdl) };
         assert!(matches!(digdl.validate(), Err(ModelError::InvalidConfig(_))));
     }
