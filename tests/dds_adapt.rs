@@ -50,8 +50,9 @@ fn skip_or_fail(why: &str) {
 /// steps at lr 1e-3 (defaults: 100 at 1e-2; 60 takes ~2 s alone, long enough for the busy
 /// case to be deterministic and short enough that V2_02's 117 s of data outlast the reply on
 /// a loaded machine). With the bundled model (v6) on V2_02_medium this is accepted
-/// (`imu-fsda adapt`, support 0–60 s, query 60–85 s: AOE 2.16° → 1.42°). On MH_02_easy, where v6 is already at 1.16° over 60–95 s,
-/// every rate tried is rejected (40 steps at 1e-2, 3e-3, 1e-3, 3e-4: 2.55, 2.16, 1.73, 1.32°).
+/// (`imu-fsda adapt`, support 0–60 s, query 60–85 s: AOE 1.88° → 1.32°). On MH_02_easy,
+/// where v6 is already at 1.16° over 60–95 s, every rate tried is rejected (40 steps at
+/// 1e-2, 3e-3, 1e-3, 3e-4: 2.55, 2.16, 1.73, 1.32°).
 fn write_params(dir: &Path, adapted_dir: &Path) -> PathBuf {
     let p = dir.join("params.yaml");
     let yaml = format!(
