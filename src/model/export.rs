@@ -61,6 +61,10 @@ pub struct ModelMetadata {
     pub output: String,
     pub config: Config,
     pub parameter_counts: ParameterCounts,
+    /// Ĉ_ω (row-major) of each IMU in `config.imu_calibrations`, for readers of the
+    /// TorchScript file, which applies Ĉ_ω = I (an unknown IMU): `ω̂ = forward(u) + (Ĉ_ω − I) ω`.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub imu_gyro_calibrations: BTreeMap<String, [[f64; 3]; 3]>,
     /// Sequences / bags the model was trained on (filled by the trainer).
     pub training_data: Vec<String>,
     /// Evaluation figures (filled by the trainer), e.g. `"MH_04_difficult/aoe_deg"`. A figure
@@ -176,6 +180,7 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         output: OUTPUT_CONTRACT.into(),
         config: cfg,
         parameter_counts: net.parameter_counts(),
+        imu_gyro_calibrations: net.imu_calibration_matrices(),
         training_data: info.training_data.clone(),
         metrics: info.metrics.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), *v)).collect(),
         code_revision: info.code_revision.clone().or_else(code_revision),

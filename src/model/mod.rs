@@ -189,6 +189,12 @@ pub struct Config {
     /// and with DIGDL's data and no MAML the paper's network is 1.8× worse than DIGDL's,
     /// which convolves the raw input (docs/training.md).
     pub generator_sees_imu: bool,
+    /// One Ĉ_ω per IMU, by name (e.g. `euroc`, `tumvi`), instead of one shared by all the
+    /// training data (the paper). Empty: shared. Why: the training split mixes a raw
+    /// ADIS16448 (EuRoC, large scale and misalignment errors) with a factory-calibrated
+    /// BMI160 (TUM-VI); one matrix for both costs one of them (docs/training.md). The
+    /// Generator is shared; an IMU not in the list gets Ĉ_ω = I (and `imu-fsda adapt`).
+    pub imu_calibrations: Vec<String>,
 }
 
 impl Config {
@@ -207,6 +213,7 @@ impl Config {
             restructor: CnnConfig::fsda(),
             restructor_noise_std: 0.1,
             generator_sees_imu: false,
+            imu_calibrations: Vec::new(),
         };
         match mode {
             Mode::Digdl => Self { gyro_calib_init_std: 0.05, ..fsda },
@@ -241,6 +248,15 @@ impl Config {
         }
         if !(self.gyro_calib_init_std >= 0.0 && self.restructor_noise_std >= 0.0) {
             return Err(ModelError::InvalidConfig("standard deviations must be ≥ 0".into()));
+        }
+        let mut names = self.imu_calibrations.clone();
+        names.sort();
+        names.dedup();
+        if names.len() != self.imu_calibrations.len() || names.iter().any(|n| n.trim().is_empty()) {
+            return Err(ModelError::InvalidConfig(format!(
+                "imu_calibrations must be distinct non-empty names, got {:?}",
+                self.imu_calibrations
+            )));
         }
         match self.mode {
             Mode::Digdl if self.generator_sees_imu => {
@@ -289,6 +305,9 @@ pub enum ModelError {
     /// The metadata and the weights (or the TorchScript file) disagree.
     #[error("{} does not match its metadata: {detail}", path.display())]
     Mismatch { path: PathBuf, detail: String },
+    /// An IMU name the model has no Ĉ_ω for.
+    #[error("IMU calibration {name:?}: {detail}")]
+    UnknownImu { name: String, detail: String },
     /// Any other libtorch error.
     #[error("libtorch: {0}")]
     Torch(#[from] tch::TchError),

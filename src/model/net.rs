@@ -5,7 +5,9 @@
 //! Weight paths under the root:
 //! - `input_norm/mean`, `input_norm/std` — `[6]` buffers (not trained): `norm(u) = (u − mean) / std`;
 //! - `gyro_calib/delta` — `[3, 3]`, trained: `Ĉ_ω = I + delta` (identity at `delta = 0`; decaying
-//!   `delta` pulls Ĉ_ω toward I, not toward 0);
+//!   `delta` pulls Ĉ_ω toward I, not toward 0). With `Config::imu_calibrations` it is a buffer
+//!   holding the selected IMU's `Ĉ_ω − I` ([`Net::select_imu`]; zero: an unknown IMU) and
+//! - `gyro_calib/per_imu` — `[K, 3, 3]`, trained: `Ĉ_ω − I` of each named IMU;
 //! - `output_scale/sigma` — `[3]` buffer, rad/s: σ;
 //! - [`Mode::Digdl`]: `digdl/conv{l}`, `digdl/bn{l}`;
 //! - FSDA modes: `embedding/fc{l}`, `restructor/conv{l}`, `restructor/bn{l}`, `generator/conv{l}`,
@@ -38,6 +40,8 @@ pub struct Net {
     input_mean: Tensor,
     input_std: Tensor,
     gyro_calib_delta: Tensor,
+    /// `[K, 3, 3]`: `Ĉ_ω − I` per named IMU (`Config::imu_calibrations`).
+    gyro_calib_per_imu: Option<Tensor>,
     output_scale: Tensor,
     body: Body,
 }
@@ -65,6 +69,9 @@ pub struct ForwardOptions<'a> {
     /// Functional parameters for the Embedding (MAML fast weights), ordered as
     /// [`Net::embedding_parameters`]; `None` uses the module's own.
     pub embedding_params: Option<&'a [Tensor]>,
+    /// Ĉ_ω per batch element: `[B]` int64 rows of [`Net::gyro_calibration_rows`] (see
+    /// [`Net::calibration_row`]); `None` uses [`Net::gyro_calibration`] for all.
+    pub calibration_rows: Option<&'a Tensor>,
 }
 
 /// Trainable scalars per module, as built.
@@ -74,7 +81,7 @@ pub struct ParameterCounts {
     pub restructor: i64,
     pub generator: i64,
     pub digdl: i64,
-    /// `gyro_calib/delta` (9).
+    /// `gyro_calib/delta` (9), or `gyro_calib/per_imu` (9 per IMU).
     pub gyro_calib: i64,
     /// Everything trained.
     pub total: i64,
@@ -95,7 +102,11 @@ impl Net {
         } else {
             nn::Init::Const(0.0)
         };
-        let gyro_calib_delta = (root / "gyro_calib").var("delta", &[3, 3], calib_init);
+        let calib = root / "gyro_calib";
+        let (gyro_calib_delta, gyro_calib_per_imu) = match cfg.imu_calibrations.len() as i64 {
+            0 => (calib.var("delta", &[3, 3], calib_init), None),
+            k => (calib.zeros_no_train("delta", &[3, 3]), Some(calib.var("per_imu", &[k, 3, 3], calib_init))),
+        };
         let output_scale = (root / "output_scale").zeros_no_train("sigma", &[OUTPUT_CHANNELS]);
         tch::no_grad(|| output_scale.shallow_clone().copy_(&Tensor::from_slice(&cfg.output_scale_rad_s())));
         let body = match cfg.mode {
@@ -106,7 +117,7 @@ impl Net {
                 generator: Generator::new(cfg, &(root / "generator")),
             },
         };
-        Ok(Self { cfg: cfg.clone(), input_mean, input_std, gyro_calib_delta, output_scale, body })
+        Ok(Self { cfg: cfg.clone(), input_mean, input_std, gyro_calib_delta, gyro_calib_per_imu, output_scale, body })
     }
 
     /// The hyper-parameters it was built from.
@@ -149,6 +160,64 @@ impl Net {
         Tensor::eye(3, (self.gyro_calib_delta.kind(), self.gyro_calib_delta.device())) + &self.gyro_calib_delta
     }
 
+    /// The row of [`Net::gyro_calibration_rows`] for recordings of IMU `imu`: 0 (the shared
+    /// Ĉ_ω) without per-IMU calibrations; else its index, or K (Ĉ_ω = I) for an unknown IMU.
+    pub fn calibration_row(&self, imu: &str) -> i64 {
+        let names = &self.cfg.imu_calibrations;
+        if names.is_empty() {
+            return 0;
+        }
+        names.iter().position(|n| n == imu).unwrap_or(names.len()) as i64
+    }
+
+    /// Every Ĉ_ω the model can use, `[K + 1, 3, 3]`: the K per-IMU matrices then I (an
+    /// unknown IMU); without per-IMU calibrations `[Ĉ_ω, I]`.
+    pub fn gyro_calibration_rows(&self) -> Tensor {
+        let eye = Tensor::eye(3, (self.gyro_calib_delta.kind(), self.gyro_calib_delta.device())).unsqueeze(0);
+        match &self.gyro_calib_per_imu {
+            Some(per_imu) => Tensor::cat(&[per_imu + &eye, eye], 0),
+            None => Tensor::cat(&[self.gyro_calibration().unsqueeze(0), eye], 0),
+        }
+    }
+
+    /// `Ĉ_ω ω` for `omega: [B, T, 3]`, with Ĉ_ω per batch element when `rows` (`[B]`) is given.
+    pub(crate) fn calibrate(&self, omega: &Tensor, rows: Option<&Tensor>) -> Tensor {
+        match rows {
+            Some(rows) => omega.matmul(&self.gyro_calibration_rows().index_select(0, rows).transpose(1, 2)),
+            None => omega.matmul(&self.gyro_calibration().tr()),
+        }
+    }
+
+    /// Makes IMU `imu`'s Ĉ_ω the one [`Net::gyro_calibration`], the inference net and the
+    /// streaming denoiser use (a model with `Config::imu_calibrations` only).
+    pub fn select_imu(&self, imu: &str) -> Result<(), ModelError> {
+        let names = &self.cfg.imu_calibrations;
+        let Some(per_imu) = &self.gyro_calib_per_imu else {
+            return Err(ModelError::UnknownImu { name: imu.into(), detail: "this model has one Ĉ_ω shared by every IMU".into() });
+        };
+        let Some(k) = names.iter().position(|n| n == imu) else {
+            return Err(ModelError::UnknownImu { name: imu.into(), detail: format!("the model knows {names:?}") });
+        };
+        tch::no_grad(|| self.gyro_calib_delta.shallow_clone().copy_(&per_imu.get(k as i64)));
+        Ok(())
+    }
+
+    /// Ĉ_ω of each named IMU (`Config::imu_calibrations`), row-major.
+    pub fn imu_calibration_matrices(&self) -> std::collections::BTreeMap<String, [[f64; 3]; 3]> {
+        let rows = tch::no_grad(|| self.gyro_calibration_rows().to_kind(Kind::Double));
+        let flat = Vec::<f64>::try_from(rows.reshape([-1])).unwrap_or_default();
+        self.cfg
+            .imu_calibrations
+            .iter()
+            .enumerate()
+            .filter(|_| self.gyro_calib_per_imu.is_some())
+            .filter_map(|(k, name)| {
+                let m = flat.get(9 * k..9 * k + 9)?;
+                Some((name.clone(), [[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]]))
+            })
+            .collect()
+    }
+
     /// σ, `[3]` rad/s: the scale of the correction CNN's output.
     pub fn output_scale(&self) -> &Tensor {
         &self.output_scale
@@ -176,7 +245,7 @@ impl Net {
 
     /// Trainable scalars per module.
     pub fn parameter_counts(&self) -> ParameterCounts {
-        let gyro_calib = self.gyro_calib_delta.numel() as i64;
+        let gyro_calib = self.gyro_calib_per_imu.as_ref().unwrap_or(&self.gyro_calib_delta).numel() as i64;
         let (embedding, restructor, generator, digdl) = match &self.body {
             Body::Digdl(cnn) => (0, 0, 0, cnn.parameter_count()),
             Body::Fsda { embedding, restructor, generator } => {
@@ -213,7 +282,7 @@ impl Net {
             }
         };
         let omega = u.narrow(2, 0, 3);
-        let gyro = omega.matmul(&self.gyro_calibration().tr()) + correction * &self.output_scale;
+        let gyro = self.calibrate(&omega, opts.calibration_rows) + correction * &self.output_scale;
         NetOutput { gyro, reconstruction, input_normalised: u_norm, embedding }
     }
 
@@ -230,6 +299,15 @@ impl Net {
 
     /// The eval-mode model with BatchNorm folded into the convs, as detached copies.
     pub fn inference(&self) -> InferenceNet {
+        self.inference_with(tch::no_grad(|| self.gyro_calibration().detach()))
+    }
+
+    /// [`Net::inference`] with row `row` of [`Net::gyro_calibration_rows`] as Ĉ_ω.
+    pub fn inference_for_row(&self, row: i64) -> InferenceNet {
+        self.inference_with(tch::no_grad(|| self.gyro_calibration_rows().get(row).detach()))
+    }
+
+    fn inference_with(&self, calib: Tensor) -> InferenceNet {
         let (embedding, convs) = match &self.body {
             Body::Digdl(cnn) => (Vec::new(), cnn.folded()),
             Body::Fsda { embedding, generator, .. } => (embedding.detached(), generator.folded()),
@@ -239,7 +317,7 @@ impl Net {
             mode: self.cfg.mode,
             mean: detach(&self.input_mean),
             std: detach(&self.input_std),
-            calib: tch::no_grad(|| self.gyro_calibration().detach()),
+            calib,
             scale: detach(&self.output_scale),
             left_pad: folded_receptive_field(&convs) - 1,
             embedding,
@@ -383,7 +461,8 @@ mod tests {
         for mode in [Mode::Digdl, Mode::FsdaF] {
             let (_vs, net) = random_net(mode, 1, Kind::Double);
             let u = Tensor::randn([2, 700, 6], (Kind::Double, Device::Cpu));
-            let out = net.forward_with(&u, &ForwardOptions { train: false, reconstruct: true, embedding_params: None });
+            let out =
+                net.forward_with(&u, &ForwardOptions { train: false, reconstruct: true, embedding_params: None, ..Default::default() });
             assert_eq!(out.gyro.size(), [2, 700, 3]);
             if mode.has_embedding() {
                 assert_eq!(out.reconstruction.as_ref().unwrap().size(), [2, 700, 6]);
@@ -451,6 +530,49 @@ mod tests {
         assert!(matches!(digdl.validate(), Err(ModelError::InvalidConfig(_))));
     }
 
+    /// Per-IMU Ĉ_ω: each batch element gets its IMU's matrix, an unknown IMU the identity,
+    /// and selecting an IMU makes the inference net use its matrix.
+    #[test]
+    fn per_imu_gyro_calibrations() {
+        let cfg = Config { imu_calibrations: vec!["euroc".into(), "tumvi".into()], ..Config::for_mode(Mode::FsdaF) };
+        let (vs, net) = random_net_with(&cfg, 6, Kind::Double);
+        assert_eq!(net.parameter_counts().gyro_calib, 18);
+        let trainable: i64 = vs.trainable_variables().iter().map(|t| t.numel() as i64).sum();
+        assert_eq!(net.parameter_counts().total, trainable, "the selected Ĉ_ω is a buffer");
+        let per_imu = vs.variables()["gyro_calib.per_imu"].shallow_clone();
+        tch::no_grad(|| {
+            per_imu.get(0).copy_(&Tensor::from_slice(&[0.1, 0.0, 0.0, 0.0, -0.05, 0.02, 0.0, 0.0, 0.2]).reshape([3, 3]));
+            per_imu.get(1).copy_(&(Tensor::eye(3, (Kind::Double, Device::Cpu)) * -0.01));
+        });
+        assert_eq!([net.calibration_row("euroc"), net.calibration_row("tumvi"), net.calibration_row("robot")], [0, 1, 2]);
+        let u = Tensor::randn([3, 600, 6], (Kind::Double, Device::Cpu));
+        let rows = Tensor::from_slice(&[0i64, 1, 2]);
+        let opts = ForwardOptions { calibration_rows: Some(&rows), ..Default::default() };
+        let batched = net.forward_with(&u, &opts).gyro;
+        let plain = net.forward_t(&u, false);
+        let omega = u.narrow(2, 0, 3);
+        for (b, name) in ["euroc", "tumvi"].iter().enumerate() {
+            let b = b as i64;
+            let c = net.gyro_calibration_rows().get(b);
+            let expect = plain.get(b) + omega.get(b).matmul(&(&c - Tensor::eye(3, (Kind::Double, Device::Cpu))).tr());
+            assert!((batched.get(b) - &expect).abs().max().double_value(&[]) < 1e-12, "{name}");
+            net.select_imu(name).unwrap();
+            let inf = net.inference().forward(&u.narrow(0, b, 1));
+            assert!((inf.squeeze_dim(0) - &expect).abs().max().double_value(&[]) < 1e-12, "{name}: selected");
+            assert!((net.inference_for_row(b).forward(&u.narrow(0, b, 1)).squeeze_dim(0) - &expect).abs().max().double_value(&[]) < 1e-12);
+        }
+        // Unselected (row K): Ĉ_ω = I, the same as the freshly built model's output.
+        assert!((batched.get(2) - plain.get(2)).abs().max().double_value(&[]) < 1e-12);
+        let m = net.imu_calibration_matrices();
+        assert!((m["euroc"][0][0] - 1.1).abs() < 1e-12 && (m["tumvi"][2][2] - 0.99).abs() < 1e-12, "{m:?}");
+        assert!(matches!(net.select_imu("robot"), Err(ModelError::UnknownImu { .. })));
+        let (_vs, shared) = random_net(Mode::FsdaF, 7, Kind::Double);
+        assert!(matches!(shared.select_imu("euroc"), Err(ModelError::UnknownImu { .. })));
+        assert_eq!(shared.calibration_row("euroc"), 0);
+        let dup = Config { imu_calibrations: vec!["a".into(), "a".into()], ..Config::for_mode(Mode::FsdaF) };
+        assert!(matches!(dup.validate(), Err(ModelError::InvalidConfig(_))));
+    }
+
     #[test]
     fn calibration_starts_at_identity_and_input_is_checked() {
         let (_vs, net) = random_net(Mode::Fsda, 3, Kind::Float);
@@ -487,11 +609,13 @@ mod tests {
         for n in net.embedding_parameter_names() {
             assert!(names.contains_key(&n), "{n} not in the VarStore");
         }
-        let support = net.forward_with(&u, &ForwardOptions { train: false, reconstruct: true, embedding_params: None });
+        let support =
+            net.forward_with(&u, &ForwardOptions { train: false, reconstruct: true, embedding_params: None, ..Default::default() });
         let loss = (support.reconstruction.unwrap() - &support.input_normalised).square().mean(None) + support.gyro.square().mean(None);
         let grads = Tensor::run_backward(&[&loss], &theta, true, true);
         let fast: Vec<Tensor> = theta.iter().zip(&grads).map(|(p, g)| p - g * 0.01).collect();
-        let query = net.forward_with(&u, &ForwardOptions { train: false, reconstruct: false, embedding_params: Some(&fast) });
+        let query =
+            net.forward_with(&u, &ForwardOptions { train: false, reconstruct: false, embedding_params: Some(&fast), ..Default::default() });
         let outer = query.gyro.square().mean(None);
         outer.backward();
         for (name, t) in vs.variables() {

@@ -44,9 +44,23 @@ pub struct SourceConfig {
     /// Display name (default: the folder or file name, with the crop appended).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub name: Option<String>,
+    /// Which IMU recorded it, for a model with `model.imu_calibrations` (default: the first
+    /// path component, the dataset: `euroc/MH_01_easy` → `euroc`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub imu: Option<String>,
 }
 
 impl SourceConfig {
+    /// The IMU's name: `imu`, else the first component of the sequence or bag path.
+    pub fn imu_name(&self) -> String {
+        if let Some(imu) = &self.imu {
+            return imu.clone();
+        }
+        let what = self.sequence.as_deref().or(self.bag.as_deref()).unwrap_or("");
+        let s = what.trim_start_matches("./");
+        s.split(['/', '\\']).next().unwrap_or(s).to_string()
+    }
+
     pub fn describe(&self) -> String {
         let what = self.sequence.as_deref().or(self.bag.as_deref()).unwrap_or("?");
         match (self.start_s, self.end_s) {

@@ -58,6 +58,11 @@ pub struct Task {
     pub support_end: usize,
     /// Fraction of samples with valid ground truth.
     pub valid_fraction: f64,
+    /// The IMU that recorded it ([`SourceConfig::imu_name`]).
+    pub imu_name: String,
+    /// Its row of the model's Ĉ_ω ([`crate::model::Net::calibration_row`]; set by the
+    /// trainer). `None`: the model's selected Ĉ_ω ([`crate::model::Net::gyro_calibration`]).
+    pub calibration_row: Option<i64>,
 }
 
 impl Task {
@@ -81,6 +86,8 @@ pub struct Batch {
     pub dt: Tensor,
     pub gt: Tensor,
     pub valid: Tensor,
+    /// `[B]` int64: each window's Ĉ_ω row ([`Task::calibration_row`]), when every task has one.
+    pub calibration_rows: Option<Tensor>,
 }
 
 fn resolve(root: &Path, rel: &str) -> PathBuf {
@@ -187,6 +194,7 @@ pub fn sample_windows<R: Rng>(tasks: &[&Task], range: impl Fn(&Task) -> (usize, 
     let mut dt = Vec::new();
     let mut gt = Vec::new();
     let mut valid = Vec::new();
+    let mut rows = Vec::new();
     for t in tasks {
         let (a, b) = range(t);
         assert!(b >= a + len, "{}: range {a}..{b} shorter than window {len} (checked at load)", t.name);
@@ -196,9 +204,16 @@ pub fn sample_windows<R: Rng>(tasks: &[&Task], range: impl Fn(&Task) -> (usize, 
             dt.push(t.dt.narrow(0, start, len as i64));
             gt.push(t.gt.narrow(0, start, len as i64));
             valid.push(t.valid.narrow(0, start, len as i64));
+            rows.push(t.calibration_row);
         }
     }
-    Batch { imu: Tensor::stack(&imu, 0), dt: Tensor::stack(&dt, 0), gt: Tensor::stack(&gt, 0), valid: Tensor::stack(&valid, 0) }
+    Batch {
+        imu: Tensor::stack(&imu, 0),
+        dt: Tensor::stack(&dt, 0),
+        gt: Tensor::stack(&gt, 0),
+        valid: Tensor::stack(&valid, 0),
+        calibration_rows: rows.iter().copied().collect::<Option<Vec<i64>>>().map(|r| Tensor::from_slice(&r)),
+    }
 }
 
 /// Minimum length checks for a training task.
@@ -282,6 +297,8 @@ pub fn task_from_recording(
         valid: Tensor::from_slice(valid),
         support_end,
         valid_fraction: valid_count as f64 / n.max(1) as f64,
+        imu_name: src.imu_name(),
+        calibration_row: None,
         rec: cropped,
     })
 }

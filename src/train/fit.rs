@@ -102,7 +102,10 @@ pub fn evaluate_raw(task: &Task, opts: &EvalOptions) -> anyhow::Result<Orientati
 
 /// Errors of the model (eval mode, BatchNorm folded, the meta-learned θ_e as exported).
 pub fn evaluate_net(net: &Net, task: &Task, opts: &EvalOptions) -> anyhow::Result<OrientationErrors> {
-    let inf = net.inference();
+    let inf = match task.calibration_row {
+        Some(row) => net.inference_for_row(row),
+        None => net.inference(),
+    };
     let gyro = correct_with_net(&inf, &task.rec.imu)?;
     Ok(evaluate(&task.rec, &gyro, opts)?)
 }
@@ -144,7 +147,8 @@ fn plain_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng
     let batch: Batch = data::sample_windows(&refs, |x| (0, x.len()), t.windows_per_sequence, t.window_samples, rng);
     let u = augment(&batch.imu, &t.augment);
     let reconstruct = cfg.model.mode.has_embedding();
-    let out = net.forward_with(&u, &ForwardOptions { train: true, reconstruct, embedding_params: None });
+    let calibration_rows = batch.calibration_rows.as_ref();
+    let out = net.forward_with(&u, &ForwardOptions { train: true, reconstruct, embedding_params: None, calibration_rows });
     let terms = total_loss(&t.loss, &out, &batch.dt, &batch.gt, Some(&batch.valid));
     terms.total.backward();
     StepLosses {
@@ -171,7 +175,9 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
         let su = augment(&s.imu, &t.augment);
         let mut support_at_meta: Option<Tensor> = None;
         for k in 0..m.inner_steps {
-            let out = net.forward_with(&su, &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast) });
+            let calibration_rows = s.calibration_rows.as_ref();
+            let out =
+                net.forward_with(&su, &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast), calibration_rows });
             let l = total_loss(&t.loss, &out, &s.dt, &s.gt, Some(&s.valid)).total;
             if k == 0 {
                 sup += scalar(&l) / n;
@@ -185,12 +191,14 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
             fast = fast.iter().zip(&grads).map(|(p, g)| if second { p - g * m.inner_lr } else { p - g.detach() * m.inner_lr }).collect();
         }
         let qu = augment(&q.imu, &t.augment);
-        let out = net.forward_with(&qu, &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast) });
+        let calibration_rows = q.calibration_rows.as_ref();
+        let out =
+            net.forward_with(&qu, &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast), calibration_rows });
         let terms = total_loss(&t.loss, &out, &q.dt, &q.gt, Some(&q.valid));
         let mut parts = vec![&terms.total / n];
         if m.unadapted_query_weight > 0.0 {
             // The shipped model: the query through the meta weights θ_e.
-            let out0 = net.forward_with(&qu, &ForwardOptions { train: true, reconstruct: true, embedding_params: None });
+            let out0 = net.forward_with(&qu, &ForwardOptions { train: true, reconstruct: true, embedding_params: None, calibration_rows });
             parts.push(total_loss(&t.loss, &out0, &q.dt, &q.gt, Some(&q.valid)).total * (m.unadapted_query_weight / n));
         }
         parts.extend(support_at_meta);
@@ -244,11 +252,43 @@ fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Gives every task its Ĉ_ω row. With per-IMU calibrations a training recording of an IMU
+/// the model has no Ĉ_ω for is an error (its Ĉ_ω would stay I untrained); an evaluation one
+/// gets I, as a new IMU would in the node.
+fn assign_calibration_rows(net: &Net, data: &mut Datasets) -> anyhow::Result<()> {
+    let names = &net.config().imu_calibrations;
+    for task in &mut data.train {
+        if !names.is_empty() && !names.contains(&task.imu_name) {
+            anyhow::bail!(
+                "training recording {} is from IMU {:?}, which model.imu_calibrations {:?} does not list (set the source's imu: or add it)",
+                task.source,
+                task.imu_name,
+                names
+            );
+        }
+        task.calibration_row = Some(net.calibration_row(&task.imu_name));
+    }
+    for task in data.validation.iter_mut().chain(&mut data.test) {
+        task.calibration_row = Some(net.calibration_row(&task.imu_name));
+        if !names.is_empty() && !names.contains(&task.imu_name) {
+            tracing::warn!("{}: IMU {:?} has no Ĉ_ω of its own in the model; evaluated with Ĉ_ω = I", task.name, task.imu_name);
+        }
+    }
+    if !names.is_empty() {
+        let per: Vec<String> = data.train.iter().map(|t| format!("{} → {}", t.name, t.imu_name)).collect();
+        tracing::info!("one Ĉ_ω per IMU {names:?}: {}", per.join(", "));
+    }
+    Ok(())
+}
+
 /// Takes Ĉ_ω out of training (the optimiser only steps variables that require grad).
 fn freeze_gyro_calibration(vs: &VarStore) -> anyhow::Result<()> {
     let vars = vs.variables();
     let v = vars.get("gyro_calib.delta").ok_or_else(|| anyhow::anyhow!("freeze_gyro_calibration: no variable gyro_calib.delta"))?;
     let _ = v.shallow_clone().set_requires_grad(false);
+    if let Some(per_imu) = vars.get("gyro_calib.per_imu") {
+        let _ = per_imu.shallow_clone().set_requires_grad(false);
+    }
     Ok(())
 }
 
@@ -336,12 +376,12 @@ impl Heads {
     }
 
     /// Training forward of a batch whose embedding `e` was computed per task.
-    fn forward(&self, net: &Net, u: &Tensor, u_norm: Tensor, e: &Tensor) -> crate::model::NetOutput {
+    fn forward(&self, net: &Net, u: &Tensor, u_norm: Tensor, e: &Tensor, rows: Option<&Tensor>) -> crate::model::NetOutput {
         let noisy = if self.noise_std > 0.0 { e + e.randn_like() * self.noise_std } else { e.shallow_clone() };
         let reconstruction = self.cnn(&self.restructor, self.rest_pad, &noisy);
         let generator_input = crate::model::net::generator_input(e, &u_norm, net.config().generator_sees_imu);
         let correction = self.cnn(&self.generator, self.gen_pad, &generator_input);
-        let gyro = u.narrow(2, 0, 3).matmul(&net.gyro_calibration().tr()) + correction * &self.sigma;
+        let gyro = net.calibrate(&u.narrow(2, 0, 3), rows) + correction * &self.sigma;
         crate::model::NetOutput { gyro, reconstruction: Some(reconstruction), input_normalised: u_norm, embedding: None }
     }
 }
@@ -371,13 +411,20 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
         q_list.push(data::sample_windows(&[task], |x| (x.support_end, x.len()), m.query_windows, m.query_window_samples, rng));
     }
     let cat = |l: &[Batch], f: fn(&Batch) -> &Tensor| Tensor::cat(&l.iter().map(f).collect::<Vec<_>>(), 0);
-    let stack = |l: &[Batch]| Batch { imu: cat(l, |b| &b.imu), dt: cat(l, |b| &b.dt), gt: cat(l, |b| &b.gt), valid: cat(l, |b| &b.valid) };
+    let rows = |l: &[Batch]| l.iter().map(|b| b.calibration_rows.as_ref()).collect::<Option<Vec<_>>>().map(|r| Tensor::cat(&r, 0));
+    let stack = |l: &[Batch]| Batch {
+        imu: cat(l, |b| &b.imu),
+        dt: cat(l, |b| &b.dt),
+        gt: cat(l, |b| &b.gt),
+        valid: cat(l, |b| &b.valid),
+        calibration_rows: rows(l),
+    };
     let (s, q) = (stack(&s_list), stack(&q_list));
     let n = tasks.len();
-    let forward = |u: &Tensor, per: i64, fast: &[Vec<Tensor>]| {
+    let forward = |u: &Tensor, rows: Option<&Tensor>, per: i64, fast: &[Vec<Tensor>]| {
         let un = net.normalize(u);
         let e: Vec<Tensor> = (0..n).map(|i| emb.forward_with(&un.narrow(0, i as i64 * per, per), &fast[i])).collect();
-        heads.forward(net, u, un, &Tensor::cat(&e, 0))
+        heads.forward(net, u, un, &Tensor::cat(&e, 0), rows)
     };
     let task_losses = |out: &crate::model::NetOutput, b: &Batch, per: i64| -> Vec<crate::model::loss::LossTerms> {
         (0..n)
@@ -400,7 +447,7 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
     // λ_s · Σ w_i L_support,i(θ_e): the support windows through the shipped weights.
     let mut support_at_meta: Option<Tensor> = None;
     for k in 0..m.inner_steps {
-        let out = forward(&su, sper, &fast);
+        let out = forward(&su, s.calibration_rows.as_ref(), sper, &fast);
         let ls = task_losses(&out, &s, sper);
         if k == 0 {
             sup = ls.iter().zip(&weights).map(|(l, w)| scalar(&l.total) * w).sum();
@@ -432,14 +479,14 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
     }
     let qu = augment(&q.imu, &t.augment);
     let qper = m.query_windows as i64;
-    let out = forward(&qu, qper, &fast);
+    let out = forward(&qu, q.calibration_rows.as_ref(), qper, &fast);
     let ls = task_losses(&out, &q, qper);
     let outer = ls.iter().zip(&weights).map(|(l, w)| &l.total * *w).reduce(|a, b| a + b).expect("≥ 1 task");
     let mut parts = vec![outer.shallow_clone()];
     if m.unadapted_query_weight > 0.0 {
         // The shipped model: every task through the meta weights θ_e.
         let meta: Vec<Vec<Tensor>> = (0..n).map(|_| theta.iter().map(Tensor::shallow_clone).collect()).collect();
-        let out0 = forward(&qu, qper, &meta);
+        let out0 = forward(&qu, q.calibration_rows.as_ref(), qper, &meta);
         let l0 = task_losses(&out0, &q, qper).iter().zip(&weights).map(|(l, w)| &l.total * *w).reduce(|a, b| a + b).expect("≥ 1 task");
         parts.push(l0 * m.unadapted_query_weight);
     }
@@ -496,11 +543,12 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             anyhow::bail!("--resume: the checkpoint's model config differs from {}'s", opts.name);
         }
     }
-    let data = load_datasets(&cfg)?;
+    let mut data = load_datasets(&cfg)?;
     let eopts = eval_opts(&cfg);
 
     let vs = VarStore::new(Device::Cpu);
     let net = Net::new(&cfg.model, &vs.root())?;
+    assign_calibration_rows(&net, &mut data)?;
     let (mean, std) = data::normalization(&data.train);
     net.set_normalization(&mean, &std)?;
     if cfg.train.zero_init_correction && resume.is_none() {
@@ -872,7 +920,8 @@ pub fn embedding_and_extra_grads(
     train: bool,
     second_order: bool,
 ) -> (crate::model::loss::LossTerms, Vec<Tensor>) {
-    let out = net.forward_with(&batch.imu, &ForwardOptions { train, reconstruct: true, embedding_params: Some(fast) });
+    let out =
+        net.forward_with(&batch.imu, &ForwardOptions { train, reconstruct: true, embedding_params: Some(fast), ..Default::default() });
     let terms = total_loss(loss, &out, &batch.dt, &batch.gt, Some(&batch.valid));
     let inputs: Vec<&Tensor> = fast.iter().chain(extra).collect();
     let grads = Tensor::run_backward(&[&terms.total], &inputs, second_order, second_order);
@@ -940,6 +989,35 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng);
         (vs, cfg)
+    }
+
+    /// Per-IMU Ĉ_ω in the batched step: the biased task of IMU `b` trains row `b` of
+    /// `gyro_calib.per_imu` only (its support windows, scored at the meta weights, are the only
+    /// ones with ground truth), and a training task of an unlisted IMU is refused.
+    #[test]
+    fn each_imu_trains_its_own_gyro_calibration() {
+        let text = "model: {mode: fsda_f, imu_calibrations: [a, b]}\ndataset: {train: [{sequence: a}]}\n\
+                    train: {epochs: 1, loss: {skip_first_samples: 0}, maml: {first_order: true, batch_tasks: true, \
+                    support_window_samples: 700, query_window_samples: 700, unadapted_support_weight: 1}}\n";
+        let cfg = TrainConfig::parse(text).unwrap();
+        cfg.validate().unwrap();
+        let mut task = turning_task(10.0);
+        task.imu_name = "b".into();
+        let vs = VarStore::new(tch::Device::Cpu);
+        let net = Net::new(&cfg.model, &vs.root()).unwrap();
+        let mut data = Datasets { train: vec![task], validation: vec![], test: vec![turning_task(10.0)] };
+        data.test[0].imu_name = "robot".into();
+        assign_calibration_rows(&net, &mut data).unwrap();
+        assert_eq!((data.train[0].calibration_row, data.test[0].calibration_row), (Some(1), Some(2)));
+        let heads = Heads::new(&vs, &net).unwrap();
+        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3));
+        let g = vs.variables()["gyro_calib.per_imu"].grad();
+        let norm = |k: i64| g.get(k).abs().sum(Kind::Double).double_value(&[]);
+        assert_eq!(norm(0), 0.0, "IMU a has no data");
+        assert!(norm(1) > 0.0, "IMU b's Ĉ_ω gets the gradient");
+        data.train[0].imu_name = "c".into();
+        let err = assign_calibration_rows(&net, &mut data).unwrap_err().to_string();
+        assert!(err.contains("\"c\"") && err.contains("imu_calibrations"), "{err}");
     }
 
     #[test]
