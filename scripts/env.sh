@@ -22,6 +22,17 @@ paper_test_bags() {
   done
 }
 
+# Which IMU recorded the bags above, for models with one Ĉ_ω per IMU (`imu-fsda eval --imu`):
+# EuRoC's ADIS16448, TUM-VI's BMI160, by bag name.
+paper_imu_args=(--imu 'room*=tumvi' --imu 'MH_*=euroc' --imu 'V?_*=euroc')
+# `paper_imu BAG`: the same, one name.
+paper_imu() {
+  case "$(basename "$1")" in
+    room*) echo tumvi ;;
+    *) echo euroc ;;
+  esac
+}
+
 # `require_models MODEL.pt ...`: stop with the command that trains a missing one.
 require_models() {
   local m

@@ -25,7 +25,8 @@ mkdir -p "$bags"
 [ -f "$bags/V1_01_easy.mcap" ] || "$bin" import "$data/euroc/V1_01_easy" -o "$bags/V1_01_easy.mcap"
 [ -f "$bags/room4.mcap" ] || "$bin" import "$data/tumvi/dataset-room4_512_16" -o "$bags/room4.mcap"
 "$bin" eval "$bags/room4.mcap" "$bags/V1_01_easy.mcap" --method raw \
-  --model "$here/models/digdl-euroc.pt" --model "$here/models/fsda-f.pt" --plot-dir "$out" >/dev/null
+  --model "$here/models/digdl-euroc.pt" --model "$here/models/fsda-f.pt" \
+  "${paper_imu_args[@]}" --plot-dir "$out" >/dev/null
 
 # The t-SNE of FSDA-F's Embedding over the train and test sequences of both datasets.
 seqs=()

@@ -28,16 +28,21 @@ rm -f "$work"/*.json "$work"/*.log
 mapfile -t bag_list < <(paper_test_bags "$bin" "$data")
 [ ${#bag_list[@]} -eq 8 ] || { echo "error: importing the test split failed" >&2; exit 1; }
 mstem="$(basename "${model%.pt}")"
+# A model with one Ĉ_ω per IMU adapts from the test IMU's own.
+per_imu=0
+grep -q '"imu_gyro_calibrations"' "${model%.pt}.json" && per_imu=1
 for bag in "${bag_list[@]}"; do
   s="$(basename "${bag%.mcap}")"
   models=(--model "$model" --model "$digdl")
+  imu_flag=()
+  [ "$per_imu" = 1 ] && imu_flag=(--imu "$(paper_imu "$bag")")
   for variant in adapted embedding-only; do
     flag=()
     [ "$variant" = embedding-only ] && flag=(--embedding-only)
     out="$work/$mstem-$s-$variant.pt"
     rm -f "$out" "${out%.pt}".{ot,json,adapt.json}
     start=$(date +%s.%N)
-    if "$bin" adapt --model "$model" --bag "$bag" --support-seconds "$adapt_s" --query-seconds "$((support_s - adapt_s))" \
+    if "$bin" adapt --model "$model" --bag "$bag" "${imu_flag[@]}" --support-seconds "$adapt_s" --query-seconds "$((support_s - adapt_s))" \
       "${flag[@]}" -o "$out" --json >"$work/$s.$variant.adapt.json" 2>"$work/$s.$variant.log"; then
       status=accepted
       models+=(--model "$out")
@@ -47,7 +52,7 @@ for bag in "${bag_list[@]}"; do
     end=$(date +%s.%N)
     echo "{\"sequence\": \"$s\", \"variant\": \"$variant\", \"status\": \"$status\", \"wall_seconds\": $(echo "$end - $start" | bc)}" >"$work/$s.$variant.status.json"
   done
-  "$bin" eval "$bag" --start-s "$support_s" --method raw "${models[@]}" --json "$work/$s.query.json" >/dev/null
+  "$bin" eval "$bag" --start-s "$support_s" --method raw "${models[@]}" "${paper_imu_args[@]}" --json "$work/$s.query.json" >/dev/null
 done
 "$PYTHON" "$here/scripts/metatest_table.py" "$work" "$mstem" "$here/docs/metatest.md" "$here/docs/metatest.json"
 echo "wrote docs/metatest.md"

@@ -16,7 +16,7 @@ model_args=(--method raw --method static-bias)
 [ -f "$here/models/digdl-euroc.pt" ] && model_args+=(--model "$here/models/digdl-euroc.pt")
 [ -f "$here/models/fsda-f.pt" ] && model_args+=(--model "$here/models/fsda-f.pt")
 # One pass: every method, and beside each its oracle-constant row (kept apart below).
-"$bin" eval "${list[@]}" "${model_args[@]}" --oracle-bias --markdown "$all" --json "$here/docs/results.json" >/dev/null
+"$bin" eval "${list[@]}" "${model_args[@]}" --oracle-bias "${paper_imu_args[@]}" --markdown "$all" --json "$here/docs/results.json" >/dev/null
 grep -v -F -- "− oracle bias" "$all" > "$table"
 {
   cat <<'MD'

@@ -52,9 +52,10 @@ pub struct ModelCorrector {
 }
 
 impl ModelCorrector {
-    /// Load `<model>.json` + `<model>.ot` (the `.pt` beside them is the TorchScript form).
-    pub fn load(model: &std::path::Path) -> Result<Self, crate::model::ModelError> {
-        let (denoiser, meta) = crate::model::export::load_streaming(&crate::model::predict::metadata_path(model))?;
+    /// Load `<model>.json` + `<model>.ot` (the `.pt` beside them is the TorchScript form),
+    /// with IMU `imu`'s Ĉ_ω (`None`: the model's own).
+    pub fn load(model: &std::path::Path, imu: Option<&str>) -> Result<Self, crate::model::ModelError> {
+        let (denoiser, meta) = crate::model::export::load_streaming(&crate::model::predict::metadata_path(model), imu)?;
         Ok(ModelCorrector { denoiser, name: meta.name, rate_hz: meta.rate_hz })
     }
 }

@@ -73,6 +73,10 @@ pub struct NodeParams {
     /// TorchScript model exported by `imu-fsda train` (`.pt`, with its `.json` and `.ot`
     /// beside it); empty: no model, the gyro passes through (a loud warning).
     pub model: String,
+    /// Which IMU this is, for a model trained with one Ĉ_ω per IMU (`imu_gyro_calibrations` in
+    /// its `.json`, e.g. `euroc`, `tumvi`); empty: the model's own Ĉ_ω (I for a new IMU, the
+    /// adapted one for an adapted model). An unknown name stops the node at start-up.
+    pub imu_calibration: String,
     /// DDS history depth of the input and output topics.
     pub queue_depth: usize,
     /// Seconds between /diagnostics messages.
@@ -108,6 +112,7 @@ impl Default for NodeParams {
             correction_topic: "/imu/gyro_correction".into(),
             diagnostics_topic: "/diagnostics".into(),
             model: String::new(),
+            imu_calibration: String::new(),
             queue_depth: 10,
             diagnostics_period: 1.0,
             use_sim_time: false,
@@ -441,6 +446,8 @@ pub async fn run_node(
 pub struct AdaptSetup {
     pub handle: SwapHandle,
     pub model: PathBuf,
+    /// The IMU's Ĉ_ω to start from (`NodeParams::imu_calibration`).
+    pub imu: Option<String>,
 }
 
 /// [`run_node`] with the `~/adapt` service (when `adapt` is given and `ground_truth_topic` is set).
@@ -782,6 +789,7 @@ async fn service_loop(
                 let (tx, rx) = tokio::sync::oneshot::channel();
                 let job = Job {
                     model: setup.model.clone(),
+                    imu_calibration: setup.imu.clone(),
                     handle: setup.handle.clone(),
                     buffers: buffers.clone(),
                     imu,
@@ -867,6 +875,7 @@ async fn respond(
 
 struct Job {
     model: PathBuf,
+    imu_calibration: Option<String>,
     handle: SwapHandle,
     buffers: Arc<Mutex<Buffers>>,
     imu: Vec<SeqSample>,
@@ -893,6 +902,7 @@ impl Job {
         let t0 = Instant::now();
         let meta = crate::model::predict::metadata_path(&self.model);
         let loaded = crate::model::export::load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading {}", meta.display()))?;
+        loaded.select_imu(self.imu_calibration.as_deref())?;
         anyhow::ensure!(!self.imu.is_empty(), "no input buffered yet");
         anyhow::ensure!(!self.gt.is_empty(), "no ground truth received yet");
         let rec = crate::core::Recording {
@@ -922,7 +932,8 @@ impl Job {
         let unix = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
         let name = format!("{}-adapted-{unix}", loaded.metadata.name);
         let paths = crate::adapt::save_adapted(&adapted, &r, &dir, &name)?;
-        let mut corrector = ModelCorrector::load(&paths.torchscript)?;
+        // Its own (adapted) Ĉ_ω.
+        let mut corrector = ModelCorrector::load(&paths.torchscript, None)?;
         // Warm the new streaming model on the recent history, then hand it over: the
         // pipeline catches up on what arrived meanwhile and swaps between two samples.
         let history: Vec<SeqSample> = {

@@ -112,7 +112,7 @@ fn export_round_trip_matches_in_memory_forward() {
         let d_net = max_abs_diff(&tch::no_grad(|| loaded.net.forward_t(&u, false)), &reference);
         assert!(!loaded.vs.trainable_variables().is_empty(), "the reloaded Net must be trainable");
         // The streaming denoiser, sequence 0, against the TorchScript module.
-        let (mut stream, _) = export::load_streaming(&paths.metadata).unwrap();
+        let (mut stream, _) = export::load_streaming(&paths.metadata, None).unwrap();
         let ts_out = ts.forward(&u).unwrap().get(0);
         let rows = Vec::<f32>::try_from(&u.get(0).flatten(0, -1)).unwrap();
         let streamed: Vec<f32> = rows
@@ -168,7 +168,7 @@ fn broken_files_give_errors_not_panics() {
     assert!(matches!(err, ModelError::MissingFile { .. }), "{err}");
     let p = copy_to("no_weights");
     std::fs::remove_file(&p.weights).unwrap();
-    assert!(matches!(export::load_streaming(&p.metadata).unwrap_err(), ModelError::MissingFile { .. }));
+    assert!(matches!(export::load_streaming(&p.metadata, None).unwrap_err(), ModelError::MissingFile { .. }));
 
     // Corrupt files.
     let p = copy_to("bad_weights");
@@ -212,7 +212,7 @@ fn broken_files_give_errors_not_panics() {
     let mut meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p.metadata).unwrap()).unwrap();
     meta["window_n"] = serde_json::json!(512);
     std::fs::write(&p.metadata, serde_json::to_string(&meta).unwrap()).unwrap();
-    assert!(matches!(export::load_streaming(&p.metadata).unwrap_err(), ModelError::Mismatch { .. }));
+    assert!(matches!(export::load_streaming(&p.metadata, None).unwrap_err(), ModelError::Mismatch { .. }));
 
     // Input shape and kind.
     let ts = export::load_torchscript(&paths.metadata).unwrap();
@@ -224,4 +224,69 @@ fn broken_files_give_errors_not_panics() {
         assert!(matches!(ts.forward(&bad).unwrap_err(), ModelError::InputShape { .. }));
         assert!(matches!(net.try_forward(&bad).unwrap_err(), ModelError::InputShape { .. }));
     }
+}
+
+/// A model with one Ĉ_ω per IMU: the TorchScript file (Ĉ_ω = I traced in, the IMU's applied
+/// from the metadata), the reloaded Net and the streaming denoiser agree for every IMU; an
+/// unknown IMU is an error for all three; an adapted model keeps its own Ĉ_ω.
+#[test]
+fn per_imu_calibrations_survive_export() {
+    tch::set_num_threads(1);
+    tch::manual_seed(31);
+    let vs = VarStore::new(Device::Cpu);
+    let cfg = Config { imu_calibrations: vec!["euroc".into(), "tumvi".into()], generator_sees_imu: true, ..Config::for_mode(Mode::FsdaF) };
+    let net = Net::new(&cfg, &vs.root()).unwrap();
+    net.set_normalization(&[0.01, -0.02, 0.03, 9.3, 0.1, -1.0], &[0.4, 0.5, 0.3, 1.5, 1.2, 1.1]).unwrap();
+    let mut per_imu = vs.variables()["gyro_calib.per_imu"].shallow_clone();
+    tch::no_grad(|| per_imu.copy_(&(Tensor::randn([2, 3, 3], (Kind::Float, Device::Cpu)) * 0.05)));
+    let dir = tempfile::tempdir().unwrap();
+    let paths = export::export_model(dir.path(), "m", &vs, &net, &ExportInfo::default()).unwrap();
+    let u = imu_input(1, 900, 31);
+    let meta = export::load_metadata(&paths.metadata).unwrap();
+    assert_eq!(meta.imu_gyro_calibrations.len(), 2);
+    assert_eq!(meta.torchscript_gyro_calibration, Some([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]));
+    let stream_out = |imu: Option<&str>| {
+        let (mut stream, _) = export::load_streaming(&paths.metadata, imu).unwrap();
+        let rows = Vec::<f32>::try_from(&u.get(0).flatten(0, -1)).unwrap();
+        let out: Vec<f32> = rows
+            .chunks_exact(6)
+            .flat_map(|r| {
+                let w =
+                    stream.step(&Vector3::new(r[0] as f64, r[1] as f64, r[2] as f64), &Vector3::new(r[3] as f64, r[4] as f64, r[5] as f64));
+                [w.x as f32, w.y as f32, w.z as f32]
+            })
+            .collect();
+        Tensor::from_slice(&out).reshape([1, 900, 3])
+    };
+    for (row, imu) in [(0, Some("euroc")), (1, Some("tumvi")), (2, None)] {
+        let reference = tch::no_grad(|| net.inference_for_row(row).forward(&u));
+        let mut ts = export::load_torchscript(&paths.metadata).unwrap();
+        ts.select_imu(imu).unwrap();
+        let loaded = export::load_net(&paths.metadata, Device::Cpu).unwrap();
+        loaded.select_imu(imu).unwrap();
+        let d = [
+            max_abs_diff(&ts.forward(&u).unwrap(), &reference),
+            max_abs_diff(&tch::no_grad(|| loaded.net.forward_t(&u, false)), &reference),
+            max_abs_diff(&stream_out(imu), &reference),
+        ];
+        println!("{imu:?}: TorchScript {:.2e}, Net {:.2e}, streaming {:.2e} rad/s", d[0], d[1], d[2]);
+        assert!(d.iter().all(|d| *d < TOL_RAD_S), "{imu:?}: {d:?}");
+    }
+    let euroc = tch::no_grad(|| net.inference_for_row(0).forward(&u));
+    let identity = tch::no_grad(|| net.inference_for_row(2).forward(&u));
+    assert!(max_abs_diff(&euroc, &identity) > 1e-3, "the IMUs' Ĉ_ω must make a difference");
+    let mut ts = export::load_torchscript(&paths.metadata).unwrap();
+    assert!(matches!(ts.select_imu(Some("bmi088")), Err(ModelError::UnknownImu { .. })));
+    assert!(matches!(export::load_streaming(&paths.metadata, Some("bmi088")), Err(ModelError::UnknownImu { .. })));
+    // An adapted model: its own Ĉ_ω whatever IMU is asked for.
+    let info = ExportInfo { adapted_from: Some("m".into()), ..Default::default() };
+    let adapted = export::export_model(dir.path(), "m-adapted", &vs, &net, &info).unwrap();
+    let mut ts = export::load_torchscript(&adapted.metadata).unwrap();
+    ts.select_imu(Some("euroc")).unwrap();
+    assert!(max_abs_diff(&ts.forward(&u).unwrap(), &identity) < TOL_RAD_S);
+    // A model with one shared Ĉ_ω refuses an IMU name.
+    let (vs1, net1) = random_model(Mode::FsdaF, 32);
+    let shared = export::export_model(dir.path(), "shared", &vs1, &net1, &ExportInfo::default()).unwrap();
+    let mut ts = export::load_torchscript(&shared.metadata).unwrap();
+    assert!(matches!(ts.select_imu(Some("euroc")), Err(ModelError::UnknownImu { .. })));
 }

@@ -74,8 +74,8 @@ fn replay_equals_offline_full_sequence_evaluation() {
         assert_eq!(online.len(), rec.imu.len(), "one output per input");
         assert!(online.iter().zip(&rec.imu).all(|((t, _), s)| *t == s.stamp_ns), "stamps passed through");
 
-        let (f32_ref, _) = correct_with_torchscript(&model, &rec.imu).unwrap();
-        let (f64_ref, _) = correct_with_weights_f64(&model, &rec.imu).unwrap();
+        let (f32_ref, _) = correct_with_torchscript(&model, &rec.imu, None).unwrap();
+        let (f64_ref, _) = correct_with_weights_f64(&model, &rec.imu, None).unwrap();
         let max_f32 = online.iter().zip(&f32_ref).map(|((_, w), r)| (w - r).amax()).fold(0.0, f64::max);
         let max_f64 = online.iter().zip(&f64_ref).map(|((_, w), r)| (w - r).amax()).fold(0.0, f64::max);
         eprintln!("{mode:?}: online vs offline TorchScript (f32) max |Δω| = {max_f32:.2e} rad/s; vs f64 weights {max_f64:.2e} rad/s");

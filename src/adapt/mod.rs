@@ -479,7 +479,13 @@ pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name:
     metrics.insert("adapt.query_seconds".into(), report.query_seconds);
     metrics.insert("adapt.steps".into(), report.steps as f64);
     metrics.insert("adapt.step_seconds".into(), report.step_seconds);
-    let paths = export_model(dir, name, &adapted.vs, &adapted.net, &ExportInfo { training_data, metrics, code_revision: None })?;
+    let paths = export_model(
+        dir,
+        name,
+        &adapted.vs,
+        &adapted.net,
+        &ExportInfo { training_data, metrics, code_revision: None, adapted_from: Some(report.model.clone()) },
+    )?;
     let side = dir.join(format!("{name}.adapt.json"));
     let json = serde_json::to_string_pretty(report).map_err(|e| AdaptError::Other(e.to_string()))?;
     std::fs::write(&side, json + "\n").map_err(|e| AdaptError::Other(format!("writing {}: {e}", side.display())))?;

@@ -48,6 +48,11 @@ pub struct AdaptArgs {
     /// Generator's output bias, adapted by default: docs/adaptation.md).
     #[arg(long)]
     pub embedding_only: bool,
+    /// The IMU's name, for a model with one Ĉ_ω per IMU (its `.json` lists them): adapt from
+    /// that Ĉ_ω (default: the model's own, I for a trained model: a new IMU). The adapted
+    /// model keeps its adapted Ĉ_ω whatever IMU it is later run with.
+    #[arg(long)]
+    pub imu: Option<String>,
     /// Adaptation settings as YAML (AdaptConfig); flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -87,6 +92,7 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     let (dir, name) = output_name(&args.output)?;
     let meta = metadata_path(&args.model);
     let loaded = load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading model {}", args.model.display()))?;
+    loaded.select_imu(args.imu.as_deref())?;
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let (rec, report) = read_recording(&args.bag, &topics).with_context(|| format!("reading {}", args.bag.display()))?;
     anyhow::ensure!(

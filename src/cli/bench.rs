@@ -96,7 +96,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let cfg = PipelineConfig { nominal_rate_hz: 200.0, ..Default::default() };
 
     let input = encoded_stream(args.samples.max(1));
-    let mut incremental = Pipeline::new(Box::new(ModelCorrector::load(&model)?), cfg.clone());
+    let mut incremental = Pipeline::new(Box::new(ModelCorrector::load(&model, None)?), cfg.clone());
     // Warm the caches and the window first.
     throughput(&mut incremental, &input[..input.len().min(2 * n)])?;
     let inc = throughput(&mut incremental, &input)?;
@@ -116,7 +116,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let mut memory = Vec::new();
     if args.memory_hours > 0.0 {
         let total = (args.memory_hours * 3600.0 * 200.0) as usize;
-        let mut p = Pipeline::new(Box::new(StreamingDenoiserCorrector(ModelCorrector::load(&model)?)), cfg);
+        let mut p = Pipeline::new(Box::new(StreamingDenoiserCorrector(ModelCorrector::load(&model, None)?)), cfg);
         let chunk = encoded_stream(20_000);
         let mut done = 0usize;
         let mut stamp_offset = 0i64;

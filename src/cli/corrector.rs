@@ -12,25 +12,28 @@ use imu_fsda::model::predict::{correct_with_torchscript, metadata_path};
 /// at start-up (f32 vs f64 arithmetic), rad/s.
 const SELF_CHECK_TOLERANCE: f64 = 1e-5;
 
-/// The corrector and a status line for /diagnostics ("ok" when the model is loaded).
-/// A missing, corrupt or inconsistent model is an error here, before any input is read.
-pub fn load_corrector(model: &str) -> anyhow::Result<(Box<dyn GyroCorrector>, String)> {
+/// The corrector and a status line for /diagnostics ("ok" when the model is loaded), with
+/// IMU `imu`'s Ĉ_ω ("" = the model's own). A missing, corrupt or inconsistent model, or an
+/// IMU it has no Ĉ_ω for, is an error here, before any input is read.
+pub fn load_corrector(model: &str, imu: &str) -> anyhow::Result<(Box<dyn GyroCorrector>, String)> {
     if model.is_empty() {
         tracing::warn!("no model configured: the gyro is passed through uncorrected");
         return Ok((Box::new(BiasCorrector { bias: nalgebra::Vector3::zeros() }), "no model: pass-through".into()));
     }
     let path = Path::new(model);
+    let imu = Some(imu).filter(|s| !s.is_empty());
     let mut corrector =
-        ModelCorrector::load(path).with_context(|| format!("loading model {model} (metadata {})", metadata_path(path).display()))?;
-    self_check(path, &mut corrector).with_context(|| format!("model {model} failed its start-up check"))?;
-    tracing::info!("model {} loaded: window N = {}, {} Hz", corrector.name, corrector.window(), corrector.rate_hz);
+        ModelCorrector::load(path, imu).with_context(|| format!("loading model {model} (metadata {})", metadata_path(path).display()))?;
+    self_check(path, imu, &mut corrector).with_context(|| format!("model {model} failed its start-up check"))?;
+    let calib = imu.map_or_else(|| "its own Ĉ_ω".to_string(), |n| format!("IMU {n:?}'s Ĉ_ω"));
+    tracing::info!("model {} loaded: window N = {}, {} Hz, {calib}", corrector.name, corrector.window(), corrector.rate_hz);
     Ok((Box::new(corrector), "ok".into()))
 }
 
 /// Run the TorchScript file and the streaming form on the same synthetic input (longer
 /// than the window) and require the same output: the `.pt` users deploy elsewhere and the
 /// weights the node streams must be one model.
-fn self_check(path: &Path, corrector: &mut ModelCorrector) -> anyhow::Result<()> {
+fn self_check(path: &Path, imu_name: Option<&str>, corrector: &mut ModelCorrector) -> anyhow::Result<()> {
     let n = corrector.window() + 64;
     let imu: Vec<ImuSample> = (0..n)
         .map(|k| {
@@ -42,7 +45,7 @@ fn self_check(path: &Path, corrector: &mut ModelCorrector) -> anyhow::Result<()>
             }
         })
         .collect();
-    let (reference, _) = correct_with_torchscript(path, &imu)?;
+    let (reference, _) = correct_with_torchscript(path, &imu, imu_name)?;
     let worst = imu.iter().zip(&reference).map(|(s, r)| (corrector.step(&s.gyro, &s.accel) - r).amax()).fold(0.0, f64::max);
     corrector.reset();
     anyhow::ensure!(

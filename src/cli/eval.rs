@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
 use imu_fsda::eval::{evaluate_with_path, mean_rate_error, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector};
-use imu_fsda::model::predict::correct_with_torchscript;
+use imu_fsda::model::export::load_metadata;
+use imu_fsda::model::predict::{correct_with_torchscript, metadata_path};
 use nalgebra::Vector3;
 
 #[derive(Debug, clap::Args)]
@@ -20,6 +21,12 @@ pub struct EvalArgs {
     /// run over the whole sequence, as deployed.
     #[arg(long = "model")]
     pub models: Vec<PathBuf>,
+    /// Which IMU recorded the bags, for models with one Ĉ_ω per IMU: `NAME` for every bag, or
+    /// `PATTERN=NAME` for the bags whose file name matches PATTERN (`*` any characters);
+    /// repeatable, the first match wins (`--imu 'room*=tumvi' --imu euroc`). Without a match a
+    /// model runs with its own Ĉ_ω (I: a new IMU); models with one shared Ĉ_ω ignore it.
+    #[arg(long = "imu", value_name = "[PATTERN=]NAME")]
+    pub imus: Vec<String>,
     /// IMU topic (sensor_msgs/Imu).
     #[arg(long, default_value = imu_fsda::bag::IMU_TOPIC)]
     pub imu_topic: String,
@@ -115,9 +122,16 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             };
             streams.push((m.name().into(), got));
         }
+        let imu = imu_for_bag(&args.imus, bag);
         for model in &args.models {
-            let (gyro, meta) = correct_with_torchscript(model, &rec.imu).with_context(|| format!("model {}", model.display()))?;
-            streams.push((meta.name.clone(), Ok((gyro, format!("{:?}, N = {}", meta.mode, meta.window_n)))));
+            let per_imu = !load_metadata(&metadata_path(model))
+                .with_context(|| format!("model {}", model.display()))?
+                .imu_gyro_calibrations
+                .is_empty();
+            let imu = imu.filter(|_| per_imu);
+            let (gyro, meta) = correct_with_torchscript(model, &rec.imu, imu).with_context(|| format!("model {}", model.display()))?;
+            let calib = imu.map_or(String::new(), |n| format!(", Ĉ_ω of {n}"));
+            streams.push((meta.name.clone(), Ok((gyro, format!("{:?}, N = {}{calib}", meta.mode, meta.window_n)))));
         }
         for (method, got) in streams {
             let (gyro, note) = match got {
@@ -199,4 +213,49 @@ pub fn markdown_table(rows: &[Row]) -> String {
         }
     }
     s
+}
+
+/// The IMU name `--imu` gives `bag` (see [`EvalArgs::imus`]).
+fn imu_for_bag<'a>(rules: &'a [String], bag: &std::path::Path) -> Option<&'a str> {
+    let file = bag.file_name().map(|f| f.to_string_lossy()).unwrap_or_default();
+    rules.iter().find_map(|rule| match rule.split_once('=') {
+        Some((pattern, name)) => glob_match(pattern, &file).then_some(name),
+        None => Some(rule.as_str()),
+    })
+}
+
+/// `*`-only wildcard match of the whole of `text`.
+fn glob_match(pattern: &str, text: &str) -> bool {
+    let parts: Vec<&str> = pattern.split('*').collect();
+    let (first, last) = (parts[0], parts[parts.len() - 1]);
+    if parts.len() == 1 {
+        return pattern == text;
+    }
+    if !(text.starts_with(first) && text[first.len()..].ends_with(last)) || first.len() + last.len() > text.len() {
+        return false;
+    }
+    let mut rest = &text[first.len()..text.len() - last.len()];
+    for mid in &parts[1..parts.len() - 1] {
+        match rest.find(mid) {
+            Some(i) => rest = &rest[i + mid.len()..],
+            None => return false,
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn imu_rules_match_bag_file_names() {
+        let rules: Vec<String> = ["room*=tumvi", "*_0?=x", "MH*easy*=euroc", "default"].iter().map(|s| s.to_string()).collect();
+        let at = |p: &str| imu_for_bag(&rules, std::path::Path::new(p));
+        assert_eq!(at("/bags/room4.mcap"), Some("tumvi"));
+        assert_eq!(at("MH_02_easy.mcap"), Some("euroc"));
+        assert_eq!(at("V1_01_easy.mcap"), Some("default"));
+        assert_eq!(imu_for_bag(&rules[..1], std::path::Path::new("V1_01_easy.mcap")), None);
+        assert!(glob_match("*", "") && glob_match("a*a", "aa") && !glob_match("a*a", "a") && glob_match("*b*", "abc"));
+    }
 }

@@ -44,6 +44,10 @@ pub struct NodeConfigArgs {
     /// Model file, overriding the parameter `model` ("" = none).
     #[arg(long)]
     pub model: Option<String>,
+    /// The IMU's name for a model with one Ĉ_ω per IMU, overriding the parameter
+    /// `imu_calibration` ("" = the model's own Ĉ_ω).
+    #[arg(long)]
+    pub imu: Option<String>,
 }
 
 impl NodeConfigArgs {
@@ -55,6 +59,9 @@ impl NodeConfigArgs {
         };
         for r in &self.remaps {
             params.remap(r)?;
+        }
+        if let Some(imu) = &self.imu {
+            params.imu_calibration.clone_from(imu);
         }
         if let Some(m) = &self.model {
             params.model.clone_from(m);
@@ -72,18 +79,20 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
             &imu_fsda::model::predict::metadata_path(std::path::Path::new(&params.model)),
             tch::Device::Cpu,
         )?;
+        loaded.select_imu(Some(params.imu_calibration.as_str()).filter(|s| !s.is_empty()))?;
         let c: Box<dyn imu_fsda::infer::GyroCorrector> =
             Box::new(imu_fsda::infer::FullWindowCorrector::new(loaded.net.inference(), &loaded.metadata.name));
         (c, "ok".to_string())
     } else {
-        load_corrector(&params.model)?
+        load_corrector(&params.model, &params.imu_calibration)?
     };
     // With a model and a ground-truth topic, the corrector can be swapped for an adapted one
     // (`~/adapt`); catch-up history: 20 s at 200 Hz.
     let (corrector, adapt) = if !args.naive_full_window && !params.model.is_empty() && !params.ground_truth_topic.is_empty() {
         let (swappable, handle) = SwappableCorrector::new(corrector, 4000);
         let c: Box<dyn imu_fsda::infer::GyroCorrector> = Box::new(swappable);
-        (c, Some(AdaptSetup { handle, model: PathBuf::from(&params.model) }))
+        let imu = Some(params.imu_calibration.clone()).filter(|s| !s.is_empty());
+        (c, Some(AdaptSetup { handle, model: PathBuf::from(&params.model), imu }))
     } else {
         (corrector, None)
     };

@@ -29,7 +29,7 @@ pub struct ReplayArgs {
 
 pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let params = args.config.load()?;
-    let (corrector, status) = load_corrector(&params.model)?;
+    let (corrector, status) = load_corrector(&params.model, &params.imu_calibration)?;
     let mut pipeline = Pipeline::new(corrector, params.pipeline.clone());
     let input_topic = match &args.input_topic {
         Some(t) => t.clone(),

@@ -61,10 +61,18 @@ pub struct ModelMetadata {
     pub output: String,
     pub config: Config,
     pub parameter_counts: ParameterCounts,
-    /// Ĉ_ω (row-major) of each IMU in `config.imu_calibrations`, for readers of the
-    /// TorchScript file, which applies Ĉ_ω = I (an unknown IMU): `ω̂ = forward(u) + (Ĉ_ω − I) ω`.
+    /// Ĉ_ω (row-major) of each IMU in `config.imu_calibrations`. The TorchScript file applies
+    /// [`ModelMetadata::torchscript_gyro_calibration`] C₀ (I as trained: an unknown IMU); for
+    /// IMU k, `ω̂ = forward(u) + (Ĉ_k − C₀) ω`, what [`TorchScriptModel::select_imu`] does.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub imu_gyro_calibrations: BTreeMap<String, [[f64; 3]; 3]>,
+    /// The Ĉ_ω traced into the TorchScript file (models with per-IMU calibrations).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub torchscript_gyro_calibration: Option<[[f64; 3]; 3]>,
+    /// Set on a few-shot adapted model: the model it was adapted from. Its Ĉ_ω is its own
+    /// (adapted): selecting an IMU leaves it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adapted_from: Option<String>,
     /// Sequences / bags the model was trained on (filled by the trainer).
     pub training_data: Vec<String>,
     /// Evaluation figures (filled by the trainer), e.g. `"MH_04_difficult/aoe_deg"`. A figure
@@ -91,6 +99,8 @@ pub struct ExportInfo {
     pub metrics: BTreeMap<String, f64>,
     /// Overrides the revision found at build time (`IMU_FSDA_GIT_REV`) or from `git`.
     pub code_revision: Option<String>,
+    /// [`ModelMetadata::adapted_from`].
+    pub adapted_from: Option<String>,
 }
 
 /// The three paths of a model `name` in `dir`.
@@ -168,6 +178,11 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
     write_atomically(&paths.weights, |tmp| Ok(vs.save(tmp)?))?;
     let (mean, std) = net.normalization();
     let cfg = net.config().clone();
+    let per_imu = !cfg.imu_calibrations.is_empty();
+    let matrix3 = |t: &Tensor| {
+        let v = Vec::<f64>::try_from(tch::no_grad(|| t.to_kind(Kind::Double).reshape([9]))).unwrap_or_else(|_| vec![f64::NAN; 9]);
+        [[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]]
+    };
     let file_name = |p: &Path| p.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
     let metadata = ModelMetadata {
         format_version: FORMAT_VERSION,
@@ -181,6 +196,8 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         config: cfg,
         parameter_counts: net.parameter_counts(),
         imu_gyro_calibrations: net.imu_calibration_matrices(),
+        torchscript_gyro_calibration: per_imu.then(|| matrix3(&net.gyro_calibration())),
+        adapted_from: info.adapted_from.clone(),
         training_data: info.training_data.clone(),
         metrics: info.metrics.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), *v)).collect(),
         code_revision: info.code_revision.clone().or_else(code_revision),
@@ -290,10 +307,27 @@ pub fn load_net(metadata_path: &Path, device: Device) -> Result<LoadedNet, Model
     Ok(LoadedNet { vs, net, metadata })
 }
 
-/// Loads the streaming form (f64, no tch at run time) from `<name>.json` + `<name>.ot`.
-pub fn load_streaming(metadata_path: &Path) -> Result<(StreamingDenoiser, ModelMetadata), ModelError> {
-    let LoadedNet { net, metadata, .. } = load_net(metadata_path, Device::Cpu)?;
-    Ok((StreamingDenoiser::from_net(&net)?, metadata))
+impl LoadedNet {
+    /// Runs the model with IMU `imu`'s Ĉ_ω ([`Net::select_imu`]); `None` keeps the model's
+    /// own (I for a trained per-IMU model, the adapted one for an adapted model).
+    pub fn select_imu(&self, imu: Option<&str>) -> Result<(), ModelError> {
+        match (imu, &self.metadata.adapted_from) {
+            (None, _) => Ok(()),
+            (Some(name), Some(from)) => {
+                tracing::info!("{} was adapted from {from}: its own Ĉ_ω is kept (IMU {name:?} not applied)", self.metadata.name);
+                Ok(())
+            }
+            (Some(name), None) => self.net.select_imu(name),
+        }
+    }
+}
+
+/// Loads the streaming form (f64, no tch at run time) from `<name>.json` + `<name>.ot`,
+/// with IMU `imu`'s Ĉ_ω ([`LoadedNet::select_imu`]).
+pub fn load_streaming(metadata_path: &Path, imu: Option<&str>) -> Result<(StreamingDenoiser, ModelMetadata), ModelError> {
+    let loaded = load_net(metadata_path, Device::Cpu)?;
+    loaded.select_imu(imu)?;
+    Ok((StreamingDenoiser::from_net(&loaded.net)?, loaded.metadata))
 }
 
 /// The TorchScript model with its metadata and an input check.
@@ -301,6 +335,8 @@ pub fn load_streaming(metadata_path: &Path) -> Result<(StreamingDenoiser, ModelM
 pub struct TorchScriptModel {
     module: CModule,
     pub metadata: ModelMetadata,
+    /// `(Ĉ_k − C₀)ᵀ`, f32, after [`TorchScriptModel::select_imu`].
+    calibration_change: Option<Tensor>,
 }
 
 impl TorchScriptModel {
@@ -310,7 +346,33 @@ impl TorchScriptModel {
         if size.len() != 3 || size[2] != INPUT_CHANNELS || size[0] < 1 || size[1] < 1 || u.kind() != Kind::Float {
             return Err(ModelError::InputShape { expected: INPUT_CONTRACT.into(), got: size, kind: format!("{:?}", u.kind()) });
         }
-        Ok(tch::no_grad(|| self.module.forward_ts(&[u]))?)
+        let out = tch::no_grad(|| self.module.forward_ts(&[u]))?;
+        Ok(match &self.calibration_change {
+            Some(change) => out + tch::no_grad(|| u.narrow(2, 0, 3).matmul(change)),
+            None => out,
+        })
+    }
+
+    /// Runs the model with IMU `imu`'s Ĉ_ω from the metadata (see
+    /// [`ModelMetadata::imu_gyro_calibrations`]); `None` keeps the traced one.
+    pub fn select_imu(&mut self, imu: Option<&str>) -> Result<(), ModelError> {
+        self.calibration_change = None;
+        let Some(name) = imu.filter(|_| self.metadata.adapted_from.is_none()) else {
+            return Ok(());
+        };
+        let m = &self.metadata;
+        let (Some(c0), Some(ck)) = (m.torchscript_gyro_calibration, m.imu_gyro_calibrations.get(name)) else {
+            let detail = if m.imu_gyro_calibrations.is_empty() {
+                "this model has one Ĉ_ω shared by every IMU".to_string()
+            } else {
+                format!("the model knows {:?}", m.imu_gyro_calibrations.keys().collect::<Vec<_>>())
+            };
+            return Err(ModelError::UnknownImu { name: name.into(), detail });
+        };
+        // Row-major Ĉ_k − C₀, transposed for `ω [.., 3] · changeᵀ`.
+        let diff: Vec<f64> = (0..3).flat_map(|r| (0..3).map(move |c| ck[c][r] - c0[c][r])).collect();
+        self.calibration_change = Some(Tensor::from_slice(&diff).reshape([3, 3]).to_kind(Kind::Float));
+        Ok(())
     }
 }
 
@@ -320,7 +382,7 @@ pub fn load_torchscript(metadata_path: &Path) -> Result<TorchScriptModel, ModelE
     let path = sibling(metadata_path, &metadata.files.torchscript);
     require_file(&path)?;
     let module = CModule::load(&path).map_err(|e| ModelError::CorruptFile { path: path.clone(), reason: e.to_string() })?;
-    let model = TorchScriptModel { module, metadata };
+    let model = TorchScriptModel { module, metadata, calibration_change: None };
     let probe = Tensor::zeros([1, 8, INPUT_CHANNELS], (Kind::Float, Device::Cpu));
     let out =
         model.forward(&probe).map_err(|e| ModelError::CorruptFile { path: path.clone(), reason: format!("probe forward failed: {e}") })?;

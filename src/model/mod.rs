@@ -29,7 +29,7 @@
 //! let omega_hat = net.try_forward(&u).unwrap(); // [B, T, 3], rad/s
 //! # let _ = omega_hat;
 //! let files = export::export_model(std::path::Path::new("models"), "demo", &vs, &net, &export::ExportInfo::default()).unwrap();
-//! let (mut denoiser, _meta) = export::load_streaming(&files.metadata).unwrap();
+//! let (mut denoiser, _meta) = export::load_streaming(&files.metadata, None).unwrap();
 //! let w = denoiser.step(&nalgebra::Vector3::zeros(), &nalgebra::Vector3::new(9.81, 0.0, 0.0));
 //! # let _ = w;
 //! ```

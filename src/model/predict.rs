@@ -38,9 +38,15 @@ pub fn metadata_path(model: &Path) -> PathBuf {
     model.with_extension("json")
 }
 
-/// Corrected gyro from an exported model's TorchScript file (f32, as deployed).
-pub fn correct_with_torchscript(model: &Path, imu: &[ImuSample]) -> Result<(Vec<Vector3<f64>>, ModelMetadata), ModelError> {
-    let ts = load_torchscript(&metadata_path(model))?;
+/// Corrected gyro from an exported model's TorchScript file (f32, as deployed), with IMU
+/// `imu_name`'s Ĉ_ω (`None`: the model's own).
+pub fn correct_with_torchscript(
+    model: &Path,
+    imu: &[ImuSample],
+    imu_name: Option<&str>,
+) -> Result<(Vec<Vector3<f64>>, ModelMetadata), ModelError> {
+    let mut ts = load_torchscript(&metadata_path(model))?;
+    ts.select_imu(imu_name)?;
     if imu.is_empty() {
         return Ok((Vec::new(), ts.metadata));
     }
@@ -49,8 +55,13 @@ pub fn correct_with_torchscript(model: &Path, imu: &[ImuSample]) -> Result<(Vec<
 }
 
 /// Corrected gyro from an exported model's weights, in f64 (the exact reference).
-pub fn correct_with_weights_f64(model: &Path, imu: &[ImuSample]) -> Result<(Vec<Vector3<f64>>, ModelMetadata), ModelError> {
+pub fn correct_with_weights_f64(
+    model: &Path,
+    imu: &[ImuSample],
+    imu_name: Option<&str>,
+) -> Result<(Vec<Vector3<f64>>, ModelMetadata), ModelError> {
     let loaded = load_net(&metadata_path(model), Device::Cpu)?;
+    loaded.select_imu(imu_name)?;
     let net = loaded.net.inference().to_kind(Kind::Double);
     Ok((correct_with_net(&net, imu)?, loaded.metadata))
 }

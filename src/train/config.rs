@@ -268,6 +268,11 @@ pub struct TrainSettings {
     /// one of them. The exported model still carries Ĉ_ω, so `imu-fsda adapt` can fit it.
     #[serde(default)]
     pub freeze_gyro_calibration: bool,
+    /// IMUs whose data is already calibrated (TUM-VI's BMI160 is published corrected): their
+    /// recordings train with Ĉ_ω = I, and with `model.imu_calibrations` their own Ĉ_ω stays I
+    /// (it gets no gradient). Names as `SourceConfig::imu_name`.
+    #[serde(default)]
+    pub calibrated_imus: Vec<String>,
     /// Wall-time budget of the training loop, seconds (0: none). When an epoch ends past it,
     /// training stops there and that epoch is exported (recorded as `stopped_at_budget` in the
     /// metrics); the schedule is not rescaled, so size `epochs` to fit and keep this a guard.

@@ -253,10 +253,13 @@ fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
 }
 
 /// Gives every task its Ĉ_ω row. With per-IMU calibrations a training recording of an IMU
-/// the model has no Ĉ_ω for is an error (its Ĉ_ω would stay I untrained); an evaluation one
-/// gets I, as a new IMU would in the node.
-fn assign_calibration_rows(net: &Net, data: &mut Datasets) -> anyhow::Result<()> {
+/// the model has no Ĉ_ω for is an error (a misspelt name would silently train with I); an
+/// evaluation one gets I, as a new IMU would in the node. Recordings of `calibrated` IMUs
+/// get I (the last row) in training and evaluation.
+fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[String]) -> anyhow::Result<()> {
     let names = &net.config().imu_calibrations;
+    let identity_row = names.len() as i64 + i64::from(names.is_empty());
+    let row = |imu: &String| if calibrated.contains(imu) { identity_row } else { net.calibration_row(imu) };
     for task in &mut data.train {
         if !names.is_empty() && !names.contains(&task.imu_name) {
             anyhow::bail!(
@@ -266,17 +269,17 @@ fn assign_calibration_rows(net: &Net, data: &mut Datasets) -> anyhow::Result<()>
                 names
             );
         }
-        task.calibration_row = Some(net.calibration_row(&task.imu_name));
+        task.calibration_row = Some(row(&task.imu_name));
     }
     for task in data.validation.iter_mut().chain(&mut data.test) {
-        task.calibration_row = Some(net.calibration_row(&task.imu_name));
+        task.calibration_row = Some(row(&task.imu_name));
         if !names.is_empty() && !names.contains(&task.imu_name) {
             tracing::warn!("{}: IMU {:?} has no Ĉ_ω of its own in the model; evaluated with Ĉ_ω = I", task.name, task.imu_name);
         }
     }
-    if !names.is_empty() {
+    if !names.is_empty() || !calibrated.is_empty() {
         let per: Vec<String> = data.train.iter().map(|t| format!("{} → {}", t.name, t.imu_name)).collect();
-        tracing::info!("one Ĉ_ω per IMU {names:?}: {}", per.join(", "));
+        tracing::info!("Ĉ_ω per IMU {names:?}, calibrated (Ĉ_ω = I) {calibrated:?}: {}", per.join(", "));
     }
     Ok(())
 }
@@ -548,7 +551,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
 
     let vs = VarStore::new(Device::Cpu);
     let net = Net::new(&cfg.model, &vs.root())?;
-    assign_calibration_rows(&net, &mut data)?;
+    assign_calibration_rows(&net, &mut data, &cfg.train.calibrated_imus)?;
     let (mean, std) = data::normalization(&data.train);
     net.set_normalization(&mean, &std)?;
     if cfg.train.zero_init_correction && resume.is_none() {
@@ -831,7 +834,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         &opts.name,
         &vs,
         &net,
-        &ExportInfo { training_data, metrics, code_revision: crate::model::export::code_revision() },
+        &ExportInfo { training_data, metrics, code_revision: crate::model::export::code_revision(), adapted_from: None },
     )
     .with_context(|| format!("exporting {} to {}", opts.name, opts.out_dir.display()))?;
 
@@ -1007,7 +1010,7 @@ mod tests {
         let net = Net::new(&cfg.model, &vs.root()).unwrap();
         let mut data = Datasets { train: vec![task], validation: vec![], test: vec![turning_task(10.0)] };
         data.test[0].imu_name = "robot".into();
-        assign_calibration_rows(&net, &mut data).unwrap();
+        assign_calibration_rows(&net, &mut data, &[]).unwrap();
         assert_eq!((data.train[0].calibration_row, data.test[0].calibration_row), (Some(1), Some(2)));
         let heads = Heads::new(&vs, &net).unwrap();
         maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3));
@@ -1016,8 +1019,18 @@ mod tests {
         assert_eq!(norm(0), 0.0, "IMU a has no data");
         assert!(norm(1) > 0.0, "IMU b's Ĉ_ω gets the gradient");
         data.train[0].imu_name = "c".into();
-        let err = assign_calibration_rows(&net, &mut data).unwrap_err().to_string();
+        let err = assign_calibration_rows(&net, &mut data, &[]).unwrap_err().to_string();
         assert!(err.contains("\"c\"") && err.contains("imu_calibrations"), "{err}");
+        // A calibrated IMU trains with I: its own row gets no gradient.
+        data.train[0].imu_name = "b".into();
+        assign_calibration_rows(&net, &mut data, &["b".into()]).unwrap();
+        assert_eq!(data.train[0].calibration_row, Some(2));
+        for mut t in vs.trainable_variables() {
+            t.zero_grad();
+        }
+        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3));
+        let g = vs.variables()["gyro_calib.per_imu"].grad();
+        assert_eq!(g.abs().sum(Kind::Double).double_value(&[]), 0.0, "a calibrated IMU's Ĉ_ω stays I");
     }
 
     #[test]
