@@ -90,6 +90,19 @@ fn run_python(model: &Path, u: &Tensor, dir: &Path) -> Option<Tensor> {
     Some(read_f32(&output, &[b, t, 3]))
 }
 
+/// One sequence `[T, 6]` through the streaming denoiser, sample by sample → `[T, 3]` f32.
+fn stream_sequence(stream: &mut imu_fsda::model::StreamingDenoiser, u: &Tensor) -> Tensor {
+    let rows = Vec::<f32>::try_from(&u.flatten(0, -1)).unwrap();
+    let out: Vec<f32> = rows
+        .chunks_exact(6)
+        .flat_map(|r| {
+            let w = stream.step(&Vector3::new(r[0] as f64, r[1] as f64, r[2] as f64), &Vector3::new(r[3] as f64, r[4] as f64, r[5] as f64));
+            [w.x as f32, w.y as f32, w.z as f32]
+        })
+        .collect();
+    Tensor::from_slice(&out).reshape([-1, 3])
+}
+
 #[test]
 fn export_round_trip_matches_in_memory_forward() {
     tch::set_num_threads(1);
@@ -114,16 +127,7 @@ fn export_round_trip_matches_in_memory_forward() {
         // The streaming denoiser, sequence 0, against the TorchScript module.
         let (mut stream, _) = export::load_streaming(&paths.metadata, None).unwrap();
         let ts_out = ts.forward(&u).unwrap().get(0);
-        let rows = Vec::<f32>::try_from(&u.get(0).flatten(0, -1)).unwrap();
-        let streamed: Vec<f32> = rows
-            .chunks_exact(6)
-            .flat_map(|r| {
-                let w =
-                    stream.step(&Vector3::new(r[0] as f64, r[1] as f64, r[2] as f64), &Vector3::new(r[3] as f64, r[4] as f64, r[5] as f64));
-                [w.x as f32, w.y as f32, w.z as f32]
-            })
-            .collect();
-        let d_stream = max_abs_diff(&Tensor::from_slice(&streamed).reshape([1200, 3]), &ts_out);
+        let d_stream = max_abs_diff(&stream_sequence(&mut stream, &u.get(0)), &ts_out);
         // Python's torch.jit.load on the same file.
         let d_py = run_python(&paths.torchscript, &u, dir.path()).map(|y| max_abs_diff(&y, &reference));
         let py = d_py.map_or("skipped".to_string(), |d| format!("{d:.2e}"));
@@ -247,16 +251,7 @@ fn per_imu_calibrations_survive_export() {
     assert_eq!(meta.torchscript_gyro_calibration, Some([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]));
     let stream_out = |imu: Option<&str>| {
         let (mut stream, _) = export::load_streaming(&paths.metadata, imu).unwrap();
-        let rows = Vec::<f32>::try_from(&u.get(0).flatten(0, -1)).unwrap();
-        let out: Vec<f32> = rows
-            .chunks_exact(6)
-            .flat_map(|r| {
-                let w =
-                    stream.step(&Vector3::new(r[0] as f64, r[1] as f64, r[2] as f64), &Vector3::new(r[3] as f64, r[4] as f64, r[5] as f64));
-                [w.x as f32, w.y as f32, w.z as f32]
-            })
-            .collect();
-        Tensor::from_slice(&out).reshape([1, 900, 3])
+        stream_sequence(&mut stream, &u.get(0)).unsqueeze(0)
     };
     for (row, imu) in [(0, Some("euroc")), (1, Some("tumvi")), (2, None)] {
         let reference = tch::no_grad(|| net.inference_for_row(row).forward(&u));

@@ -67,6 +67,23 @@ fn ci_small_learns_exports_and_resumes() {
     let ts = load_torchscript(&dir.path().join("ci.json")).unwrap();
     let u = tch::Tensor::zeros([1, 700, 6], (tch::Kind::Float, tch::Device::Cpu));
     assert_eq!(ts.forward(&u).unwrap().size(), vec![1, 700, 3]);
+    // The profile learns one Ĉ_ω for `euroc`: `eval --imu` applies it, an unknown IMU is refused.
+    assert!(meta.imu_gyro_calibrations.contains_key("euroc"), "{:?}", meta.imu_gyro_calibrations);
+    let bag = dir.path().join("MH_04_difficult.mcap");
+    ok(Command::new(bin()).arg("import").arg(manifest().join("../shared/data/euroc/MH_04_difficult")).arg("-o").arg(&bag));
+    let eval = |imu: &str| {
+        run(Command::new(bin())
+            .arg("eval")
+            .arg(&bag)
+            .args(["--end-s", "40", "--method", "raw", "--imu", imu, "--model"])
+            .arg(dir.path().join("ci.pt")))
+    };
+    let table = eval("MH_*=euroc");
+    assert!(table.status.success(), "{}", String::from_utf8_lossy(&table.stderr));
+    assert!(String::from_utf8_lossy(&table.stdout).contains("Ĉ_ω of euroc"), "{}", String::from_utf8_lossy(&table.stdout));
+    let refused = eval("bmi088");
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && err.contains("bmi088") && err.contains("euroc"), "{err}");
 
     // Resume the finished run for two more epochs: history continues, the model re-exports.
     let printed = ok(Command::new(bin())

@@ -467,6 +467,21 @@ fn is_after(a: f64, b: f64) -> bool {
 mod tests {
     use super::*;
 
+    /// Every shipped training config parses and validates (paths are not opened).
+    #[test]
+    fn every_config_in_params_train_is_valid() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("params/train");
+        let mut n = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "yaml") {
+                TrainConfig::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                n += 1;
+            }
+        }
+        assert!(n >= 6, "{n} configs in {}", dir.display());
+    }
+
     #[test]
     fn cosine_warm_restarts_match_pytorch() {
         let s = Schedule::CosineWarmRestarts { t0: 600, t_mult: 2, eta_min: 0.0 };

@@ -253,7 +253,8 @@ fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
 }
 
 /// Gives every task its Ĉ_ω row. With per-IMU calibrations a training recording of an IMU
-/// the model has no Ĉ_ω for is an error (a misspelt name would silently train with I); an
+/// the model has no Ĉ_ω for and not declared calibrated is an error (a misspelt name would
+/// silently train with I); an
 /// evaluation one gets I, as a new IMU would in the node. Recordings of `calibrated` IMUs
 /// get I (the last row) in training and evaluation.
 fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[String]) -> anyhow::Result<()> {
@@ -261,7 +262,7 @@ fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[String]
     let identity_row = names.len() as i64 + i64::from(names.is_empty());
     let row = |imu: &String| if calibrated.contains(imu) { identity_row } else { net.calibration_row(imu) };
     for task in &mut data.train {
-        if !names.is_empty() && !names.contains(&task.imu_name) {
+        if !names.is_empty() && !names.contains(&task.imu_name) && !calibrated.contains(&task.imu_name) {
             anyhow::bail!(
                 "training recording {} is from IMU {:?}, which model.imu_calibrations {:?} does not list (set the source's imu: or add it)",
                 task.source,
