@@ -18,11 +18,16 @@ fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_imu-fsda")
 }
 
-/// A seeded model with random weights and EuRoC-like normalisation, exported to `dir`.
-fn export_random_model(dir: &Path, mode: Mode, seed: i64) -> PathBuf {
+/// A seeded model with random weights and EuRoC-like normalisation, exported to `dir`; with
+/// `per_imu`, one random Ĉ_ω each for `euroc` and `tumvi`.
+fn export_random_model(dir: &Path, mode: Mode, seed: i64, per_imu: bool) -> PathBuf {
     tch::manual_seed(seed);
     let vs = VarStore::new(Device::Cpu);
-    let net = Net::new(&Config::for_mode(mode), &vs.root()).unwrap();
+    let imu_calibrations = if per_imu { vec!["euroc".into(), "tumvi".into()] } else { vec![] };
+    let net = Net::new(&Config { imu_calibrations, ..Config::for_mode(mode) }, &vs.root()).unwrap();
+    if let Some(per_imu) = vs.variables().get("gyro_calib.per_imu") {
+        tch::no_grad(|| per_imu.shallow_clone().copy_(&(Tensor::randn([2, 3, 3], (Kind::Float, Device::Cpu)) * 0.02)));
+    }
     net.set_normalization(&[0.0, 0.02, 0.08, 9.0, 0.0, -3.0], &[0.3, 0.3, 0.3, 1.0, 1.0, 1.0]).unwrap();
     for _ in 0..2 {
         let _ = net.forward_t(&(Tensor::randn([2, 600, 6], (Kind::Float, Device::Cpu)) * 0.5), true);
@@ -48,10 +53,18 @@ fn euroc_bag(dir: &Path) -> Option<PathBuf> {
 fn replay_equals_offline_full_sequence_evaluation() {
     let dir = tempfile::tempdir().unwrap();
     let Some(bag) = euroc_bag(dir.path()) else { return };
-    for (mode, seed) in [(Mode::FsdaF, 3), (Mode::Digdl, 4)] {
-        let model = export_random_model(dir.path(), mode, seed);
-        let out_bag = dir.path().join(format!("replayed-{mode:?}.mcap"));
-        let out = Command::new(bin()).args(["replay", "--model"]).arg(&model).arg(&bag).arg("-o").arg(&out_bag).output().unwrap();
+    // The third: a model with one Ĉ_ω per IMU, run as `euroc`.
+    for (mode, seed, imu) in [(Mode::FsdaF, 3, None), (Mode::Digdl, 4, None), (Mode::FsdaF, 7, Some("euroc"))] {
+        let model = export_random_model(dir.path(), mode, seed, imu.is_some());
+        let out_bag = dir.path().join(format!("replayed-{mode:?}-{seed}.mcap"));
+        let out = Command::new(bin())
+            .args(["replay", "--imu", imu.unwrap_or(""), "--model"])
+            .arg(&model)
+            .arg(&bag)
+            .arg("-o")
+            .arg(&out_bag)
+            .output()
+            .unwrap();
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 
         let (rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
@@ -74,11 +87,19 @@ fn replay_equals_offline_full_sequence_evaluation() {
         assert_eq!(online.len(), rec.imu.len(), "one output per input");
         assert!(online.iter().zip(&rec.imu).all(|((t, _), s)| *t == s.stamp_ns), "stamps passed through");
 
-        let (f32_ref, _) = correct_with_torchscript(&model, &rec.imu, None).unwrap();
-        let (f64_ref, _) = correct_with_weights_f64(&model, &rec.imu, None).unwrap();
+        let (f32_ref, _) = correct_with_torchscript(&model, &rec.imu, imu).unwrap();
+        let (f64_ref, _) = correct_with_weights_f64(&model, &rec.imu, imu).unwrap();
+        if imu.is_some() {
+            // Its own Ĉ_ω (I) gives another output: the IMU's matrix is really applied.
+            let (own, _) = correct_with_torchscript(&model, &rec.imu, None).unwrap();
+            let d = own.iter().zip(&f32_ref).map(|(a, b)| (a - b).amax()).fold(0.0, f64::max);
+            assert!(d > 1e-3, "euroc's Ĉ_ω changes the output by only {d:.2e} rad/s");
+        }
         let max_f32 = online.iter().zip(&f32_ref).map(|((_, w), r)| (w - r).amax()).fold(0.0, f64::max);
         let max_f64 = online.iter().zip(&f64_ref).map(|((_, w), r)| (w - r).amax()).fold(0.0, f64::max);
-        eprintln!("{mode:?}: online vs offline TorchScript (f32) max |Δω| = {max_f32:.2e} rad/s; vs f64 weights {max_f64:.2e} rad/s");
+        eprintln!(
+            "{mode:?} {imu:?}: online vs offline TorchScript (f32) max |Δω| = {max_f32:.2e} rad/s; vs f64 weights {max_f64:.2e} rad/s"
+        );
         assert!(max_f32 < 1e-5, "{max_f32}");
         assert!(max_f64 < 1e-9, "{max_f64}");
         let max_corr = corrections.iter().zip(&online).zip(&rec.imu).map(|((c, (_, w)), s)| (c - (w - s.gyro)).amax()).fold(0.0, f64::max);
@@ -111,23 +132,38 @@ fn bad_model_files_are_clear_errors_at_start() {
         ..Default::default()
     };
     imu_fsda::bag::write_recording(&bag, &rec).unwrap();
-    let run = |model: &Path| {
-        let out =
-            Command::new(bin()).args(["replay", "--model"]).arg(model).arg(&bag).arg("-o").arg(dir.path().join("o.mcap")).output().unwrap();
-        assert!(!out.status.success());
+    // `replay` with `model` run as IMU `imu` ("" = its own Ĉ_ω) must fail cleanly.
+    let named = |model: &Path, imu: &str| {
+        let out = Command::new(bin())
+            .args(["replay", "--imu", imu, "--model"])
+            .arg(model)
+            .arg(&bag)
+            .arg("-o")
+            .arg(dir.path().join("o.mcap"))
+            .output()
+            .unwrap();
         assert_eq!(out.status.code(), Some(1), "an error exit, not a crash");
         String::from_utf8_lossy(&out.stderr).into_owned()
     };
+    let run = |model: &Path| named(model, "");
     let err = run(&dir.path().join("missing.pt"));
     assert!(err.contains("missing"), "{err}");
 
-    let model = export_random_model(dir.path(), Mode::Fsda, 5);
+    let model = export_random_model(dir.path(), Mode::Fsda, 5, false);
     std::fs::write(model.with_extension("ot"), b"garbage").unwrap();
     let err = run(&model);
     assert!(err.contains("random"), "{err}");
 
     // Weights of one architecture under the metadata of another: a shape mismatch.
-    let model = export_random_model(dir.path(), Mode::Digdl, 6);
+    // An IMU the model has no Ĉ_ω for, and any IMU for a model with one shared Ĉ_ω.
+    let per_imu = export_random_model(dir.path(), Mode::FsdaF, 8, true);
+    let err = named(&per_imu, "bmi088");
+    assert!(err.contains("bmi088") && err.contains("tumvi"), "{err}");
+    let shared = export_random_model(dir.path(), Mode::FsdaF, 9, false);
+    let err = named(&shared, "euroc");
+    assert!(err.contains("shared"), "{err}");
+
+    let model = export_random_model(dir.path(), Mode::Digdl, 6, false);
     let meta_path = model.with_extension("json");
     let mut meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&meta_path).unwrap()).unwrap();
     meta["config"]["digdl"]["hidden_channels"] = serde_json::json!([8, 16, 32, 64]);
