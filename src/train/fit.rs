@@ -259,6 +259,11 @@ fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
 /// get I (the last row) in training and evaluation.
 fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[String]) -> anyhow::Result<()> {
     let names = &net.config().imu_calibrations;
+    if names.is_empty() && calibrated.is_empty() {
+        // One shared Ĉ_ω: the plain forward, as the models before per-IMU Ĉ_ω were trained
+        // (bit-for-bit the same run from the same config and seed).
+        return Ok(());
+    }
     let identity_row = names.len() as i64 + i64::from(names.is_empty());
     let row = |imu: &String| if calibrated.contains(imu) { identity_row } else { net.calibration_row(imu) };
     for task in &mut data.train {
