@@ -85,6 +85,12 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let opts = EvalOptions { max_gap_ns: (args.max_gap_ms * 1e6) as i64 };
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let detector = RestDetector::default();
+    // Which models carry one Ĉ_ω per IMU (the others ignore --imu); read once, before any bag.
+    let per_imu: Vec<bool> = args
+        .models
+        .iter()
+        .map(|m| Ok(!load_metadata(&metadata_path(m)).with_context(|| format!("model {}", m.display()))?.imu_gyro_calibrations.is_empty()))
+        .collect::<anyhow::Result<_>>()?;
     let mut rows = Vec::new();
     for bag in &args.bags {
         let (rec, report) = read_recording(bag, &topics)?;
@@ -123,11 +129,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             streams.push((m.name().into(), got));
         }
         let imu = imu_for_bag(&args.imus, bag);
-        for model in &args.models {
-            let per_imu = !load_metadata(&metadata_path(model))
-                .with_context(|| format!("model {}", model.display()))?
-                .imu_gyro_calibrations
-                .is_empty();
+        for (model, &per_imu) in args.models.iter().zip(&per_imu) {
             let imu = imu.filter(|_| per_imu);
             let (gyro, meta) = correct_with_torchscript(model, &rec.imu, imu).with_context(|| format!("model {}", model.display()))?;
             let calib = imu.map_or(String::new(), |n| format!(", Ĉ_ω of {n}"));

@@ -87,6 +87,20 @@ pub struct ModelMetadata {
     pub files: ExportFiles,
 }
 
+impl ModelMetadata {
+    /// The IMU whose Ĉ_ω to apply when `imu` is asked for: none for an adapted model, which
+    /// keeps its own (adapted) Ĉ_ω.
+    fn imu_to_apply<'a>(&self, imu: Option<&'a str>) -> Option<&'a str> {
+        match (imu, &self.adapted_from) {
+            (Some(name), Some(from)) => {
+                tracing::info!("{} was adapted from {from}: its own Ĉ_ω is kept (IMU {name:?} not applied)", self.name);
+                None
+            }
+            (imu, _) => imu,
+        }
+    }
+}
+
 fn finite_metrics<'de, D: serde::Deserializer<'de>>(d: D) -> Result<BTreeMap<String, f64>, D::Error> {
     let m: BTreeMap<String, Option<f64>> = serde::Deserialize::deserialize(d)?;
     Ok(m.into_iter().filter_map(|(k, v)| Some((k, v?))).collect())
@@ -179,10 +193,6 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
     let (mean, std) = net.normalization();
     let cfg = net.config().clone();
     let per_imu = !cfg.imu_calibrations.is_empty();
-    let matrix3 = |t: &Tensor| {
-        let v = Vec::<f64>::try_from(tch::no_grad(|| t.to_kind(Kind::Double).reshape([9]))).unwrap_or_else(|_| vec![f64::NAN; 9]);
-        [[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]]
-    };
     let file_name = |p: &Path| p.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
     let metadata = ModelMetadata {
         format_version: FORMAT_VERSION,
@@ -196,7 +206,7 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         config: cfg,
         parameter_counts: net.parameter_counts(),
         imu_gyro_calibrations: net.imu_calibration_matrices(),
-        torchscript_gyro_calibration: per_imu.then(|| matrix3(&net.gyro_calibration())),
+        torchscript_gyro_calibration: per_imu.then(|| super::net::matrix3(&net.gyro_calibration())),
         adapted_from: info.adapted_from.clone(),
         training_data: info.training_data.clone(),
         metrics: info.metrics.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), *v)).collect(),
@@ -311,14 +321,7 @@ impl LoadedNet {
     /// Runs the model with IMU `imu`'s Ĉ_ω ([`Net::select_imu`]); `None` keeps the model's
     /// own (I for a trained per-IMU model, the adapted one for an adapted model).
     pub fn select_imu(&self, imu: Option<&str>) -> Result<(), ModelError> {
-        match (imu, &self.metadata.adapted_from) {
-            (None, _) => Ok(()),
-            (Some(name), Some(from)) => {
-                tracing::info!("{} was adapted from {from}: its own Ĉ_ω is kept (IMU {name:?} not applied)", self.metadata.name);
-                Ok(())
-            }
-            (Some(name), None) => self.net.select_imu(name),
-        }
+        self.metadata.imu_to_apply(imu).map_or(Ok(()), |name| self.net.select_imu(name))
     }
 }
 
@@ -357,7 +360,7 @@ impl TorchScriptModel {
     /// [`ModelMetadata::imu_gyro_calibrations`]); `None` keeps the traced one.
     pub fn select_imu(&mut self, imu: Option<&str>) -> Result<(), ModelError> {
         self.calibration_change = None;
-        let Some(name) = imu.filter(|_| self.metadata.adapted_from.is_none()) else {
+        let Some(name) = self.metadata.imu_to_apply(imu) else {
             return Ok(());
         };
         let m = &self.metadata;

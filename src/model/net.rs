@@ -204,18 +204,8 @@ impl Net {
 
     /// Ĉ_ω of each named IMU (`Config::imu_calibrations`), row-major.
     pub fn imu_calibration_matrices(&self) -> std::collections::BTreeMap<String, [[f64; 3]; 3]> {
-        let rows = tch::no_grad(|| self.gyro_calibration_rows().to_kind(Kind::Double));
-        let flat = Vec::<f64>::try_from(rows.reshape([-1])).unwrap_or_default();
-        self.cfg
-            .imu_calibrations
-            .iter()
-            .enumerate()
-            .filter(|_| self.gyro_calib_per_imu.is_some())
-            .filter_map(|(k, name)| {
-                let m = flat.get(9 * k..9 * k + 9)?;
-                Some((name.clone(), [[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]]))
-            })
-            .collect()
+        let rows = tch::no_grad(|| self.gyro_calibration_rows());
+        self.cfg.imu_calibrations.iter().enumerate().map(|(k, name)| (name.clone(), matrix3(&rows.get(k as i64)))).collect()
     }
 
     /// σ, `[3]` rad/s: the scale of the correction CNN's output.
@@ -325,6 +315,12 @@ impl Net {
             convs,
         }
     }
+}
+
+/// A `[3, 3]` tensor as a row-major array (NaN if it cannot be read).
+pub(crate) fn matrix3(t: &Tensor) -> [[f64; 3]; 3] {
+    let v = Vec::<f64>::try_from(tch::no_grad(|| t.to_kind(Kind::Double).reshape([9]))).unwrap_or_else(|_| vec![f64::NAN; 9]);
+    [[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]]
 }
 
 /// What the Generator convolves: the embedding, or `[embedding, normalised IMU]`.

@@ -50,15 +50,19 @@ pub struct SourceConfig {
     pub imu: Option<String>,
 }
 
+/// `euroc/MH_01_easy` → `euroc`: the dataset of a source path (its first component).
+pub fn first_path_component(path: &str) -> &str {
+    let s = path.trim_start_matches("./");
+    s.split(['/', '\\']).next().unwrap_or(s)
+}
+
 impl SourceConfig {
     /// The IMU's name: `imu`, else the first component of the sequence or bag path.
     pub fn imu_name(&self) -> String {
         if let Some(imu) = &self.imu {
             return imu.clone();
         }
-        let what = self.sequence.as_deref().or(self.bag.as_deref()).unwrap_or("");
-        let s = what.trim_start_matches("./");
-        s.split(['/', '\\']).next().unwrap_or(s).to_string()
+        first_path_component(self.sequence.as_deref().or(self.bag.as_deref()).unwrap_or("")).to_string()
     }
 
     pub fn describe(&self) -> String {

@@ -212,8 +212,7 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
 
 /// The domain of a training source: the first path component (`euroc/MH_01_easy` → `euroc`).
 pub fn task_domain(task: &Task) -> String {
-    let s = task.source.trim_start_matches("./");
-    s.split(['/', '\\']).next().unwrap_or(s).to_string()
+    super::config::first_path_component(&task.source).to_string()
 }
 
 /// Weight of each task's query loss in the outer (meta) loss; they sum to 1.
@@ -254,9 +253,8 @@ fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
 
 /// Gives every task its Ĉ_ω row. With per-IMU calibrations a training recording of an IMU
 /// the model has no Ĉ_ω for and not declared calibrated is an error (a misspelt name would
-/// silently train with I); an
-/// evaluation one gets I, as a new IMU would in the node. Recordings of `calibrated` IMUs
-/// get I (the last row) in training and evaluation.
+/// silently train with I); an evaluation one gets I, as a new IMU would in the node.
+/// Recordings of `calibrated` IMUs get I (the last row) in training and evaluation.
 fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[String]) -> anyhow::Result<()> {
     let names = &net.config().imu_calibrations;
     if names.is_empty() && calibrated.is_empty() {
