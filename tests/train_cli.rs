@@ -63,6 +63,14 @@ fn ci_small_learns_exports_and_resumes() {
     assert!(model < 0.7 * raw, "held-out AOE {model}° did not improve over raw {raw}°");
     assert!(meta.training_data.iter().any(|s| s.contains("MH_01_easy")), "{:?}", meta.training_data);
     assert!(meta.metrics.contains_key("test.MH_04_difficult@0-40s.aoe_deg"), "{:?}", meta.metrics.keys());
+    // The monitor (the test crop itself) is evaluated with the validation set; its last entry
+    // is the exported model, so it equals the test figure.
+    let epochs_of = |v: &serde_json::Value| -> Vec<u64> { v["evals"].as_array().unwrap().iter().map(|e| e[0].as_u64().unwrap()).collect() };
+    assert_eq!(epochs_of(&summary["monitor"][0]), vec![20, 40, 60]);
+    assert_eq!(epochs_of(&summary["monitor"][0]), epochs_of(&summary["validation"][0]));
+    let monitored_last = summary["monitor"][0]["evals"][2][1]["aoe_deg"].as_f64().unwrap();
+    let tested = meta.metrics["test.MH_04_difficult@0-40s.aoe_deg"];
+    assert!((monitored_last - tested).abs() < 1e-9, "monitor {monitored_last} vs test {tested}");
 
     let ts = load_torchscript(&dir.path().join("ci.json")).unwrap();
     let u = tch::Tensor::zeros([1, 700, 6], (tch::Kind::Float, tch::Device::Cpu));
@@ -98,6 +106,7 @@ fn ci_small_learns_exports_and_resumes() {
     assert_eq!(resumed["resumed_from_epoch"].as_u64(), Some(60));
     assert_eq!(resumed["history"].as_array().unwrap().len(), 62);
     assert_eq!(resumed["history"][59]["loss"], summary["history"][59]["loss"]);
+    assert_eq!(epochs_of(&resumed["monitor"][0]), vec![20, 40, 60, 62], "the monitor survives the resume");
 }
 
 fn imu(n: usize, t0_ns: i64) -> Vec<ImuSample> {

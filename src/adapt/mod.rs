@@ -191,6 +191,7 @@ fn dataset_cfg(cfg: &AdaptConfig) -> DatasetConfig {
         train: vec![],
         validation: vec![],
         test: vec![],
+        monitor: vec![],
         support_seconds: 0.0,
         max_interpolation_gap_ms: cfg.max_interpolation_gap_ms,
         max_nearest_gt_ms: cfg.max_nearest_gt_ms,

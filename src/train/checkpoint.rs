@@ -29,6 +29,9 @@ pub struct CheckpointMeta {
     pub config: TrainConfig,
     pub history: Vec<EpochRecord>,
     pub validation: Vec<SequenceEvals>,
+    /// `dataset.monitor`'s evaluations (absent in older checkpoints).
+    #[serde(default)]
+    pub monitor: Vec<SequenceEvals>,
     /// Epoch and mean validation AOE of the best model kept so far.
     pub best: Option<(usize, f64)>,
     /// Seconds of training before this checkpoint (for the time per epoch).

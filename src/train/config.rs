@@ -90,6 +90,11 @@ pub struct DatasetConfig {
     /// Evaluated once, with the final (exported) model.
     #[serde(default)]
     pub test: Vec<SourceConfig>,
+    /// Evaluated with the validation recordings (every `train.eval_every` epochs) and recorded
+    /// in the checkpoint and `<name>.train.json`, never used to select anything: to study how
+    /// a selection criterion tracks held-out data without letting that data choose.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub monitor: Vec<SourceConfig>,
     /// Support set: the first this-many seconds of each training task (the paper: ~60 s);
     /// the rest is the query set. Only FSDA-F splits; the other modes train on everything.
     #[serde(default = "default_support_s")]
@@ -249,7 +254,9 @@ pub struct TrainSettings {
     /// Checkpoint period, epochs (0: only at the end).
     #[serde(default)]
     pub checkpoint_every: usize,
-    /// Export the epoch with the lowest mean validation AOE instead of the last one.
+    /// Export the epoch with the lowest validation AOE instead of the last one. The score is
+    /// the validation recordings' mean AOE weighted like `task_weighting` (`per_domain`: each
+    /// dataset's mean counts once), so one dataset's larger angles do not choose alone.
     #[serde(default)]
     pub select_best: bool,
     /// libtorch intra-op threads. 1 is the fastest on these shared 2-core machines (measured:
@@ -383,7 +390,12 @@ impl TrainConfig {
         if self.dataset.train.is_empty() {
             return Err("dataset.train is empty".into());
         }
-        for (what, list) in [("train", &self.dataset.train), ("validation", &self.dataset.validation), ("test", &self.dataset.test)] {
+        for (what, list) in [
+            ("train", &self.dataset.train),
+            ("validation", &self.dataset.validation),
+            ("test", &self.dataset.test),
+            ("monitor", &self.dataset.monitor),
+        ] {
             for (i, s) in list.iter().enumerate() {
                 if s.sequence.is_some() == s.bag.is_some() {
                     return Err(format!("dataset.{what}[{i}]: give exactly one of `sequence` or `bag`"));

@@ -315,6 +315,7 @@ mod tests {
             train: vec![],
             validation: vec![],
             test: vec![],
+            monitor: vec![],
             support_seconds: 60.0,
             max_interpolation_gap_ms: 50.0,
             max_nearest_gt_ms: 10.0,

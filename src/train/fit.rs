@@ -49,6 +49,8 @@ pub struct Datasets {
     pub train: Vec<Task>,
     pub validation: Vec<Task>,
     pub test: Vec<Task>,
+    /// Evaluated beside the validation set, never selected on (`dataset.monitor`).
+    pub monitor: Vec<Task>,
 }
 
 /// Loads every source and runs every check that can fail, before anything is trained.
@@ -87,7 +89,7 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
     let load_eval = |list: &[super::config::SourceConfig]| -> anyhow::Result<Vec<Task>> {
         list.iter().map(|src| Ok(data::load_task(&d.root, src, d, None)?)).collect()
     };
-    Ok(Datasets { train, validation: load_eval(&d.validation)?, test: load_eval(&d.test)? })
+    Ok(Datasets { train, validation: load_eval(&d.validation)?, test: load_eval(&d.test)?, monitor: load_eval(&d.monitor)? })
 }
 
 fn eval_opts(cfg: &TrainConfig) -> EvalOptions {
@@ -275,7 +277,7 @@ fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[String]
         }
         task.calibration_row = Some(row(&task.imu_name));
     }
-    for task in data.validation.iter_mut().chain(&mut data.test) {
+    for task in data.validation.iter_mut().chain(&mut data.test).chain(&mut data.monitor) {
         task.calibration_row = Some(row(&task.imu_name));
         if !names.is_empty() && !names.contains(&task.imu_name) {
             tracing::warn!("{}: IMU {:?} has no Ĉ_ω of its own in the model; evaluated with Ĉ_ω = I", task.name, task.imu_name);
@@ -516,9 +518,18 @@ fn epoch_seed(seed: u64, epoch: usize) -> i64 {
     ((z ^ (z >> 31)) >> 1) as i64
 }
 
-fn mean_aoe(evals: &[SequenceEvals]) -> Option<f64> {
-    let v: Vec<f64> = evals.iter().filter_map(|e| e.evals.last().map(|x| x.1.aoe_deg)).collect();
-    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+/// The latest evaluation's AOE averaged over the recordings, weighted like the training tasks
+/// (`per_domain`: each dataset's mean counts once); `None` before any evaluation.
+fn mean_aoe(evals: &[SequenceEvals], how: TaskWeighting) -> Option<f64> {
+    let latest: Vec<(String, f64)> = evals
+        .iter()
+        .filter_map(|e| e.evals.last().map(|x| (super::config::first_path_component(&e.source).to_string(), x.1.aoe_deg)))
+        .collect();
+    if latest.is_empty() {
+        return None;
+    }
+    let domains: Vec<String> = latest.iter().map(|(d, _)| d.clone()).collect();
+    Some(domain_weights(&domains, how).iter().zip(&latest).map(|(w, (_, a))| w * a).sum())
 }
 
 /// Trains, evaluates and exports; returns the summary (also written to `<out>/<name>.train.json`).
@@ -574,6 +585,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
 
     let mut history: Vec<EpochRecord> = Vec::new();
     let mut validation: Vec<SequenceEvals> = Vec::new();
+    let mut monitor: Vec<SequenceEvals> = Vec::new();
     let mut best: Option<(usize, f64)> = None;
     let mut best_vars: Option<BTreeMap<String, Tensor>> = None;
     let mut start_epoch = 0;
@@ -587,6 +599,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         start_epoch = r.meta.epoch;
         history = r.meta.history.clone();
         validation = r.meta.validation.clone();
+        monitor = r.meta.monitor.clone();
         best = r.meta.best;
         prior_seconds = r.meta.train_seconds;
         if best.is_some() && r.tensors.keys().any(|k| k.starts_with("best.")) {
@@ -597,15 +610,23 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     }
     let mut ema = (cfg.train.ema_decay > 0.0)
         .then(|| checkpoint::Ema::new(&vs, cfg.train.ema_decay, resume.as_ref().map(|r| &r.tensors), adam.step.max(0) as u64));
-    if validation.len() != data.validation.len() {
-        validation = data
-            .validation
+    let fresh = |tasks: &[Task]| -> anyhow::Result<Vec<SequenceEvals>> {
+        tasks
             .iter()
             .map(|t| Ok(SequenceEvals { name: t.name.clone(), source: t.source.clone(), raw: evaluate_raw(t, &eopts)?, evals: vec![] }))
-            .collect::<anyhow::Result<_>>()?;
+            .collect()
+    };
+    if validation.len() != data.validation.len() {
+        validation = fresh(&data.validation)?;
+    }
+    if monitor.len() != data.monitor.len() {
+        monitor = fresh(&data.monitor)?;
     }
     for v in &validation {
         tracing::info!("validation {}: raw AOE {:.2}°", v.name, v.raw.aoe_deg);
+    }
+    for v in &monitor {
+        tracing::info!("monitor {} (never selected on): raw AOE {:.2}°", v.name, v.raw.aoe_deg);
     }
 
     let epochs = cfg.train.epochs;
@@ -625,6 +646,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
                      adam: &Adam,
                      history: &[EpochRecord],
                      validation: &[SequenceEvals],
+                     monitor: &[SequenceEvals],
                      best: Option<(usize, f64)>,
                      best_vars: Option<&BTreeMap<String, Tensor>>,
                      ema: Option<&checkpoint::Ema>,
@@ -638,6 +660,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             config: cfg.clone(),
             history: history.to_vec(),
             validation: validation.to_vec(),
+            monitor: monitor.to_vec(),
             best,
             train_seconds: seconds,
         };
@@ -702,21 +725,22 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             stopped_at = Some(done);
         }
         let eval_now = cfg.train.eval_every > 0 && done % cfg.train.eval_every == 0 || done == epochs || over_budget;
-        if eval_now && !data.validation.is_empty() {
-            let evals = |v: &mut Vec<SequenceEvals>| -> anyhow::Result<()> {
-                for (v, task) in v.iter_mut().zip(&data.validation) {
+        if eval_now && !(data.validation.is_empty() && data.monitor.is_empty()) {
+            let evals = |v: &mut Vec<SequenceEvals>, m: &mut Vec<SequenceEvals>| -> anyhow::Result<()> {
+                for (v, task) in v.iter_mut().zip(&data.validation).chain(m.iter_mut().zip(&data.monitor)) {
                     v.evals.push((done, evaluate_net(&net, task, &eopts)?));
                 }
                 Ok(())
             };
             match &ema {
-                Some(e) => e.with_average(&vs, || evals(&mut validation))??,
-                None => evals(&mut validation)?,
+                Some(e) => e.with_average(&vs, || evals(&mut validation, &mut monitor))??,
+                None => evals(&mut validation, &mut monitor)?,
             }
-            let m = mean_aoe(&validation).unwrap_or(f64::NAN);
-            tracing::info!("epoch {done}: {msg}; validation mean AOE {m:.3}°");
+            let m = mean_aoe(&validation, cfg.train.task_weighting).unwrap_or(f64::NAN);
+            let mon = mean_aoe(&monitor, cfg.train.task_weighting).map_or(String::new(), |x| format!(", monitor {x:.3}°"));
+            tracing::info!("epoch {done}: {msg}; validation AOE {m:.3}°{mon}");
             msg.push_str(&format!(", val AOE {m:.2}°"));
-            if cfg.train.select_best && best.is_none_or(|(_, b)| m < b) {
+            if cfg.train.select_best && !data.validation.is_empty() && best.is_none_or(|(_, b)| m < b) {
                 best = Some((done, m));
                 best_vars = Some(match &ema {
                     Some(e) => e.avg.iter().map(|(n, t)| (n.clone(), t.copy())).collect(),
@@ -733,13 +757,13 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         }
         if cfg.train.checkpoint_every > 0 && done % cfg.train.checkpoint_every == 0 && done < epochs {
             let secs = prior_seconds + started.elapsed().as_secs_f64();
-            save_ckpt(done, &adam, &history, &validation, best, best_vars.as_ref(), ema.as_ref(), secs)?;
+            save_ckpt(done, &adam, &history, &validation, &monitor, best, best_vars.as_ref(), ema.as_ref(), secs)?;
         }
     }
     pb.finish();
     let train_seconds = prior_seconds + started.elapsed().as_secs_f64();
     let last_epoch = stopped_at.unwrap_or(epochs);
-    let ckpt = save_ckpt(last_epoch, &adam, &history, &validation, best, best_vars.as_ref(), ema.as_ref(), train_seconds)?;
+    let ckpt = save_ckpt(last_epoch, &adam, &history, &validation, &monitor, best, best_vars.as_ref(), ema.as_ref(), train_seconds)?;
     tracing::info!("checkpoint {}", ckpt.display());
 
     // The exported weights: the best validated epoch if asked, else the last (averaged when
@@ -867,6 +891,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             })
             .collect(),
         validation,
+        monitor,
         test,
         history,
         model_json: files.metadata.display().to_string(),
@@ -972,6 +997,7 @@ mod tests {
             train: vec![],
             validation: vec![],
             test: vec![],
+            monitor: vec![],
             support_seconds,
             max_interpolation_gap_ms: 50.0,
             max_nearest_gt_ms: 10.0,
@@ -1012,7 +1038,7 @@ mod tests {
         task.imu_name = "b".into();
         let vs = VarStore::new(tch::Device::Cpu);
         let net = Net::new(&cfg.model, &vs.root()).unwrap();
-        let mut data = Datasets { train: vec![task], validation: vec![], test: vec![turning_task(10.0)] };
+        let mut data = Datasets { train: vec![task], validation: vec![], test: vec![turning_task(10.0)], monitor: vec![] };
         data.test[0].imu_name = "robot".into();
         assign_calibration_rows(&net, &mut data, &[]).unwrap();
         assert_eq!((data.train[0].calibration_row, data.test[0].calibration_row), (Some(1), Some(2)));
@@ -1061,6 +1087,29 @@ mod tests {
         // support windows' denoising loss at θ_e reaches it.
         assert_eq!(generator_grad(0.0), 0.0);
         assert!(generator_grad(1.0) > 0.0);
+    }
+
+    /// The selection score weights datasets like the training tasks: with `per_domain` three
+    /// EuRoC sequences at 6° and one TUM-VI room at 1° score (6 + 1) / 2, not (18 + 1) / 4;
+    /// only each recording's latest evaluation counts.
+    #[test]
+    fn the_validation_score_weights_datasets_like_the_tasks() {
+        let seq = |source: &str, aoes: &[f64]| SequenceEvals {
+            name: source.into(),
+            source: source.into(),
+            raw: OrientationErrors { aoe_deg: 100.0, ..Default::default() },
+            evals: aoes.iter().enumerate().map(|(i, &a)| (10 * (i + 1), OrientationErrors { aoe_deg: a, ..Default::default() })).collect(),
+        };
+        let v = vec![
+            seq("euroc/MH_01_easy", &[9.0, 6.0]),
+            seq("euroc/MH_03_medium", &[9.0, 6.0]),
+            seq("euroc/V1_02_medium", &[9.0, 6.0]),
+            seq("tumvi/dataset-room1_512_16", &[3.0, 1.0]),
+        ];
+        assert!((mean_aoe(&v, TaskWeighting::PerDomain).unwrap() - 3.5).abs() < 1e-12);
+        assert!((mean_aoe(&v, TaskWeighting::Uniform).unwrap() - 4.75).abs() < 1e-12);
+        assert_eq!(mean_aoe(&[], TaskWeighting::PerDomain), None);
+        assert_eq!(mean_aoe(&[seq("euroc/MH_01_easy", &[])], TaskWeighting::Uniform), None);
     }
 
     /// The batched MAML step feeds the Generator `[embedding, IMU]` when the model asks for

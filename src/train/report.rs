@@ -71,6 +71,9 @@ pub struct TrainSummary {
     pub threads: i32,
     pub tasks: Vec<TaskInfo>,
     pub validation: Vec<SequenceEvals>,
+    /// `dataset.monitor`: evaluated with the validation set, never selected on.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub monitor: Vec<SequenceEvals>,
     pub test: Vec<TestResult>,
     pub history: Vec<EpochRecord>,
     pub model_json: String,
