@@ -57,6 +57,9 @@ fn ci_small_learns_exports_and_resumes() {
     let (first, last) = (summary["loss_first"].as_f64().unwrap(), summary["loss_last"].as_f64().unwrap());
     assert!(last < 0.8 * first, "loss did not fall: {first} → {last}");
 
+    assert!(printed.contains("curves: "), "{printed}");
+    let png = std::fs::read(dir.path().join("ci.curves.png")).unwrap();
+    assert!(png.starts_with(b"\x89PNG") && png.len() > 10_000, "curves: {} bytes", png.len());
     let meta = load_metadata(&dir.path().join("ci.json")).unwrap();
     let raw = meta.metrics["val.mean_raw_aoe_deg"];
     let model = meta.metrics["val.mean_aoe_deg"];
@@ -107,6 +110,63 @@ fn ci_small_learns_exports_and_resumes() {
     assert_eq!(resumed["history"].as_array().unwrap().len(), 62);
     assert_eq!(resumed["history"][59]["loss"], summary["history"][59]["loss"]);
     assert_eq!(epochs_of(&resumed["monitor"][0]), vec![20, 40, 60, 62], "the monitor survives the resume");
+}
+
+/// `train.seeds`: one run per seed (two at once), the lowest validation score is exported as
+/// `<name>` with every candidate recorded; a second call reuses the finished runs; `--resume`
+/// without `--seed` is refused.
+#[test]
+fn seed_restarts_export_the_best_validated_run() {
+    let Some(data) = shared_data() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(manifest().join("params/train/ci-small.yaml")).unwrap();
+    let text = text.replace("root: ../../../shared/data", &format!("root: {}", data.display())).replace("  seed: 0\n", "  seeds: [3, 1]\n");
+    assert!(text.contains("seeds: [3, 1]"), "{text}");
+    let config = dir.path().join("restarts.yaml");
+    std::fs::write(&config, text).unwrap();
+    let train = |extra: &[&str]| {
+        run(Command::new(bin())
+            .args(["train", "--config"])
+            .arg(&config)
+            .arg("--out-dir")
+            .arg(dir.path())
+            .args(["--no-progress", "--epochs", "4", "--jobs", "2"])
+            .args(extra))
+    };
+    let out = train(&[]);
+    let printed = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(out.status.success(), "{printed}\n{}", String::from_utf8_lossy(&out.stderr));
+
+    // Recompute the choice from the two runs' own summaries.
+    let score = |run: &str| -> f64 {
+        let s: imu_fsda::train::report::TrainSummary =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join(format!("{run}.train.json"))).unwrap()).unwrap();
+        imu_fsda::train::fit::validation_score(&s.validation, Some(s.exported_epoch), s.config.train.task_weighting).unwrap()
+    };
+    let (s3, s1) = (score("restarts-s3"), score("restarts-s1"));
+    let expected = if s1 < s3 { 1 } else { 3 };
+    let sel: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("restarts.seeds.json")).unwrap()).unwrap();
+    assert_eq!(sel["chosen_seed"].as_u64(), Some(expected), "scores s3 {s3} s1 {s1}: {sel}");
+    assert_eq!(sel["candidates"].as_array().unwrap().len(), 2);
+    assert!(printed.contains("<- exported"), "{printed}");
+
+    // The promoted model is the chosen run's, under the new name.
+    let meta = load_metadata(&dir.path().join("restarts.json")).unwrap();
+    assert_eq!(meta.name, "restarts");
+    assert_eq!(meta.files.torchscript, "restarts.pt");
+    assert_eq!(meta.metrics["seed"], expected as f64);
+    assert_eq!(meta.metrics["seed_selection.candidates"], 2.0);
+    let u = tch::Tensor::randn([1, 700, 6], (tch::Kind::Float, tch::Device::Cpu));
+    let promoted = load_torchscript(&dir.path().join("restarts.json")).unwrap().forward(&u).unwrap();
+    let chosen = load_torchscript(&dir.path().join(format!("restarts-s{expected}.json"))).unwrap().forward(&u).unwrap();
+    assert_eq!(f64::try_from((promoted - chosen).abs().max()).unwrap(), 0.0);
+
+    // Both runs are complete: a second call trains nothing and chooses the same.
+    let again = train(&[]);
+    let printed = String::from_utf8_lossy(&again.stdout).into_owned();
+    assert!(again.status.success() && printed.matches("already trained").count() == 2, "{printed}");
+    let resume = train(&["--resume", "x.ckpt.json"]);
+    assert!(!resume.status.success() && String::from_utf8_lossy(&resume.stderr).contains("--seed"));
 }
 
 fn imu(n: usize, t0_ns: i64) -> Vec<ImuSample> {

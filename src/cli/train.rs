@@ -3,16 +3,21 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
-use imu_fsda::train::{fit, TrainConfig};
+use anyhow::Context;
+use imu_fsda::train::{fit, seeds, TrainConfig};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 #[derive(Debug, clap::Args)]
 pub struct TrainArgs {
     /// Training config (YAML with model, dataset and train sections; see params/train/).
     #[arg(long)]
     pub config: PathBuf,
-    /// Seed (overrides train.seed).
+    /// Seed (overrides train.seed; with train.seeds, trains this one seed as <name>).
     #[arg(long)]
     pub seed: Option<u64>,
+    /// With train.seeds: runs trained at once (each one libtorch thread; default: the CPUs).
+    #[arg(long)]
+    pub jobs: Option<usize>,
     /// Continue from a checkpoint (`<out-dir>/<name>.ckpt.json`).
     #[arg(long)]
     pub resume: Option<PathBuf>,
@@ -35,8 +40,17 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let cfg = TrainConfig::load(&args.config)?;
     let name =
         args.name.clone().unwrap_or_else(|| args.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or("model".into()));
+    if args.seed.is_none() && cfg.train.seeds.len() > 1 {
+        if args.resume.is_some() {
+            anyhow::bail!(
+                "--resume continues one run: give its --seed too (each seed's run resumes from <name>-s<seed>.ckpt.json by itself)"
+            );
+        }
+        return run_seeds(&args, &cfg, &name);
+    }
+    let seed = args.seed.or(cfg.train.seeds.first().copied());
     let opts = fit::RunOptions {
-        seed: args.seed,
+        seed,
         resume: args.resume.clone(),
         out_dir: args.out_dir.clone(),
         name,
@@ -48,9 +62,18 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         "trained {} ({:?}, seed {}): {} epochs in {:.1} s ({:.3} s/epoch, {} threads); loss {:.4} → {:.4}",
         s.name, s.mode, s.seed, s.epochs, s.train_seconds, s.seconds_per_epoch, s.threads, s.loss_first, s.loss_last
     );
+    if s.exported_epoch != s.epochs {
+        println!("exported epoch {} (lowest validation score; train.select_best)", s.exported_epoch);
+    }
+    // The exported epoch's evaluation (the last one unless select_best chose another).
+    let at_export = |v: &imu_fsda::train::report::SequenceEvals| {
+        v.evals.iter().find(|e| e.0 == s.exported_epoch).or(v.evals.last()).map_or(f64::NAN, |e| e.1.aoe_deg)
+    };
     for v in &s.validation {
-        let last = v.evals.last().map_or(f64::NAN, |e| e.1.aoe_deg);
-        println!("validation {:<24} AOE raw {:8.3}°  model {:8.3}°", v.name, v.raw.aoe_deg, last);
+        println!("validation {:<24} AOE raw {:8.3}°  model {:8.3}°", v.name, v.raw.aoe_deg, at_export(v));
+    }
+    for v in &s.monitor {
+        println!("monitor    {:<24} AOE raw {:8.3}°  model {:8.3}°", v.name, v.raw.aoe_deg, at_export(v));
     }
     for t in &s.test {
         println!(
@@ -67,5 +90,111 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     }
     println!("model: {}", s.model_json);
     println!("summary: {}", fit::summary_path(&args.out_dir, &s.name).display());
+    let curves = args.out_dir.join(format!("{}.curves.png", s.name));
+    if curves.exists() {
+        println!("curves: {}", curves.display());
+    }
     Ok(())
+}
+
+/// `train.seeds`: one child `imu-fsda train --seed S --name <name>-s<S>` per seed, `jobs` at a
+/// time (each logs to `<out>/<name>-s<S>.log`); a finished run is reused, an interrupted one
+/// resumes from its checkpoint; then the lowest validation score is promoted to `<name>`.
+fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<()> {
+    let seeds = cfg.train.seeds.clone();
+    let epochs = args.epochs.unwrap_or(cfg.train.epochs);
+    let jobs = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1);
+    std::fs::create_dir_all(&args.out_dir).with_context(|| format!("creating {}", args.out_dir.display()))?;
+    let exe = std::env::current_exe().context("locating the imu-fsda binary")?;
+    let started = std::time::Instant::now();
+
+    let bar = if !args.no_progress && std::io::stderr().is_terminal() {
+        ProgressBar::new(seeds.len() as u64)
+    } else {
+        ProgressBar::with_draw_target(Some(seeds.len() as u64), ProgressDrawTarget::hidden())
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} {elapsed_precise} [{bar:25}] {pos}/{len} seeds {msg}")
+            .expect("template")
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(format!("{name}: {} seeds, {jobs} at once", seeds.len()));
+
+    let mut pending: std::collections::VecDeque<u64> = seeds.iter().copied().collect();
+    let mut running: Vec<(u64, std::process::Child, PathBuf)> = Vec::new();
+    let mut failed: Vec<String> = Vec::new();
+    while !pending.is_empty() || !running.is_empty() {
+        while running.len() < jobs && failed.is_empty() {
+            let Some(seed) = pending.pop_front() else { break };
+            let run = seeds::run_name(name, seed);
+            if finished(&args.out_dir, &run, epochs) {
+                println!("seed {seed}: {run} already trained ({epochs} epochs), reused");
+                bar.inc(1);
+                continue;
+            }
+            let log = args.out_dir.join(format!("{run}.log"));
+            let mut cmd = std::process::Command::new(&exe);
+            cmd.arg("-v").arg("train").arg("--config").arg(&args.config).arg("--seed").arg(seed.to_string());
+            cmd.arg("--name").arg(&run).arg("--out-dir").arg(&args.out_dir).arg("--no-progress");
+            if let Some(e) = args.epochs {
+                cmd.arg("--epochs").arg(e.to_string());
+            }
+            let (ckpt_ot, ckpt_json) = imu_fsda::train::checkpoint::paths(&args.out_dir, &run);
+            if ckpt_ot.exists() && ckpt_json.exists() {
+                cmd.arg("--resume").arg(&ckpt_json);
+            }
+            let out = std::fs::File::create(&log).with_context(|| format!("creating {}", log.display()))?;
+            cmd.stdout(out.try_clone()?).stderr(out);
+            let child = cmd.spawn().with_context(|| format!("starting {}", exe.display()))?;
+            println!("seed {seed}: training {run} (log {})", log.display());
+            running.push((seed, child, log));
+        }
+        bar.set_message(format!("running {:?}", running.iter().map(|r| r.0).collect::<Vec<_>>()));
+        std::thread::sleep(std::time::Duration::from_millis(500));
+        let mut still = Vec::new();
+        for (seed, mut child, log) in running.drain(..) {
+            match child.try_wait()? {
+                None => still.push((seed, child, log)),
+                Some(status) => {
+                    bar.inc(1);
+                    if status.success() {
+                        tracing::info!("seed {seed} finished");
+                    } else {
+                        failed.push(format!("seed {seed} ({status}; see {})", log.display()));
+                    }
+                }
+            }
+        }
+        running = still;
+        if !failed.is_empty() && running.is_empty() {
+            break;
+        }
+    }
+    bar.finish_and_clear();
+    if !failed.is_empty() {
+        anyhow::bail!("training failed: {}; finished runs are kept, rerun to resume the rest", failed.join(", "));
+    }
+
+    let (sel, json) = seeds::select_and_promote(&args.out_dir, name, &seeds)?;
+    println!("{} seeds in {:.1} s; {}:", seeds.len(), started.elapsed().as_secs_f64(), sel.criterion);
+    for c in &sel.candidates {
+        println!(
+            "  seed {:<4} validation score {:7.3}°  (test mean AOE {:7.3}°, not used){}",
+            c.seed,
+            c.validation_score_deg,
+            c.test_mean_aoe_deg.unwrap_or(f64::NAN),
+            if c.seed == sel.chosen_seed { "  <- exported" } else { "" }
+        );
+    }
+    println!("model: {}", json.display());
+    println!("selection: {}", args.out_dir.join(format!("{name}.seeds.json")).display());
+    Ok(())
+}
+
+/// A run whose summary records `epochs` epochs (a complete run of this length).
+fn finished(out_dir: &std::path::Path, run: &str, epochs: usize) -> bool {
+    std::fs::read_to_string(fit::summary_path(out_dir, run))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .is_some_and(|v| v["epochs"].as_u64() == Some(epochs as u64) && out_dir.join(format!("{run}.pt")).exists())
 }

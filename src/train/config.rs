@@ -227,6 +227,12 @@ pub struct TrainSettings {
     /// Seed of everything random (tch and the window sampler); `--seed` overrides.
     #[serde(default)]
     pub seed: u64,
+    /// Restarts: `imu-fsda train` trains one run per seed (`<name>-s<seed>`, several at once)
+    /// and exports the one with the lowest validation score at its exported epoch as
+    /// `<name>` (`train::seeds`). Empty (default): one run with `seed`. `--seed` trains that
+    /// one seed only.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub seeds: Vec<u64>,
     /// Epochs; one epoch = one optimiser step on one batch (DIGDL's definition).
     pub epochs: usize,
     /// Adam (PyTorch semantics: L2 weight decay added to the gradient).
@@ -460,6 +466,17 @@ impl TrainConfig {
         if t.threads < 1 {
             return Err("train.threads must be ≥ 1".into());
         }
+        if !t.seeds.is_empty() {
+            let mut s = t.seeds.clone();
+            s.sort_unstable();
+            s.dedup();
+            if s.len() != t.seeds.len() {
+                return Err(format!("train.seeds {:?} repeats a seed", t.seeds));
+            }
+            if self.dataset.validation.is_empty() {
+                return Err("train.seeds picks a run by its validation score: dataset.validation is empty".into());
+            }
+        }
         Ok(())
     }
 }
@@ -517,6 +534,20 @@ mod tests {
         assert!(TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3, bogus: 1}\n").is_err());
         let both = TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a, bag: b}]}\ntrain: {epochs: 3}\n").unwrap();
         assert!(both.validate().unwrap_err().contains("exactly one"));
+    }
+
+    /// `train.seeds` chooses by validation score: it needs a validation set and distinct seeds.
+    #[test]
+    fn seed_lists_need_a_validation_set_and_distinct_seeds() {
+        let with = |dataset: &str, seeds: &str| {
+            TrainConfig::parse(&format!("model: {{}}\ndataset: {dataset}\ntrain: {{epochs: 3, seeds: {seeds}}}\n")).unwrap().validate()
+        };
+        let with_val = "{train: [{sequence: a}], validation: [{sequence: a}]}";
+        assert!(with(with_val, "[0, 1, 2]").is_ok());
+        assert!(with(with_val, "[]").is_ok());
+        assert!(with(with_val, "[0, 1, 0]").unwrap_err().contains("repeats"));
+        assert!(with("{train: [{sequence: a}]}", "[0, 1]").unwrap_err().contains("dataset.validation is empty"));
+        assert!(with("{train: [{sequence: a}], monitor: [{sequence: b}]}", "[0, 1]").unwrap_err().contains("validation"));
     }
 
     #[test]

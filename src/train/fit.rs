@@ -518,12 +518,19 @@ fn epoch_seed(seed: u64, epoch: usize) -> i64 {
     ((z ^ (z >> 31)) >> 1) as i64
 }
 
-/// The latest evaluation's AOE averaged over the recordings, weighted like the training tasks
-/// (`per_domain`: each dataset's mean counts once); `None` before any evaluation.
-fn mean_aoe(evals: &[SequenceEvals], how: TaskWeighting) -> Option<f64> {
+/// The validation score: the AOE of each recording's evaluation at `epoch` (`None`: its
+/// latest) averaged over the recordings, weighted like the training tasks (`per_domain`: each
+/// dataset's mean counts once); `None` when no recording was evaluated then.
+pub fn validation_score(evals: &[SequenceEvals], epoch: Option<usize>, how: TaskWeighting) -> Option<f64> {
     let latest: Vec<(String, f64)> = evals
         .iter()
-        .filter_map(|e| e.evals.last().map(|x| (super::config::first_path_component(&e.source).to_string(), x.1.aoe_deg)))
+        .filter_map(|e| {
+            let at = match epoch {
+                None => e.evals.last(),
+                Some(ep) => e.evals.iter().find(|x| x.0 == ep),
+            };
+            at.map(|x| (super::config::first_path_component(&e.source).to_string(), x.1.aoe_deg))
+        })
         .collect();
     if latest.is_empty() {
         return None;
@@ -736,8 +743,8 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
                 Some(e) => e.with_average(&vs, || evals(&mut validation, &mut monitor))??,
                 None => evals(&mut validation, &mut monitor)?,
             }
-            let m = mean_aoe(&validation, cfg.train.task_weighting).unwrap_or(f64::NAN);
-            let mon = mean_aoe(&monitor, cfg.train.task_weighting).map_or(String::new(), |x| format!(", monitor {x:.3}°"));
+            let m = validation_score(&validation, None, cfg.train.task_weighting).unwrap_or(f64::NAN);
+            let mon = validation_score(&monitor, None, cfg.train.task_weighting).map_or(String::new(), |x| format!(", monitor {x:.3}°"));
             tracing::info!("epoch {done}: {msg}; validation AOE {m:.3}°{mon}");
             msg.push_str(&format!(", val AOE {m:.2}°"));
             if cfg.train.select_best && !data.validation.is_empty() && best.is_none_or(|(_, b)| m < b) {
@@ -899,6 +906,12 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     };
     let path = summary_path(&opts.out_dir, &opts.name);
     std::fs::write(&path, serde_json::to_string_pretty(&summary)?).with_context(|| format!("writing {}", path.display()))?;
+    let curves = opts.out_dir.join(format!("{}.curves.png", opts.name));
+    match super::curves::training_curves(&summary, &curves) {
+        Ok(()) => tracing::info!("curves {}", curves.display()),
+        // The model and its summary are written; a figure is not worth failing the run.
+        Err(e) => tracing::warn!("no training curves: {e}"),
+    }
     Ok(summary)
 }
 
@@ -1106,10 +1119,13 @@ mod tests {
             seq("euroc/V1_02_medium", &[9.0, 6.0]),
             seq("tumvi/dataset-room1_512_16", &[3.0, 1.0]),
         ];
-        assert!((mean_aoe(&v, TaskWeighting::PerDomain).unwrap() - 3.5).abs() < 1e-12);
-        assert!((mean_aoe(&v, TaskWeighting::Uniform).unwrap() - 4.75).abs() < 1e-12);
-        assert_eq!(mean_aoe(&[], TaskWeighting::PerDomain), None);
-        assert_eq!(mean_aoe(&[seq("euroc/MH_01_easy", &[])], TaskWeighting::Uniform), None);
+        assert!((validation_score(&v, None, TaskWeighting::PerDomain).unwrap() - 3.5).abs() < 1e-12);
+        assert!((validation_score(&v, None, TaskWeighting::Uniform).unwrap() - 4.75).abs() < 1e-12);
+        // At epoch 10: (9 + 3) / 2.
+        assert!((validation_score(&v, Some(10), TaskWeighting::PerDomain).unwrap() - 6.0).abs() < 1e-12);
+        assert_eq!(validation_score(&v, Some(30), TaskWeighting::PerDomain), None);
+        assert_eq!(validation_score(&[], None, TaskWeighting::PerDomain), None);
+        assert_eq!(validation_score(&[seq("euroc/MH_01_easy", &[])], None, TaskWeighting::Uniform), None);
     }
 
     /// The batched MAML step feeds the Generator `[embedding, IMU]` when the model asks for

@@ -4,14 +4,17 @@
 //!
 //! Files: [`config`] (the YAML), [`data`] (recordings → checked tasks, windows,
 //! normalisation), [`optim`] (Adam with saveable state), [`checkpoint`], [`report`] (the
-//! run's JSON), [`fit`] (the loop).
+//! run's JSON), [`curves`] (its figure), [`fit`] (the loop), [`seeds`] (restarts: the best
+//! of several seeds by validation score).
 
 pub mod checkpoint;
 pub mod config;
+pub mod curves;
 pub mod data;
 pub mod fit;
 pub mod optim;
 pub mod report;
+pub mod seeds;
 
 pub use config::TrainConfig;
 pub use fit::{train, RunOptions};
