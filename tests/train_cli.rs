@@ -140,7 +140,8 @@ fn seed_restarts_export_the_best_validated_run() {
     // Recompute the choice from the two runs' own summaries.
     let score = |run: &str| -> f64 {
         let s: imu_fsda::train::report::TrainSummary =
-            serde_json::from_str(&std::fs::read_to_string(dir.path().join(format!("{run}.train.json"))).unwrap()).unwrap();
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join("restarts.runs").join(format!("{run}.train.json"))).unwrap())
+                .unwrap();
         imu_fsda::train::fit::validation_score(&s.validation, Some(s.exported_epoch), s.config.train.task_weighting).unwrap()
     };
     let (s3, s1) = (score("restarts-s3"), score("restarts-s1"));
@@ -158,7 +159,7 @@ fn seed_restarts_export_the_best_validated_run() {
     assert_eq!(meta.metrics["seed_selection.candidates"], 2.0);
     let u = tch::Tensor::randn([1, 700, 6], (tch::Kind::Float, tch::Device::Cpu));
     let promoted = load_torchscript(&dir.path().join("restarts.json")).unwrap().forward(&u).unwrap();
-    let chosen = load_torchscript(&dir.path().join(format!("restarts-s{expected}.json"))).unwrap().forward(&u).unwrap();
+    let chosen = load_torchscript(&dir.path().join(format!("restarts.runs/restarts-s{expected}.json"))).unwrap().forward(&u).unwrap();
     assert_eq!(f64::try_from((promoted - chosen).abs().max()).unwrap(), 0.0);
 
     // Both runs are complete: a second call trains nothing and chooses the same.

@@ -97,14 +97,15 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `train.seeds`: one child `imu-fsda train --seed S --name <name>-s<S>` per seed, `jobs` at a
-/// time (each logs to `<out>/<name>-s<S>.log`); a finished run is reused, an interrupted one
+/// `train.seeds`: one child `imu-fsda train --seed S --name <name>-s<S>` per seed in
+/// `<out>/<name>.runs/`, `jobs` at a time (each logs to `<name>-s<S>.log` there); a finished run is reused, an interrupted one
 /// resumes from its checkpoint; then the lowest validation score is promoted to `<name>`.
 fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<()> {
     let seeds = cfg.train.seeds.clone();
     let epochs = args.epochs.unwrap_or(cfg.train.epochs);
     let jobs = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1);
-    std::fs::create_dir_all(&args.out_dir).with_context(|| format!("creating {}", args.out_dir.display()))?;
+    let runs = seeds::runs_dir(&args.out_dir, name);
+    std::fs::create_dir_all(&runs).with_context(|| format!("creating {}", runs.display()))?;
     let exe = std::env::current_exe().context("locating the imu-fsda binary")?;
     let started = std::time::Instant::now();
 
@@ -127,19 +128,19 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
         while running.len() < jobs && failed.is_empty() {
             let Some(seed) = pending.pop_front() else { break };
             let run = seeds::run_name(name, seed);
-            if finished(&args.out_dir, &run, epochs) {
+            if finished(&runs, &run, epochs) {
                 println!("seed {seed}: {run} already trained ({epochs} epochs), reused");
                 bar.inc(1);
                 continue;
             }
-            let log = args.out_dir.join(format!("{run}.log"));
+            let log = runs.join(format!("{run}.log"));
             let mut cmd = std::process::Command::new(&exe);
             cmd.arg("-v").arg("train").arg("--config").arg(&args.config).arg("--seed").arg(seed.to_string());
-            cmd.arg("--name").arg(&run).arg("--out-dir").arg(&args.out_dir).arg("--no-progress");
+            cmd.arg("--name").arg(&run).arg("--out-dir").arg(&runs).arg("--no-progress");
             if let Some(e) = args.epochs {
                 cmd.arg("--epochs").arg(e.to_string());
             }
-            let (ckpt_ot, ckpt_json) = imu_fsda::train::checkpoint::paths(&args.out_dir, &run);
+            let (ckpt_ot, ckpt_json) = imu_fsda::train::checkpoint::paths(&runs, &run);
             if ckpt_ot.exists() && ckpt_json.exists() {
                 cmd.arg("--resume").arg(&ckpt_json);
             }

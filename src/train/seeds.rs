@@ -4,10 +4,10 @@
 //! windowed loss does not see, tracks it across seeds: listing the training sequences as
 //! `dataset.validation` lets that choose, without the test split.
 //!
-//! The runs themselves are ordinary `imu-fsda train --seed S --name <name>-s<S>` runs (the CLI
-//! starts them, several at once); this module scores the finished runs and promotes the
-//! winner's files to `<name>.*`, recording every candidate in `<name>.seeds.json` and the
-//! winner's metadata.
+//! The runs themselves are ordinary `imu-fsda train --seed S --name <name>-s<S>` runs in
+//! `<out>/<name>.runs/` (the CLI starts them, several at once); this module scores the finished
+//! runs and promotes the winner's files to `<out>/<name>.*`, recording every candidate in
+//! `<name>.seeds.json` and the winner's metadata.
 
 use std::path::{Path, PathBuf};
 
@@ -21,6 +21,11 @@ use crate::model::export::{load_metadata, write_metadata, ExportFiles};
 /// The run of one seed: `<name>-s<seed>`.
 pub fn run_name(name: &str, seed: u64) -> String {
     format!("{name}-s{seed}")
+}
+
+/// Where the runs go: `<out>/<name>.runs/`, beside the promoted model.
+pub fn runs_dir(out_dir: &Path, name: &str) -> PathBuf {
+    out_dir.join(format!("{name}.runs"))
 }
 
 /// One finished run, as scored.
@@ -49,7 +54,7 @@ pub struct SeedSelection {
 /// Reads and scores a finished run's summary.
 pub fn candidate(out_dir: &Path, name: &str, seed: u64) -> anyhow::Result<Candidate> {
     let run = run_name(name, seed);
-    let path = summary_path(out_dir, &run);
+    let path = summary_path(&runs_dir(out_dir, name), &run);
     let text = std::fs::read_to_string(&path).with_context(|| format!("run {run}: reading {}", path.display()))?;
     let s: TrainSummary = serde_json::from_str(&text).with_context(|| format!("run {run}: parsing {}", path.display()))?;
     let score = validation_score(&s.validation, Some(s.exported_epoch), s.config.train.task_weighting)
@@ -93,14 +98,16 @@ pub fn select_and_promote(out_dir: &Path, name: &str, seeds: &[u64]) -> anyhow::
     Ok((selection, json))
 }
 
-/// Copies run `from`'s model files to `to`, renaming them in its metadata and summary.
+/// Copies run `from`'s model files (in the runs folder) to `to` (in `out_dir`), renaming them in
+/// its metadata and summary.
 fn promote(out_dir: &Path, from: &str, to: &str, selection: &SeedSelection) -> anyhow::Result<PathBuf> {
+    let runs = runs_dir(out_dir, to);
+    let src = |ext: &str| runs.join(format!("{from}.{ext}"));
     let file = |n: &str, ext: &str| out_dir.join(format!("{n}.{ext}"));
     for ext in ["pt", "ot"] {
-        std::fs::copy(file(from, ext), file(to, ext))
-            .with_context(|| format!("copying {} to {}", file(from, ext).display(), file(to, ext).display()))?;
+        std::fs::copy(src(ext), file(to, ext)).with_context(|| format!("copying {} to {}", src(ext).display(), file(to, ext).display()))?;
     }
-    let mut meta = load_metadata(&file(from, "json")).with_context(|| format!("reading {}", file(from, "json").display()))?;
+    let mut meta = load_metadata(&src("json")).with_context(|| format!("reading {}", src("json").display()))?;
     meta.name = to.to_string();
     meta.files = ExportFiles { torchscript: format!("{to}.pt"), weights: format!("{to}.ot") };
     meta.metrics.insert("seed_selection.candidates".into(), selection.candidates.len() as f64);
@@ -110,14 +117,14 @@ fn promote(out_dir: &Path, from: &str, to: &str, selection: &SeedSelection) -> a
     let json = file(to, "json");
     write_metadata(&json, &meta)?;
 
-    let summary_from = summary_path(out_dir, from);
+    let summary_from = summary_path(&runs, from);
     let mut summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&summary_from).with_context(|| format!("reading {}", summary_from.display()))?)?;
     summary["name"] = to.into();
     summary["model_json"] = json.display().to_string().into();
     summary["seed_selection"] = serde_json::to_value(selection)?;
     std::fs::write(summary_path(out_dir, to), serde_json::to_string_pretty(&summary)?)?;
-    let curves = file(from, "curves.png");
+    let curves = src("curves.png");
     if curves.exists() {
         std::fs::copy(&curves, file(to, "curves.png"))?;
     }
