@@ -64,6 +64,8 @@ fn ci_small_learns_exports_and_resumes() {
     let raw = meta.metrics["val.mean_raw_aoe_deg"];
     let model = meta.metrics["val.mean_aoe_deg"];
     assert!(model < 0.7 * raw, "held-out AOE {model}° did not improve over raw {raw}°");
+    // One validation recording: the weighted score is its AOE.
+    assert!((meta.metrics["val.score_deg"] - model).abs() < 1e-12);
     assert!(meta.training_data.iter().any(|s| s.contains("MH_01_easy")), "{:?}", meta.training_data);
     assert!(meta.metrics.contains_key("test.MH_04_difficult@0-40s.aoe_deg"), "{:?}", meta.metrics.keys());
     // The monitor (the test crop itself) is evaluated with the validation set; its last entry

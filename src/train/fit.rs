@@ -828,6 +828,9 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         let n = val_at_export.len() as f64;
         metrics.insert("val.mean_raw_aoe_deg".into(), val_at_export.iter().map(|x| x.0).sum::<f64>() / n);
         metrics.insert("val.mean_aoe_deg".into(), val_at_export.iter().map(|x| x.1).sum::<f64>() / n);
+        if let Some(score) = validation_score(&validation, Some(exported_epoch), cfg.train.task_weighting) {
+            metrics.insert("val.score_deg".into(), score);
+        }
     }
     for r in &test {
         for (k, v) in [
