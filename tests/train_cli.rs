@@ -170,6 +170,22 @@ fn seed_restarts_export_the_best_validated_run() {
     assert!(again.status.success() && printed.matches("already trained").count() == 2, "{printed}");
     let resume = train(&["--resume", "x.ckpt.json"]);
     assert!(!resume.status.success() && String::from_utf8_lossy(&resume.stderr).contains("--seed"));
+
+    // A run that cannot start (a training sequence that is not there) fails the command with
+    // the child's own error, and nothing is promoted.
+    let broken = dir.path().join("broken.yaml");
+    let text = std::fs::read_to_string(&config).unwrap().replace("euroc/V1_02_medium", "euroc/V9_99_missing");
+    std::fs::write(&broken, text).unwrap();
+    let out = run(Command::new(bin()).args(["train", "--config"]).arg(&broken).arg("--out-dir").arg(dir.path()).args([
+        "--no-progress",
+        "--epochs",
+        "2",
+        "--jobs",
+        "2",
+    ]));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("training failed") && err.contains("V9_99_missing"), "{err}");
+    assert!(!dir.path().join("broken.json").exists());
 }
 
 fn imu(n: usize, t0_ns: i64) -> Vec<ImuSample> {

@@ -161,7 +161,7 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
                     if status.success() {
                         tracing::info!("seed {seed} finished");
                     } else {
-                        failed.push(format!("seed {seed} ({status}; see {})", log.display()));
+                        failed.push(format!("seed {seed} ({status}): {} (log {})", last_error(&log), log.display()));
                     }
                 }
             }
@@ -198,4 +198,11 @@ fn finished(out_dir: &std::path::Path, run: &str, epochs: usize) -> bool {
         .ok()
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
         .is_some_and(|v| v["epochs"].as_u64() == Some(epochs as u64) && out_dir.join(format!("{run}.pt")).exists())
+}
+
+/// The child's error line (its last `Error:` line, else its last line), for the parent's message.
+fn last_error(log: &std::path::Path) -> String {
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+    lines.iter().rev().find(|l| l.starts_with("Error")).or(lines.last()).map_or("no output".into(), |l| l.trim().to_string())
 }
