@@ -128,7 +128,7 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
         while running.len() < jobs && failed.is_empty() {
             let Some(seed) = pending.pop_front() else { break };
             let run = seeds::run_name(name, seed);
-            if finished(&runs, &run, epochs) {
+            if seeds::finished(&runs, &run, epochs) {
                 println!("seed {seed}: {run} already trained ({epochs} epochs), reused");
                 bar.inc(1);
                 continue;
@@ -190,14 +190,6 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
     println!("model: {}", json.display());
     println!("selection: {}", args.out_dir.join(format!("{name}.seeds.json")).display());
     Ok(())
-}
-
-/// A run whose summary records `epochs` epochs (a complete run of this length).
-fn finished(out_dir: &std::path::Path, run: &str, epochs: usize) -> bool {
-    std::fs::read_to_string(fit::summary_path(out_dir, run))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .is_some_and(|v| v["epochs"].as_u64() == Some(epochs as u64) && out_dir.join(format!("{run}.pt")).exists())
 }
 
 /// The child's error line (its last `Error:` line, else its last line), for the parent's message.

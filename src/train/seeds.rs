@@ -28,6 +28,15 @@ pub fn runs_dir(out_dir: &Path, name: &str) -> PathBuf {
     out_dir.join(format!("{name}.runs"))
 }
 
+/// Whether run `run` in `runs` is complete at `epochs` epochs (its summary says so and its
+/// model is there), so a restarted `train.seeds` command reuses it instead of training again.
+pub fn finished(runs: &Path, run: &str, epochs: usize) -> bool {
+    std::fs::read_to_string(summary_path(runs, run))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .is_some_and(|v| v["epochs"].as_u64() == Some(epochs as u64) && runs.join(format!("{run}.pt")).exists())
+}
+
 /// One finished run, as scored.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Candidate {
