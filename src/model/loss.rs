@@ -28,6 +28,19 @@ pub struct IncrementTerm {
     pub samples: i64,
     /// w_j.
     pub weight: f64,
+    /// This term's Huber threshold δ, rad (absent: the loss's `huber_delta_rad`). A long
+    /// increment sums a bias error over its length: with DIGDL's δ its residual sits in the
+    /// Huber function's linear part, whose minimum over recordings with different biases is a
+    /// median — flat between the middle two — where a larger δ keeps it quadratic (a mean).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub huber_delta_rad: Option<f64>,
+}
+
+impl IncrementTerm {
+    /// j samples weighted w, with the loss's Huber threshold.
+    pub const fn new(samples: i64, weight: f64) -> Self {
+        Self { samples, weight, huber_delta_rad: None }
+    }
 }
 
 /// Loss hyper-parameters.
@@ -62,7 +75,7 @@ pub struct LossConfig {
 impl Default for LossConfig {
     fn default() -> Self {
         Self {
-            increments: vec![IncrementTerm { samples: 16, weight: 1.0 }, IncrementTerm { samples: 32, weight: 0.5 }],
+            increments: vec![IncrementTerm::new(16, 1.0), IncrementTerm::new(32, 0.5)],
             huber_delta_rad: 0.005,
             scale: 1e6,
             skip_first_increments: 5,
@@ -142,7 +155,7 @@ pub fn increment_loss(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attit
         let valid = (gt_gap.maximum(&dt_gap) * -1.0 + 1.0) * not_skipped; // [B, M]
         let valid3 = valid.unsqueeze(-1).expand([b, m, 3], false);
         let residual = residual.where_self(&valid3.gt(0.5), &residual.zeros_like());
-        let huber = residual.huber_loss(&residual.zeros_like(), Reduction::None, cfg.huber_delta_rad);
+        let huber = residual.huber_loss(&residual.zeros_like(), Reduction::None, term.huber_delta_rad.unwrap_or(cfg.huber_delta_rad));
         let count = valid3.sum(kind).clamp_min(1.0);
         terms.push((huber * &valid3).sum(kind) / count * (cfg.scale * term.weight));
     }
@@ -179,7 +192,7 @@ mod tests {
 
     fn small_cfg() -> LossConfig {
         LossConfig {
-            increments: vec![IncrementTerm { samples: 4, weight: 1.0 }, IncrementTerm { samples: 8, weight: 0.5 }],
+            increments: vec![IncrementTerm::new(4, 1.0), IncrementTerm::new(8, 0.5)],
             skip_first_increments: 1,
             ..Default::default()
         }
@@ -200,6 +213,33 @@ mod tests {
         assert!(increment_loss(&cfg, &omega, &fixed, &gt, None).double_value(&[]) > 1e-3);
     }
 
+    /// Two recordings whose gyros need different constant corrections b₁, b₂ (a bias that
+    /// changes from day to day), scored as one batch with a common correction c: with δ far
+    /// below the long increment's residual every c between b₁ and b₂ costs the same (a median
+    /// of two), with a per-term δ above it only the mean is the minimum.
+    #[test]
+    fn a_per_term_delta_turns_the_flat_median_into_a_mean() {
+        tch::manual_seed(5);
+        let omega = Tensor::randn([2, 65, 3], F64) * 0.3;
+        let dt = Tensor::full([2, 65], 0.005, F64);
+        let gt = integrate(&omega, &dt);
+        let need = Tensor::from_slice(&[0.0, 0.02]).reshape([2, 1, 1]); // b₁, b₂ rad/s
+        let loss_at = |delta: Option<f64>, c: f64| {
+            let cfg = LossConfig {
+                increments: vec![IncrementTerm { samples: 64, weight: 1.0, huber_delta_rad: delta }],
+                skip_first_increments: 0,
+                huber_delta_rad: 1e-5,
+                ..Default::default()
+            };
+            increment_loss(&cfg, &(&omega - &need + c), &dt, &gt, None).double_value(&[])
+        };
+        let (quarter, mean) = (0.005, 0.01);
+        let (flat_q, flat_m) = (loss_at(None, quarter), loss_at(None, mean));
+        assert!((flat_q - flat_m).abs() < 1e-3 * flat_m, "linear part: {flat_q} vs {flat_m}");
+        let (quad_q, quad_m) = (loss_at(Some(1.0), quarter), loss_at(Some(1.0), mean));
+        assert!(quad_q > 1.2 * quad_m, "quadratic: {quad_q} vs {quad_m}");
+    }
+
     #[test]
     fn gaps_are_masked_and_never_nan() {
         tch::manual_seed(4);
@@ -208,8 +248,7 @@ mod tests {
         let gt = integrate(&omega, &dt);
         // Corrupt the ground truth in the 3rd 4-sample increment (samples 8…12) and mark it.
         let _ = gt.narrow(1, 10, 1).fill_(f64::NAN);
-        let cfg =
-            LossConfig { increments: vec![IncrementTerm { samples: 4, weight: 1.0 }], skip_first_increments: 0, ..Default::default() };
+        let cfg = LossConfig { increments: vec![IncrementTerm::new(4, 1.0)], skip_first_increments: 0, ..Default::default() };
         let wrong = omega.copy();
         let _ = wrong.narrow(1, 9, 1).fill_(5.0); // a wrong estimate inside the gap only
         let w = wrong.set_requires_grad(true);
@@ -290,7 +329,7 @@ mod tests {
     #[test]
     fn defaults_are_digdl() {
         let cfg = LossConfig::default();
-        assert_eq!(cfg.increments, [IncrementTerm { samples: 16, weight: 1.0 }, IncrementTerm { samples: 32, weight: 0.5 }]);
+        assert_eq!(cfg.increments, [IncrementTerm::new(16, 1.0), IncrementTerm::new(32, 0.5)]);
         assert_eq!((cfg.huber_delta_rad, cfg.scale, cfg.skip_first_increments), (0.005, 1e6, 5));
     }
 
