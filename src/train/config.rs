@@ -126,7 +126,7 @@ fn default_nearest() -> f64 {
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Schedule {
     Constant,
-    /// PyTorch's `CosineAnnealingWarmRestarts(T_0, T_mult, eta_min)` (DIGDL: 600, 2, 0).
+    /// PyTorch's `CosineAnnealingWarmRestarts(T_0, T_mult, eta_min)` (DIGDL: 600, 2, 1e-3).
     CosineWarmRestarts {
         t0: usize,
         t_mult: usize,
@@ -162,11 +162,15 @@ pub struct Augment {
     pub accel_noise_std: f64,
     /// A constant gyro offset per window, uniform in ±this, rad/s.
     pub gyro_offset: f64,
+    /// A constant accelerometer offset per window, uniform in ±this, m/s². DIGDL's code
+    /// draws its "bias repeatability" for all six channels and then scales only a slice of an
+    /// axis of length one, so every channel gets ±1e-3: its config sets this to 1e-3.
+    pub accel_offset: f64,
 }
 
 impl Default for Augment {
     fn default() -> Self {
-        Self { gyro_noise_std: 8e-5, accel_noise_std: 1e-3, gyro_offset: 1e-3 }
+        Self { gyro_noise_std: 8e-5, accel_noise_std: 1e-3, gyro_offset: 1e-3, accel_offset: 0.0 }
     }
 }
 
@@ -248,6 +252,11 @@ pub struct TrainSettings {
     pub windows_per_sequence: usize,
     #[serde(default = "default_window")]
     pub window_samples: usize,
+    /// DIGDL and FSDA: each window starts at a random sample among the first this many of its
+    /// recording, so every epoch trains on (nearly) the same first `window_samples` of every
+    /// sequence, its start included (DIGDL's `max_train_freq`: 32). Absent: anywhere.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window_start_within: Option<usize>,
     #[serde(default)]
     pub augment: Augment,
     #[serde(default)]
@@ -422,9 +431,26 @@ impl TrainConfig {
         if t.windows_per_sequence == 0 || t.maml.support_windows == 0 || t.maml.query_windows == 0 {
             return Err("window counts must be ≥ 1".into());
         }
+        if t.window_start_within == Some(0) {
+            return Err("train.window_start_within must be ≥ 1 (absent: windows start anywhere)".into());
+        }
+        if t.window_start_within.is_some() && self.model.mode == Mode::FsdaF {
+            return Err("train.window_start_within applies to digdl and fsda (fsda_f draws support and query windows)".into());
+        }
+        if !non_negative(t.augment.gyro_noise_std)
+            || !non_negative(t.augment.accel_noise_std)
+            || !non_negative(t.augment.gyro_offset)
+            || !non_negative(t.augment.accel_offset)
+        {
+            return Err("train.augment: every noise std and offset must be finite and ≥ 0".into());
+        }
         let loss = &self.train.loss;
-        if loss.increments.is_empty() || loss.increments.iter().any(|i| i.samples < 1 || !non_negative(i.weight)) {
-            return Err("train.loss.increments: at least one, each with samples ≥ 1 and a finite weight ≥ 0".into());
+        if loss.increments.is_empty()
+            || loss.increments.iter().any(|i| i.samples < 1 || !non_negative(i.weight) || i.huber_delta_rad.is_some_and(|d| !positive(d)))
+        {
+            return Err(
+                "train.loss.increments: at least one, each with samples ≥ 1, a finite weight ≥ 0 and any huber_delta_rad > 0".into()
+            );
         }
         if loss.skip_first_samples < 0 || loss.skip_first_increments < 0 {
             return Err(format!(
@@ -525,6 +551,32 @@ mod tests {
         assert_eq!(s.lr(0.01, 1800), 0.01);
     }
 
+    /// DIGDL's schedule floors at eta_min = 1e-3 (its main_EUROC.py), not at 0.
+    #[test]
+    fn cosine_warm_restarts_respect_eta_min() {
+        let s = Schedule::CosineWarmRestarts { t0: 600, t_mult: 2, eta_min: 1e-3 };
+        assert!((s.lr(0.01, 300) - 0.0055).abs() < 1e-12);
+        assert!(s.lr(0.01, 599) > 1e-3 && s.lr(0.01, 1799) > 1e-3);
+        assert!((s.lr(0.01, 600) - 0.01).abs() < 1e-15); // restart
+    }
+
+    /// DIGDL's sampling (windows from a recording's first samples) and its all-channel offset
+    /// parse; nonsense is refused before any data is read.
+    #[test]
+    fn window_start_and_offsets_are_checked() {
+        let with = |model: &str, train: &str| {
+            TrainConfig::parse(&format!("model: {{mode: {model}}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 3, {train}}}\n"))
+                .unwrap()
+                .validate()
+        };
+        assert!(with("digdl", "window_start_within: 32, augment: {accel_offset: 1.0e-3}").is_ok());
+        assert!(with("fsda", "window_start_within: 1").is_ok());
+        assert!(with("digdl", "window_start_within: 0").unwrap_err().contains("window_start_within"));
+        assert!(with("fsda_f", "window_start_within: 32").unwrap_err().contains("digdl and fsda"));
+        assert!(with("digdl", "augment: {gyro_offset: -1.0e-3}").unwrap_err().contains("augment"));
+        assert!(with("digdl", "augment: {accel_offset: .nan}").unwrap_err().contains("augment"));
+    }
+
     #[test]
     fn model_section_starts_from_mode_defaults() {
         let text = "model: {mode: digdl}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3}\n";
@@ -564,6 +616,8 @@ mod tests {
         assert!(with("{increments: [{samples: 0, weight: 1.0}]}").unwrap_err().contains("increments"));
         assert!(with("{increments: [{samples: 16, weight: -1.0}]}").unwrap_err().contains("increments"));
         assert!(with("{huber_delta_rad: 0.0}").unwrap_err().contains("huber_delta_rad"));
+        assert!(with("{increments: [{samples: 16, weight: 1.0, huber_delta_rad: 0.0}]}").unwrap_err().contains("huber_delta_rad"));
+        assert!(with("{increments: [{samples: 16, weight: 1.0, huber_delta_rad: .nan}]}").unwrap_err().contains("huber_delta_rad"));
         assert!(with("{gamma: -1.0}").unwrap_err().contains("gamma"));
         assert!(with("{reconstruction_weight: -0.5}").unwrap_err().contains("reconstruction_weight"));
         let maml = |m: &str| {

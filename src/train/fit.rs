@@ -21,7 +21,7 @@ use rand_chacha::ChaCha8Rng;
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
 use super::checkpoint::{self, CheckpointMeta};
-use super::config::{Augment, TaskWeighting, TrainConfig};
+use super::config::{Augment, TaskWeighting, TrainConfig, TrainSettings};
 use super::data::{self, Batch, Task};
 use super::optim::Adam;
 use super::report::{EpochRecord, SequenceEvals, TaskInfo, TestResult, TrainSummary};
@@ -127,8 +127,10 @@ fn augment(u: &Tensor, a: &Augment) -> Tensor {
     noise_std = noise_std.reshape([1, 1, 6]);
     let noise = Tensor::randn([b, t, 6], opts) * noise_std;
     let offset = (Tensor::rand([b, 1, 3], opts) * 2.0 - 1.0) * a.gyro_offset;
-    let offset = Tensor::cat(&[offset, Tensor::zeros([b, 1, 3], opts)], 2);
-    u + noise + offset
+    // Drawn only when asked, so the random stream (and every recipe without it) is unchanged.
+    let accel =
+        if a.accel_offset > 0.0 { (Tensor::rand([b, 1, 3], opts) * 2.0 - 1.0) * a.accel_offset } else { Tensor::zeros([b, 1, 3], opts) };
+    u + noise + Tensor::cat(&[offset, accel], 2)
 }
 
 struct StepLosses {
@@ -142,11 +144,21 @@ fn scalar(t: &Tensor) -> f64 {
     t.double_value(&[])
 }
 
+/// The samples a DIGDL / FSDA window is drawn from in a recording of `len` samples: all of
+/// it, or with `window_start_within` (DIGDL's `max_train_freq`) the first window and the few
+/// samples after it.
+fn plain_window_range(t: &TrainSettings, len: usize) -> (usize, usize) {
+    match t.window_start_within {
+        Some(first) => (0, len.min(first.saturating_sub(1) + t.window_samples)),
+        None => (0, len),
+    }
+}
+
 /// DIGDL / FSDA: one batch from all recordings, gradients accumulated into the variables.
 fn plain_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
     let t = &cfg.train;
     let refs: Vec<&Task> = tasks.iter().collect();
-    let batch: Batch = data::sample_windows(&refs, |x| (0, x.len()), t.windows_per_sequence, t.window_samples, rng);
+    let batch: Batch = data::sample_windows(&refs, |x| plain_window_range(t, x.len()), t.windows_per_sequence, t.window_samples, rng);
     let u = augment(&batch.imu, &t.augment);
     let reconstruct = cfg.model.mode.has_embedding();
     let calibration_rows = batch.calibration_rows.as_ref();
@@ -979,6 +991,22 @@ pub fn embedding_and_extra_grads(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// With `window_start_within: 32` a 16000-sample window starts at one of a recording's
+    /// first 32 samples (DIGDL's `randint(0, max_train_freq)`); without it, anywhere; a short
+    /// recording keeps a valid range.
+    #[test]
+    fn plain_windows_start_where_asked() {
+        let mut t: TrainSettings = serde_yaml::from_str("{epochs: 1, window_samples: 16000}").unwrap();
+        assert_eq!(plain_window_range(&t, 36000), (0, 36000));
+        t.window_start_within = Some(32);
+        let (a, b) = plain_window_range(&t, 36000);
+        assert_eq!((a, b - t.window_samples), (0, 31));
+        assert_eq!(plain_window_range(&t, 16010), (0, 16010));
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let starts: Vec<usize> = (0..500).map(|_| rng.gen_range(a..=b - t.window_samples)).collect();
+        assert!(starts.iter().all(|&s| s < 32) && starts.contains(&0) && starts.contains(&31));
+    }
 
     #[test]
     fn per_domain_weights_give_each_domain_the_same_total() {
