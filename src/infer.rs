@@ -86,12 +86,19 @@ pub struct FullWindowCorrector {
     window: Vec<ImuSample>,
     n: usize,
     name: String,
+    correction_gain: f64,
 }
 
 impl FullWindowCorrector {
     pub fn new(net: crate::model::InferenceNet, name: &str) -> Self {
         let n = net.receptive_field() as usize;
-        FullWindowCorrector { net, window: Vec::with_capacity(n), n, name: format!("{name} (naive full window)") }
+        FullWindowCorrector { net, window: Vec::with_capacity(n), n, name: format!("{name} (naive full window)"), correction_gain: 1.0 }
+    }
+
+    /// Applies the share `gain` of the model's correction (as [`crate::model::StreamingDenoiser::set_correction_gain`]).
+    pub fn with_correction_gain(mut self, gain: f64) -> Self {
+        self.correction_gain = gain;
+        self
     }
 }
 
@@ -110,7 +117,7 @@ impl GyroCorrector for FullWindowCorrector {
         let out = tch::no_grad(|| self.net.forward(&input));
         let last = out.select(1, self.n as i64 - 1).reshape([3]).to_kind(tch::Kind::Double);
         match Vec::<f64>::try_from(last) {
-            Ok(v) => Vector3::new(v[0], v[1], v[2]),
+            Ok(v) => crate::model::streaming::apply_correction_gain(gyro, &Vector3::new(v[0], v[1], v[2]), self.correction_gain),
             Err(_) => *gyro,
         }
     }

@@ -103,6 +103,19 @@ fn stream_sequence(stream: &mut imu_fsda::model::StreamingDenoiser, u: &Tensor) 
     Tensor::from_slice(&out).reshape([-1, 3])
 }
 
+/// One sequence `[T, 6]` (f32) as IMU samples, 5 ms apart.
+fn to_samples(u: &Tensor) -> Vec<imu_fsda::core::ImuSample> {
+    let rows = Vec::<f32>::try_from(&u.flatten(0, -1)).unwrap();
+    rows.chunks_exact(6)
+        .enumerate()
+        .map(|(k, r)| imu_fsda::core::ImuSample {
+            stamp_ns: k as i64 * 5_000_000,
+            gyro: Vector3::new(r[0] as f64, r[1] as f64, r[2] as f64),
+            accel: Vector3::new(r[3] as f64, r[4] as f64, r[5] as f64),
+        })
+        .collect()
+}
+
 #[test]
 fn export_round_trip_matches_in_memory_forward() {
     tch::set_num_threads(1);
@@ -284,4 +297,56 @@ fn per_imu_calibrations_survive_export() {
     let shared = export::export_model(dir.path(), "shared", &vs1, &net1, &ExportInfo::default()).unwrap();
     let mut ts = export::load_torchscript(&shared.metadata).unwrap();
     assert!(matches!(ts.select_imu(Some("euroc")), Err(ModelError::UnknownImu { .. })));
+}
+
+/// Per-IMU correction gains on a model with one shared Ĉ_ω: naming an IMU gives
+/// `ω + g (ω̂ − ω)` in the TorchScript file, the reloaded model's f64 reference and the
+/// streaming denoiser alike; no name (a new IMU) and a gain of 1 give the model unchanged; an
+/// IMU it does not know is an error; an adapted model applies all of its own correction.
+#[test]
+fn correction_gains_survive_export() {
+    tch::set_num_threads(1);
+    let (vs, net) = random_model(Mode::FsdaF, 41);
+    let gains: std::collections::BTreeMap<String, f64> = [("euroc".to_string(), 1.0), ("tumvi".to_string(), 0.4)].into();
+    let dir = tempfile::tempdir().unwrap();
+    let info = ExportInfo { imu_correction_gains: gains.clone(), ..Default::default() };
+    let paths = export::export_model(dir.path(), "g", &vs, &net, &info).unwrap();
+    let meta = export::load_metadata(&paths.metadata).unwrap();
+    assert_eq!(meta.imu_correction_gains, gains);
+    assert_eq!(meta.imu_names(), ["euroc", "tumvi"]);
+    let u = imu_input(1, 900, 41);
+    let full = tch::no_grad(|| net.inference().forward(&u));
+    let raw = u.narrow(2, 0, 3);
+    for (imu, g) in [(None, 1.0), (Some("euroc"), 1.0), (Some("tumvi"), 0.4)] {
+        let expected = &raw + (&full - &raw) * g;
+        let mut ts = export::load_torchscript(&paths.metadata).unwrap();
+        ts.select_imu(imu).unwrap();
+        let (mut stream, _) = export::load_streaming(&paths.metadata, imu).unwrap();
+        assert_eq!(stream.correction_gain(), g);
+        let samples = to_samples(&u.get(0));
+        let (f64_ref, _) = imu_fsda::model::predict::correct_with_weights_f64(&paths.torchscript, &samples, imu).unwrap();
+        let f64_ref =
+            Tensor::from_slice(&f64_ref.iter().flat_map(|v| [v.x as f32, v.y as f32, v.z as f32]).collect::<Vec<_>>()).reshape([1, -1, 3]);
+        let d = [
+            max_abs_diff(&ts.forward(&u).unwrap(), &expected),
+            max_abs_diff(&stream_sequence(&mut stream, &u.get(0)).unsqueeze(0), &expected),
+            max_abs_diff(&f64_ref, &expected),
+        ];
+        println!("{imu:?} (gain {g}): TorchScript {:.2e}, streaming {:.2e}, f64 weights {:.2e} rad/s", d[0], d[1], d[2]);
+        assert!(d.iter().all(|d| *d < TOL_RAD_S), "{imu:?}: {d:?}");
+    }
+    assert!(max_abs_diff(&(&raw + (&full - &raw) * 0.4), &full) > 1e-3, "the gain must make a difference");
+    let mut ts = export::load_torchscript(&paths.metadata).unwrap();
+    assert!(matches!(ts.select_imu(Some("bmi088")), Err(ModelError::UnknownImu { .. })));
+    assert!(matches!(export::load_streaming(&paths.metadata, Some("bmi088")), Err(ModelError::UnknownImu { .. })));
+    let loaded = export::load_net(&paths.metadata, Device::Cpu).unwrap();
+    assert!(matches!(loaded.select_imu(Some("bmi088")), Err(ModelError::UnknownImu { .. })));
+    loaded.select_imu(Some("tumvi")).unwrap();
+    assert_eq!(loaded.correction_gain(), 0.4);
+    // An adapted model carries its own correction: the name selects nothing.
+    let info = ExportInfo { adapted_from: Some("g".into()), imu_correction_gains: gains, ..Default::default() };
+    let adapted = export::export_model(dir.path(), "g-adapted", &vs, &net, &info).unwrap();
+    let mut ts = export::load_torchscript(&adapted.metadata).unwrap();
+    ts.select_imu(Some("tumvi")).unwrap();
+    assert!(max_abs_diff(&ts.forward(&u).unwrap(), &full) < TOL_RAD_S);
 }

@@ -64,23 +64,38 @@ fn ci_small_learns_exports_and_resumes() {
     let raw = meta.metrics["val.mean_raw_aoe_deg"];
     let model = meta.metrics["val.mean_aoe_deg"];
     assert!(model < 0.7 * raw, "held-out AOE {model}° did not improve over raw {raw}°");
-    // One validation recording: the weighted score is its AOE.
-    assert!((meta.metrics["val.score_deg"] - model).abs() < 1e-12);
+    // One validation recording: the weighted score is its AOE, with the correction gain the
+    // run fitted on it (`train.correction_gains`); gain 1 is among the candidates, so it can
+    // only be as good or better than the model without it.
+    let gain = meta.imu_correction_gains["euroc"];
+    assert!((0.0..=1.5).contains(&gain), "gain {gain}");
+    assert_eq!(meta.metrics["correction_gain.euroc"], gain);
+    let without = meta.metrics["val.score_without_gain_deg"];
+    assert!((without - model).abs() < 1e-12);
+    let with = meta.metrics["val.score_deg"];
+    assert!((with - meta.metrics["val.V1_01_easy@0-40s.aoe_with_gain_deg"]).abs() < 1e-12, "{:?}", meta.metrics);
+    assert!(with <= without + 1e-9, "gained score {with} above the ungained {without}");
     assert!(meta.training_data.iter().any(|s| s.contains("MH_01_easy")), "{:?}", meta.training_data);
     assert!(meta.metrics.contains_key("test.MH_04_difficult@0-40s.aoe_deg"), "{:?}", meta.metrics.keys());
     // The monitor (the test crop itself) is evaluated with the validation set; its last entry
-    // is the exported model, so it equals the test figure.
     let epochs_of = |v: &serde_json::Value| -> Vec<u64> { v["evals"].as_array().unwrap().iter().map(|e| e[0].as_u64().unwrap()).collect() };
     assert_eq!(epochs_of(&summary["monitor"][0]), vec![20, 40, 60]);
     assert_eq!(epochs_of(&summary["monitor"][0]), epochs_of(&summary["validation"][0]));
+    // is the exported model (without the gain, fitted after training), so it equals the test
+    // figure without the gain.
     let monitored_last = summary["monitor"][0]["evals"][2][1]["aoe_deg"].as_f64().unwrap();
-    let tested = meta.metrics["test.MH_04_difficult@0-40s.aoe_deg"];
+    let tested = meta
+        .metrics
+        .get("test.MH_04_difficult@0-40s.aoe_without_gain_deg")
+        .copied()
+        .unwrap_or(meta.metrics["test.MH_04_difficult@0-40s.aoe_deg"]);
     assert!((monitored_last - tested).abs() < 1e-9, "monitor {monitored_last} vs test {tested}");
 
     let ts = load_torchscript(&dir.path().join("ci.json")).unwrap();
     let u = tch::Tensor::zeros([1, 700, 6], (tch::Kind::Float, tch::Device::Cpu));
     assert_eq!(ts.forward(&u).unwrap().size(), vec![1, 700, 3]);
-    // The profile learns one Ĉ_ω for `euroc`: `eval --imu` applies it, an unknown IMU is refused.
+    // The profile learns one Ĉ_ω for `euroc` and fits its correction gain: `eval --imu` applies
+    // both, an unknown IMU is refused.
     assert!(meta.imu_gyro_calibrations.contains_key("euroc"), "{:?}", meta.imu_gyro_calibrations);
     let bag = dir.path().join("MH_04_difficult.mcap");
     ok(Command::new(bin()).arg("import").arg(manifest().join("../shared/data/euroc/MH_04_difficult")).arg("-o").arg(&bag));
@@ -93,7 +108,8 @@ fn ci_small_learns_exports_and_resumes() {
     };
     let table = eval("MH_*=euroc");
     assert!(table.status.success(), "{}", String::from_utf8_lossy(&table.stderr));
-    assert!(String::from_utf8_lossy(&table.stdout).contains("Ĉ_ω of euroc"), "{}", String::from_utf8_lossy(&table.stdout));
+    let printed_table = String::from_utf8_lossy(&table.stdout);
+    assert!(printed_table.contains(&format!("as on IMU euroc (correction gain {gain:.3})")), "{printed_table}");
     let refused = eval("bmi088");
     let err = String::from_utf8_lossy(&refused.stderr);
     assert!(!refused.status.success() && err.contains("bmi088") && err.contains("euroc"), "{err}");
@@ -144,7 +160,8 @@ fn seed_restarts_export_the_best_validated_run() {
         let s: imu_fsda::train::report::TrainSummary =
             serde_json::from_str(&std::fs::read_to_string(dir.path().join("restarts.runs").join(format!("{run}.train.json"))).unwrap())
                 .unwrap();
-        imu_fsda::train::fit::validation_score(&s.validation, Some(s.exported_epoch), s.config.train.task_weighting).unwrap()
+        let scored = if s.validation_with_gain.is_empty() { &s.validation } else { &s.validation_with_gain };
+        imu_fsda::train::fit::validation_score(scored, Some(s.exported_epoch), s.config.train.task_weighting).unwrap()
     };
     let (s3, s1) = (score("restarts-s3"), score("restarts-s1"));
     let expected = if s1 < s3 { 1 } else { 3 };

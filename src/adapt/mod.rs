@@ -23,12 +23,12 @@ use tch::{nn::VarStore, Device, Tensor};
 
 use crate::core::Recording;
 use crate::eval::{EvalOptions, OrientationErrors};
-use crate::model::export::{export_model, ExportInfo, ExportPaths, LoadedNet};
+use crate::model::export::{export_model, ExportInfo, ExportPaths, LoadedNet, ModelMetadata};
 use crate::model::loss::LossConfig;
 use crate::model::{ModelError, Net};
 use crate::train::config::{DatasetConfig, SourceConfig};
 use crate::train::data::{self, DataError, Task};
-use crate::train::fit::{embedding_and_extra_grads, embedding_inner_step, evaluate_net, evaluate_raw};
+use crate::train::fit::{embedding_and_extra_grads, embedding_inner_step, evaluate_net, evaluate_net_with_gain, evaluate_raw};
 
 pub use frame::{check_frame, FrameCheck};
 
@@ -158,9 +158,14 @@ pub struct AdaptReport {
     pub query_samples: usize,
     /// Query AOE of the raw gyro, the starting model, and the adapted one.
     pub query_raw: OrientationErrors,
+    /// The starting model as deployed on the IMU named (with its correction gain).
     pub query_before: OrientationErrors,
     pub query_after: OrientationErrors,
     pub accepted: bool,
+    /// The starting model's correction gain on the IMU named (1: none; the adapted model
+    /// applies all of its correction).
+    #[serde(default = "one")]
+    pub start_correction_gain: f64,
     /// With the calibration head: the model's constant gyro error on the support set (rad/s),
     /// removed from the output bias before the steps.
     pub initial_bias_rad_s: Option<[f64; 3]>,
@@ -176,6 +181,10 @@ pub struct AdaptReport {
     pub frame: Option<FrameCheck>,
     pub frame_applied: bool,
     pub config: AdaptConfig,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// An adaptation's result: the figures, and the adapted model when accepted.
@@ -366,7 +375,8 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     }
     let eopts = EvalOptions { max_gap_ns: (cfg.max_interpolation_gap_ms * 1e6) as i64 };
     let query_raw = evaluate_raw(&q_task, &eopts)?;
-    let query_before = evaluate_net(&loaded.net, &q_task, &eopts)?;
+    let start_correction_gain = loaded.correction_gain();
+    let query_before = evaluate_net_with_gain(&loaded.net, &q_task, &eopts, start_correction_gain)?;
 
     // The inner loop, first order, eval mode, on the fast weights only.
     let (mut vs, net) = copy_net(loaded)?;
@@ -448,6 +458,7 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
         query_before,
         query_after,
         accepted,
+        start_correction_gain,
         initial_bias_rad_s: initial_bias,
         verdict,
         steps: losses.len(),
@@ -459,7 +470,11 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
         frame_applied,
         config: cfg.clone(),
     };
-    let adapted = accepted.then(|| LoadedNet { vs, net, metadata: loaded.metadata.clone() });
+    let adapted = accepted.then(|| {
+        // Its own weights, all of its correction: the starting model's gains do not apply.
+        let metadata = ModelMetadata { imu_correction_gains: BTreeMap::new(), ..loaded.metadata.clone() };
+        LoadedNet::new(vs, net, metadata)
+    });
     Ok(AdaptOutcome { report, adapted })
 }
 
@@ -485,7 +500,7 @@ pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name:
         name,
         &adapted.vs,
         &adapted.net,
-        &ExportInfo { training_data, metrics, code_revision: None, adapted_from: Some(report.model.clone()) },
+        &ExportInfo { training_data, metrics, code_revision: None, adapted_from: Some(report.model.clone()), ..Default::default() },
     )?;
     let side = dir.join(format!("{name}.adapt.json"));
     let json = serde_json::to_string_pretty(report).map_err(|e| AdaptError::Other(e.to_string()))?;

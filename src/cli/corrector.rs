@@ -25,7 +25,10 @@ pub fn load_corrector(model: &str, imu: &str) -> anyhow::Result<(Box<dyn GyroCor
     let mut corrector =
         ModelCorrector::load(path, imu).with_context(|| format!("loading model {model} (metadata {})", metadata_path(path).display()))?;
     self_check(path, imu, &mut corrector).with_context(|| format!("model {model} failed its start-up check"))?;
-    let calib = imu.map_or_else(|| "its own Ĉ_ω".to_string(), |n| format!("IMU {n:?}'s Ĉ_ω"));
+    let calib = imu.map_or_else(
+        || "its own Ĉ_ω".to_string(),
+        |n| format!("IMU {n:?}'s Ĉ_ω, correction gain {:.3}", corrector.denoiser.correction_gain()),
+    );
     tracing::info!("model {} loaded: window N = {}, {} Hz, {calib}", corrector.name, corrector.window(), corrector.rate_hz);
     Ok((Box::new(corrector), "ok".into()))
 }

@@ -85,11 +85,12 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let opts = EvalOptions { max_gap_ns: (args.max_gap_ms * 1e6) as i64 };
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let detector = RestDetector::default();
-    // Which models carry one Ĉ_ω per IMU (the others ignore --imu); read once, before any bag.
+    // Which models know IMUs by name (one Ĉ_ω or a correction gain per IMU; the others ignore
+    // --imu); read once, before any bag.
     let per_imu: Vec<bool> = args
         .models
         .iter()
-        .map(|m| Ok(!load_metadata(&metadata_path(m)).with_context(|| format!("model {}", m.display()))?.imu_gyro_calibrations.is_empty()))
+        .map(|m| Ok(!load_metadata(&metadata_path(m)).with_context(|| format!("model {}", m.display()))?.imu_names().is_empty()))
         .collect::<anyhow::Result<_>>()?;
     let mut rows = Vec::new();
     for bag in &args.bags {
@@ -132,7 +133,10 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         for (model, &per_imu) in args.models.iter().zip(&per_imu) {
             let imu = imu.filter(|_| per_imu);
             let (gyro, meta) = correct_with_torchscript(model, &rec.imu, imu).with_context(|| format!("model {}", model.display()))?;
-            let calib = imu.map_or(String::new(), |n| format!(", Ĉ_ω of {n}"));
+            let calib = imu.map_or(String::new(), |n| match meta.imu_correction_gains.get(n).filter(|_| meta.adapted_from.is_none()) {
+                Some(g) => format!(", as on IMU {n} (correction gain {g:.3})"),
+                None => format!(", Ĉ_ω of {n}"),
+            });
             streams.push((meta.name.clone(), Ok((gyro, format!("{:?}, N = {}{calib}", meta.mode, meta.window_n)))));
         }
         for (method, got) in streams {

@@ -80,8 +80,10 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
             tch::Device::Cpu,
         )?;
         loaded.select_imu(Some(params.imu_calibration.as_str()).filter(|s| !s.is_empty()))?;
-        let c: Box<dyn imu_fsda::infer::GyroCorrector> =
-            Box::new(imu_fsda::infer::FullWindowCorrector::new(loaded.net.inference(), &loaded.metadata.name));
+        let c: Box<dyn imu_fsda::infer::GyroCorrector> = Box::new(
+            imu_fsda::infer::FullWindowCorrector::new(loaded.net.inference(), &loaded.metadata.name)
+                .with_correction_gain(loaded.correction_gain()),
+        );
         (c, "ok".to_string())
     } else {
         load_corrector(&params.model, &params.imu_calibration)?

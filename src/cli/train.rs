@@ -70,7 +70,13 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         v.evals.iter().find(|e| e.0 == s.exported_epoch).or(v.evals.last()).map_or(f64::NAN, |e| e.1.aoe_deg)
     };
     for v in &s.validation {
-        println!("validation {:<24} AOE raw {:8.3}°  model {:8.3}°", v.name, v.raw.aoe_deg, at_export(v));
+        let gained = s.validation_with_gain.iter().find(|g| g.name == v.name).map_or(String::new(), |g| {
+            format!("  with its IMU's correction gain {:8.3}°", g.evals.first().map_or(f64::NAN, |e| e.1.aoe_deg))
+        });
+        println!("validation {:<24} AOE raw {:8.3}°  model {:8.3}°{gained}", v.name, v.raw.aoe_deg, at_export(v));
+    }
+    for (imu, g) in &s.correction_gains {
+        println!("correction gain {imu}: {g:.3} (train.correction_gains: the test rows below apply it)");
     }
     for v in &s.monitor {
         println!("monitor    {:<24} AOE raw {:8.3}°  model {:8.3}°", v.name, v.raw.aoe_deg, at_export(v));

@@ -69,6 +69,13 @@ pub struct ModelMetadata {
     /// The Ĉ_ω traced into the TorchScript file (models with per-IMU calibrations).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub torchscript_gyro_calibration: Option<[[f64; 3]; 3]>,
+    /// The share g_k of the model's correction applied on IMU k, `ω + g_k (ω̂ − ω)`, fitted by
+    /// the trainer to the full-length AOE of that IMU's validation recordings
+    /// (`train.correction_gains`). The TorchScript file and the streamed weights give g = 1 (an
+    /// unknown IMU); naming the IMU applies its g_k ([`TorchScriptModel::select_imu`],
+    /// [`LoadedNet::select_imu`]).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub imu_correction_gains: BTreeMap<String, f64>,
     /// Set on a few-shot adapted model: the model it was adapted from. Its Ĉ_ω is its own
     /// (adapted): selecting an IMU leaves it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -88,6 +95,34 @@ pub struct ModelMetadata {
 }
 
 impl ModelMetadata {
+    /// The IMU names this model knows (its per-IMU Ĉ_ω and correction gains).
+    pub fn imu_names(&self) -> Vec<&str> {
+        let mut names: Vec<&str> = self.imu_gyro_calibrations.keys().chain(self.imu_correction_gains.keys()).map(String::as_str).collect();
+        names.sort_unstable();
+        names.dedup();
+        names
+    }
+
+    /// The correction gain for IMU `imu` (1 for none, or an adapted model), or `UnknownImu`
+    /// when the model knows neither a Ĉ_ω nor a gain by that name.
+    pub fn correction_gain(&self, imu: Option<&str>) -> Result<f64, ModelError> {
+        let Some(name) = self.imu_to_apply(imu) else {
+            return Ok(1.0);
+        };
+        if let Some(g) = self.imu_correction_gains.get(name) {
+            return Ok(*g);
+        }
+        if self.imu_gyro_calibrations.contains_key(name) {
+            return Ok(1.0);
+        }
+        let detail = if self.imu_names().is_empty() {
+            "this model has one Ĉ_ω shared by every IMU and no per-IMU correction gain".to_string()
+        } else {
+            format!("the model knows {:?}", self.imu_names())
+        };
+        Err(ModelError::UnknownImu { name: name.into(), detail })
+    }
+
     /// The IMU whose Ĉ_ω to apply when `imu` is asked for: none for an adapted model, which
     /// keeps its own (adapted) Ĉ_ω.
     fn imu_to_apply<'a>(&self, imu: Option<&'a str>) -> Option<&'a str> {
@@ -115,6 +150,8 @@ pub struct ExportInfo {
     pub code_revision: Option<String>,
     /// [`ModelMetadata::adapted_from`].
     pub adapted_from: Option<String>,
+    /// [`ModelMetadata::imu_correction_gains`].
+    pub imu_correction_gains: BTreeMap<String, f64>,
 }
 
 /// The three paths of a model `name` in `dir`.
@@ -207,6 +244,7 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         parameter_counts: net.parameter_counts(),
         imu_gyro_calibrations: net.imu_calibration_matrices(),
         torchscript_gyro_calibration: per_imu.then(|| super::net::matrix3(&net.gyro_calibration())),
+        imu_correction_gains: info.imu_correction_gains.clone(),
         adapted_from: info.adapted_from.clone(),
         training_data: info.training_data.clone(),
         metrics: info.metrics.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), *v)).collect(),
@@ -268,6 +306,8 @@ pub struct LoadedNet {
     pub vs: VarStore,
     pub net: Net,
     pub metadata: ModelMetadata,
+    /// The selected IMU's correction gain ([`LoadedNet::select_imu`]; 1 until then).
+    correction_gain: std::cell::Cell<f64>,
 }
 
 fn close(a: f64, b: f64) -> bool {
@@ -314,14 +354,34 @@ pub fn load_net(metadata_path: &Path, device: Device) -> Result<LoadedNet, Model
             metadata.config.output_scale_deg_s
         )));
     }
-    Ok(LoadedNet { vs, net, metadata })
+    Ok(LoadedNet::new(vs, net, metadata))
 }
 
 impl LoadedNet {
-    /// Runs the model with IMU `imu`'s Ĉ_ω ([`Net::select_imu`]); `None` keeps the model's
-    /// own (I for a trained per-IMU model, the adapted one for an adapted model).
+    /// A model in memory (gain 1 until [`LoadedNet::select_imu`]).
+    pub fn new(vs: VarStore, net: Net, metadata: ModelMetadata) -> Self {
+        LoadedNet { vs, net, metadata, correction_gain: std::cell::Cell::new(1.0) }
+    }
+
+    /// Runs the model as deployed on IMU `imu`: its Ĉ_ω ([`Net::select_imu`]) when the model
+    /// has one per IMU, and its correction gain ([`LoadedNet::correction_gain`]); `None` keeps
+    /// the model's own (I for a trained per-IMU model, the adapted one for an adapted model,
+    /// gain 1). An IMU the model does not know is `UnknownImu`.
     pub fn select_imu(&self, imu: Option<&str>) -> Result<(), ModelError> {
-        self.metadata.imu_to_apply(imu).map_or(Ok(()), |name| self.net.select_imu(name))
+        let gain = self.metadata.correction_gain(imu)?;
+        if let Some(name) = self.metadata.imu_to_apply(imu) {
+            if !self.metadata.imu_gyro_calibrations.is_empty() || !self.metadata.imu_correction_gains.contains_key(name) {
+                self.net.select_imu(name)?;
+            }
+        }
+        self.correction_gain.set(gain);
+        Ok(())
+    }
+
+    /// The share of the network's correction applied on the selected IMU (see
+    /// [`ModelMetadata::imu_correction_gains`]); 1 until [`LoadedNet::select_imu`] names one.
+    pub fn correction_gain(&self) -> f64 {
+        self.correction_gain.get()
     }
 }
 
@@ -330,7 +390,9 @@ impl LoadedNet {
 pub fn load_streaming(metadata_path: &Path, imu: Option<&str>) -> Result<(StreamingDenoiser, ModelMetadata), ModelError> {
     let loaded = load_net(metadata_path, Device::Cpu)?;
     loaded.select_imu(imu)?;
-    Ok((StreamingDenoiser::from_net(&loaded.net)?, loaded.metadata))
+    let mut denoiser = StreamingDenoiser::from_net(&loaded.net)?;
+    denoiser.set_correction_gain(loaded.correction_gain());
+    Ok((denoiser, loaded.metadata))
 }
 
 /// The TorchScript model with its metadata and an input check.
@@ -340,6 +402,8 @@ pub struct TorchScriptModel {
     pub metadata: ModelMetadata,
     /// `(Ĉ_k − C₀)ᵀ`, f32, after [`TorchScriptModel::select_imu`].
     calibration_change: Option<Tensor>,
+    /// The selected IMU's correction gain (1: none).
+    correction_gain: f64,
 }
 
 impl TorchScriptModel {
@@ -350,20 +414,31 @@ impl TorchScriptModel {
             return Err(ModelError::InputShape { expected: INPUT_CONTRACT.into(), got: size, kind: format!("{:?}", u.kind()) });
         }
         let out = tch::no_grad(|| self.module.forward_ts(&[u]))?;
-        Ok(match &self.calibration_change {
+        let out = match &self.calibration_change {
             Some(change) => out + tch::no_grad(|| u.narrow(2, 0, 3).matmul(change)),
             None => out,
+        };
+        Ok(if self.correction_gain == 1.0 {
+            out
+        } else {
+            let raw = u.narrow(2, 0, 3);
+            tch::no_grad(|| &raw + (out - &raw) * self.correction_gain)
         })
     }
 
-    /// Runs the model with IMU `imu`'s Ĉ_ω from the metadata (see
-    /// [`ModelMetadata::imu_gyro_calibrations`]); `None` keeps the traced one.
+    /// Runs the model as deployed on IMU `imu`: its Ĉ_ω (see
+    /// [`ModelMetadata::imu_gyro_calibrations`]) and its correction gain
+    /// ([`ModelMetadata::imu_correction_gains`]); `None` keeps the traced Ĉ_ω and gain 1.
     pub fn select_imu(&mut self, imu: Option<&str>) -> Result<(), ModelError> {
         self.calibration_change = None;
+        self.correction_gain = self.metadata.correction_gain(imu)?;
         let Some(name) = self.metadata.imu_to_apply(imu) else {
             return Ok(());
         };
         let m = &self.metadata;
+        if m.imu_gyro_calibrations.is_empty() && m.imu_correction_gains.contains_key(name) {
+            return Ok(()); // one shared Ĉ_ω: only the gain is per IMU
+        }
         let (Some(c0), Some(ck)) = (m.torchscript_gyro_calibration, m.imu_gyro_calibrations.get(name)) else {
             let detail = if m.imu_gyro_calibrations.is_empty() {
                 "this model has one Ĉ_ω shared by every IMU".to_string()
@@ -385,7 +460,7 @@ pub fn load_torchscript(metadata_path: &Path) -> Result<TorchScriptModel, ModelE
     let path = sibling(metadata_path, &metadata.files.torchscript);
     require_file(&path)?;
     let module = CModule::load(&path).map_err(|e| ModelError::CorruptFile { path: path.clone(), reason: e.to_string() })?;
-    let model = TorchScriptModel { module, metadata, calibration_change: None };
+    let model = TorchScriptModel { module, metadata, calibration_change: None, correction_gain: 1.0 };
     let probe = Tensor::zeros([1, 8, INPUT_CHANNELS], (Kind::Float, Device::Cpu));
     let out =
         model.forward(&probe).map_err(|e| ModelError::CorruptFile { path: path.clone(), reason: format!("probe forward failed: {e}") })?;

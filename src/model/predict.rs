@@ -33,6 +33,15 @@ pub fn correct_with_net(net: &InferenceNet, imu: &[ImuSample]) -> Result<Vec<Vec
     to_vectors(&out)
 }
 
+/// The share `gain` of each correction `ω̂ − ω` (see
+/// [`super::export::ModelMetadata::imu_correction_gains`]); `corrected` as it is for 1.
+pub fn with_correction_gain(imu: &[ImuSample], mut corrected: Vec<Vector3<f64>>, gain: f64) -> Vec<Vector3<f64>> {
+    for (c, s) in corrected.iter_mut().zip(imu) {
+        *c = super::streaming::apply_correction_gain(&s.gyro, c, gain);
+    }
+    corrected
+}
+
 /// A model file given as `.pt`, `.ot` or `.json`: the metadata path beside it.
 pub fn metadata_path(model: &Path) -> PathBuf {
     model.with_extension("json")
@@ -63,5 +72,7 @@ pub fn correct_with_weights_f64(
     let loaded = load_net(&metadata_path(model), Device::Cpu)?;
     loaded.select_imu(imu_name)?;
     let net = loaded.net.inference().to_kind(Kind::Double);
-    Ok((correct_with_net(&net, imu)?, loaded.metadata))
+    let gain = loaded.correction_gain();
+    let corrected = correct_with_net(&net, imu)?;
+    Ok((with_correction_gain(imu, corrected, gain), loaded.metadata))
 }

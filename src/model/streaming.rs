@@ -141,6 +141,18 @@ pub struct StreamingDenoiser {
     scratch: Vec<f64>,
     max_width: usize,
     out: [f64; 3],
+    /// The share g of the model's correction applied: `ω + g (ω̂ − ω)` (1: the model as
+    /// trained; see [`crate::model::export::ModelMetadata::imu_correction_gains`]).
+    correction_gain: f64,
+}
+
+/// `ω + g (ω̂ − ω)`: the share `g` of a model's correction `ω̂ − ω` (exactly `ω̂` for g = 1).
+pub fn apply_correction_gain(raw: &Vector3<f64>, corrected: &Vector3<f64>, gain: f64) -> Vector3<f64> {
+    if gain == 1.0 {
+        *corrected
+    } else {
+        raw + (corrected - raw) * gain
+    }
 }
 
 fn to_vec(t: &Tensor) -> Result<Vec<f64>, ModelError> {
@@ -241,7 +253,18 @@ impl StreamingDenoiser {
             scratch: vec![0.0; 2 * max_width],
             max_width,
             out: [0.0; 3],
+            correction_gain: 1.0,
         })
+    }
+
+    /// Applies the share `gain` of the model's correction from now on (1: all of it).
+    pub fn set_correction_gain(&mut self, gain: f64) {
+        self.correction_gain = gain;
+    }
+
+    /// The share of the model's correction applied ([`StreamingDenoiser::set_correction_gain`]).
+    pub fn correction_gain(&self) -> f64 {
+        self.correction_gain
     }
 
     /// Window N, samples.
@@ -330,7 +353,8 @@ impl StreamingDenoiser {
             }
         }
         self.samples_seen += 1;
-        self.calib * gyro + self.scale.component_mul(&Vector3::from(self.out))
+        let corrected = self.calib * gyro + self.scale.component_mul(&Vector3::from(self.out));
+        apply_correction_gain(gyro, &corrected, self.correction_gain)
     }
 
     /// [`StreamingDenoiser::step`] on an [`ImuSample`].

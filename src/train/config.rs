@@ -310,6 +310,11 @@ pub struct TrainSettings {
     /// noise averages out of the slowly learned parts (the static bias, Ĉ_ω).
     #[serde(default)]
     pub ema_decay: f64,
+    /// After training, fit one correction gain per IMU of `dataset.validation`
+    /// ([`crate::train::fit::fit_correction_gains`]) and export it with the model
+    /// (`ModelMetadata::imu_correction_gains`); the test recordings are scored with their IMU's.
+    #[serde(default)]
+    pub correction_gains: bool,
 }
 
 /// See [`TrainSettings::task_weighting`].
@@ -485,6 +490,9 @@ impl TrainConfig {
         }
         if !non_negative(t.maml.unadapted_query_weight) || !non_negative(t.maml.unadapted_support_weight) {
             return Err("train.maml.unadapted_query_weight and unadapted_support_weight must be ≥ 0".into());
+        }
+        if t.correction_gains && self.dataset.validation.is_empty() {
+            return Err("train.correction_gains fits on dataset.validation, which is empty".into());
         }
         if !(0.0..1.0).contains(&t.ema_decay) {
             return Err(format!("train.ema_decay must be in [0, 1), got {}", t.ema_decay));

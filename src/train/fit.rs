@@ -28,7 +28,7 @@ use super::report::{EpochRecord, SequenceEvals, TaskInfo, TestResult, TrainSumma
 use crate::eval::{evaluate, EvalOptions, OrientationErrors};
 use crate::model::export::{export_model, ExportInfo};
 use crate::model::loss::total_loss;
-use crate::model::predict::correct_with_net;
+use crate::model::predict::{correct_with_net, with_correction_gain};
 use crate::model::{ForwardOptions, Mode, Net};
 
 /// How to run (the CLI's flags).
@@ -104,12 +104,78 @@ pub fn evaluate_raw(task: &Task, opts: &EvalOptions) -> anyhow::Result<Orientati
 
 /// Errors of the model (eval mode, BatchNorm folded, the meta-learned θ_e as exported).
 pub fn evaluate_net(net: &Net, task: &Task, opts: &EvalOptions) -> anyhow::Result<OrientationErrors> {
+    evaluate_net_with_gain(net, task, opts, 1.0)
+}
+
+/// [`evaluate_net`] with the share `gain` of the model's correction applied (as deployed on an
+/// IMU with a correction gain, `ModelMetadata::imu_correction_gains`).
+pub fn evaluate_net_with_gain(net: &Net, task: &Task, opts: &EvalOptions, gain: f64) -> anyhow::Result<OrientationErrors> {
+    let gyro = corrected_gyro(net, task)?;
+    Ok(evaluate(&task.rec, &with_correction_gain(&task.rec.imu, gyro, gain), opts)?)
+}
+
+fn corrected_gyro(net: &Net, task: &Task) -> anyhow::Result<Vec<nalgebra::Vector3<f64>>> {
     let inf = match task.calibration_row {
         Some(row) => net.inference_for_row(row),
         None => net.inference(),
     };
-    let gyro = correct_with_net(&inf, &task.rec.imu)?;
-    Ok(evaluate(&task.rec, &gyro, opts)?)
+    Ok(correct_with_net(&inf, &task.rec.imu)?)
+}
+
+/// `train.correction_gains`: for every IMU of the validation recordings, the share g of the
+/// network's correction, `ω + g (ω̂ − ω)`, with the lowest mean full-length AOE over that
+/// IMU's recordings — a 0.05 grid on [0, 1.5], then golden-section search within ±0.05 of its
+/// best. The windowed loss fits increments of at most a few seconds; the AOE integrates the
+/// whole recording: on a calibrated IMU with mocap ground truth a correction that fits the
+/// short increments can add more drift than it removes (docs/training.md).
+pub fn fit_correction_gains(net: &Net, tasks: &[Task], opts: &EvalOptions) -> anyhow::Result<BTreeMap<String, f64>> {
+    // Each recording with its corrected gyro (gain 1), computed once, grouped by IMU.
+    type Corrected<'a> = (&'a Task, Vec<nalgebra::Vector3<f64>>);
+    let mut by_imu: BTreeMap<&str, Vec<Corrected>> = BTreeMap::new();
+    for task in tasks {
+        by_imu.entry(task.imu_name.as_str()).or_default().push((task, corrected_gyro(net, task)?));
+    }
+    let mut gains = BTreeMap::new();
+    for (imu, runs) in by_imu {
+        let mean_aoe = |g: f64| -> anyhow::Result<f64> {
+            let mut sum = 0.0;
+            for (task, gyro) in &runs {
+                sum += evaluate(&task.rec, &with_correction_gain(&task.rec.imu, gyro.clone(), g), opts)?.aoe_deg;
+            }
+            Ok(sum / runs.len() as f64)
+        };
+        let mut best = (1.0, mean_aoe(1.0)?);
+        for k in 0..=30 {
+            let g = 0.05 * k as f64;
+            let a = mean_aoe(g)?;
+            if a < best.1 {
+                best = (g, a);
+            }
+        }
+        let phi = (5f64.sqrt() - 1.0) / 2.0;
+        let (mut lo, mut hi) = ((best.0 - 0.05).max(0.0), (best.0 + 0.05).min(1.5));
+        let (mut x1, mut x2) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
+        let (mut f1, mut f2) = (mean_aoe(x1)?, mean_aoe(x2)?);
+        for _ in 0..14 {
+            if f1 < f2 {
+                (hi, x2, f2) = (x2, x1, f1);
+                x1 = hi - phi * (hi - lo);
+                f1 = mean_aoe(x1)?;
+            } else {
+                (lo, x1, f1) = (x1, x2, f2);
+                x2 = lo + phi * (hi - lo);
+                f2 = mean_aoe(x2)?;
+            }
+        }
+        for (g, a) in [(x1, f1), (x2, f2)] {
+            if a < best.1 {
+                best = (g, a);
+            }
+        }
+        tracing::info!("correction gain for IMU {imu}: {:.3} (mean validation AOE {:.3}°, {:.3}° at 1)", best.0, best.1, mean_aoe(1.0)?);
+        gains.insert(imu.to_string(), best.0);
+    }
+    Ok(gains)
 }
 
 fn augment(u: &Tensor, a: &Augment) -> Tensor {
@@ -796,12 +862,41 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         exported_epoch = e;
     }
 
+    // `train.correction_gains`: one gain per IMU, fitted with the exported weights on the
+    // validation recordings; the test recordings are then scored as deployed on their IMU.
+    let gains = if cfg.train.correction_gains { fit_correction_gains(&net, &data.validation, &eopts)? } else { BTreeMap::new() };
+    let gain_of = |task: &Task| gains.get(&task.imu_name).copied().unwrap_or(1.0);
+    let mut validation_with_gain = Vec::new();
+    if !gains.is_empty() {
+        for task in &data.validation {
+            let errors = evaluate_net_with_gain(&net, task, &eopts, gain_of(task))?;
+            let raw = match validation.iter().find(|v| v.name == task.name) {
+                Some(v) => v.raw.clone(),
+                None => evaluate_raw(task, &eopts)?,
+            };
+            validation_with_gain.push(SequenceEvals {
+                name: task.name.clone(),
+                source: task.source.clone(),
+                raw,
+                evals: vec![(exported_epoch, errors)],
+            });
+        }
+    }
+
     let mut test = Vec::new();
     for task in &data.test {
         let raw = evaluate_raw(task, &eopts)?;
-        let model = evaluate_net(&net, task, &eopts)?;
-        tracing::info!("test {}: AOE raw {:.2}° → model {:.2}°", task.name, raw.aoe_deg, model.aoe_deg);
-        test.push(TestResult { name: task.name.clone(), source: task.source.clone(), raw, model });
+        let gain = gain_of(task);
+        let model = evaluate_net_with_gain(&net, task, &eopts, gain)?;
+        let model_without_gain = if gain == 1.0 { None } else { Some(evaluate_net(&net, task, &eopts)?) };
+        tracing::info!(
+            "test {}: AOE raw {:.2}° → model {:.2}°{}",
+            task.name,
+            raw.aoe_deg,
+            model.aoe_deg,
+            model_without_gain.as_ref().map_or(String::new(), |m| format!(" (gain {gain:.3}; {:.2}° at 1)", m.aoe_deg))
+        );
+        test.push(TestResult { name: task.name.clone(), source: task.source.clone(), raw, model, model_without_gain });
     }
 
     let k = (history.len() / 4).clamp(1, 5);
@@ -844,6 +939,21 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             metrics.insert("val.score_deg".into(), score);
         }
     }
+    if !gains.is_empty() {
+        // The score of the model as deployed (with its gains) is the one seeds are chosen on.
+        if let Some(score) = metrics.get("val.score_deg").copied() {
+            metrics.insert("val.score_without_gain_deg".into(), score);
+        }
+        if let Some(score) = validation_score(&validation_with_gain, Some(exported_epoch), cfg.train.task_weighting) {
+            metrics.insert("val.score_deg".into(), score);
+        }
+        for v in &validation_with_gain {
+            metrics.insert(format!("val.{}.aoe_with_gain_deg", v.name), v.evals[0].1.aoe_deg);
+        }
+        for (imu, g) in &gains {
+            metrics.insert(format!("correction_gain.{imu}"), *g);
+        }
+    }
     for r in &test {
         for (k, v) in [
             ("raw_aoe_deg", r.raw.aoe_deg),
@@ -855,6 +965,9 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             ("heading_rmse_deg", r.model.heading_rmse_deg),
         ] {
             metrics.insert(format!("test.{}.{k}", r.name), v);
+        }
+        if let Some(m) = &r.model_without_gain {
+            metrics.insert(format!("test.{}.aoe_without_gain_deg", r.name), m.aoe_deg);
         }
     }
     if !test.is_empty() {
@@ -884,7 +997,13 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         &opts.name,
         &vs,
         &net,
-        &ExportInfo { training_data, metrics, code_revision: crate::model::export::code_revision(), adapted_from: None },
+        &ExportInfo {
+            training_data,
+            metrics,
+            code_revision: crate::model::export::code_revision(),
+            adapted_from: None,
+            imu_correction_gains: gains.clone(),
+        },
     )
     .with_context(|| format!("exporting {} to {}", opts.name, opts.out_dir.display()))?;
 
@@ -914,6 +1033,8 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             .collect(),
         validation,
         monitor,
+        correction_gains: gains,
+        validation_with_gain,
         test,
         history,
         model_json: files.metadata.display().to_string(),
@@ -1049,6 +1170,25 @@ mod tests {
         let task = data::task_from_recording(rec, &src, &dcfg, Some(support_seconds)).unwrap();
         let _ = task.valid.narrow(0, task.support_end as i64, (task.len() - task.support_end) as i64).fill_(0.0);
         task
+    }
+
+    /// A model whose correction is exactly twice what the biased turning task needs (its
+    /// Generator zeroed, Ĉ_ω − I chosen so that (Ĉ_ω − I) ω = 2 (ω_true − ω)): the fitted gain
+    /// is one half, where the task's AOE is zero.
+    #[test]
+    fn the_correction_gain_undoes_a_doubled_correction() {
+        let task = turning_task(10.0);
+        let vs = VarStore::new(Device::Cpu);
+        let net = Net::new(&crate::model::Config::for_mode(Mode::FsdaF), &vs.root()).unwrap();
+        zero_init_correction(&vs, &net).unwrap();
+        let delta = Tensor::from_slice(&[-2.0f32, 0.0, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, -0.1 / 0.35]).reshape([3, 3]);
+        tch::no_grad(|| vs.variables()["gyro_calib.delta"].shallow_clone().copy_(&delta));
+        let opts = EvalOptions { max_gap_ns: 50_000_000 };
+        let gains = fit_correction_gains(&net, std::slice::from_ref(&task), &opts).unwrap();
+        assert_eq!(gains.keys().collect::<Vec<_>>(), ["sim"]);
+        assert!((gains["sim"] - 0.5).abs() < 0.01, "{gains:?}");
+        let at = |g: f64| evaluate_net_with_gain(&net, &task, &opts, g).unwrap().aoe_deg;
+        assert!(at(gains["sim"]) < 0.05 && at(1.0) > 10.0 * at(gains["sim"]) + 1.0, "{} vs {}", at(gains["sim"]), at(1.0));
     }
 
     /// One batched MAML step of the model and `train.maml` given (YAML flow mappings) on the

@@ -38,7 +38,11 @@ pub struct TestResult {
     pub name: String,
     pub source: String,
     pub raw: OrientationErrors,
+    /// The exported model as deployed on the recording's IMU (with its correction gain).
     pub model: OrientationErrors,
+    /// With a correction gain ≠ 1: the model without it (all of its correction).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model_without_gain: Option<OrientationErrors>,
 }
 
 /// One training recording as used.
@@ -74,6 +78,13 @@ pub struct TrainSummary {
     /// `dataset.monitor`: evaluated with the validation set, never selected on.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub monitor: Vec<SequenceEvals>,
+    /// `train.correction_gains`: the gain per IMU ([`crate::model::ModelMetadata::imu_correction_gains`]).
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub correction_gains: std::collections::BTreeMap<String, f64>,
+    /// The validation recordings scored with those gains at the exported epoch (what the
+    /// model does as deployed; `train.seeds` chooses on it when present).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub validation_with_gain: Vec<SequenceEvals>,
     pub test: Vec<TestResult>,
     pub history: Vec<EpochRecord>,
     pub model_json: String,

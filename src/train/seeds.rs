@@ -66,7 +66,9 @@ pub fn candidate(out_dir: &Path, name: &str, seed: u64) -> anyhow::Result<Candid
     let path = summary_path(&runs_dir(out_dir, name), &run);
     let text = std::fs::read_to_string(&path).with_context(|| format!("run {run}: reading {}", path.display()))?;
     let s: TrainSummary = serde_json::from_str(&text).with_context(|| format!("run {run}: parsing {}", path.display()))?;
-    let score = validation_score(&s.validation, Some(s.exported_epoch), s.config.train.task_weighting)
+    // The model as deployed: with its correction gains when it has some.
+    let scored = if s.validation_with_gain.is_empty() { &s.validation } else { &s.validation_with_gain };
+    let score = validation_score(scored, Some(s.exported_epoch), s.config.train.task_weighting)
         .filter(|x| x.is_finite())
         .with_context(|| format!("run {run} has no finite validation score at its exported epoch {}", s.exported_epoch))?;
     let test_mean_aoe_deg = (!s.test.is_empty()).then(|| s.test.iter().map(|t| t.model.aoe_deg).sum::<f64>() / s.test.len() as f64);
@@ -97,7 +99,8 @@ pub fn select_and_promote(out_dir: &Path, name: &str, seeds: &[u64]) -> anyhow::
         name: name.to_string(),
         chosen_seed: chosen.seed,
         chosen_run: chosen.name.clone(),
-        criterion: "lowest validation score (mean AOE over dataset.validation, weighted like train.task_weighting) at the exported epoch"
+        criterion: "lowest validation score (mean AOE over dataset.validation, weighted like train.task_weighting) at the exported epoch, \
+                    with the run's correction gains when it has some"
             .into(),
         candidates,
     };
