@@ -21,6 +21,17 @@ fn bin() -> &'static str {
 /// A seeded model with random weights and EuRoC-like normalisation, exported to `dir`; with
 /// `per_imu`, one random Ĉ_ω each for `euroc` and `tumvi`.
 fn export_random_model(dir: &Path, mode: Mode, seed: i64, per_imu: bool) -> PathBuf {
+    export_random_model_with_gains(dir, mode, seed, per_imu, Default::default())
+}
+
+/// [`export_random_model`] with per-IMU correction gains in its metadata.
+fn export_random_model_with_gains(
+    dir: &Path,
+    mode: Mode,
+    seed: i64,
+    per_imu: bool,
+    imu_correction_gains: std::collections::BTreeMap<String, f64>,
+) -> PathBuf {
     tch::manual_seed(seed);
     let vs = VarStore::new(Device::Cpu);
     let imu_calibrations = if per_imu { vec!["euroc".into(), "tumvi".into()] } else { vec![] };
@@ -32,7 +43,7 @@ fn export_random_model(dir: &Path, mode: Mode, seed: i64, per_imu: bool) -> Path
     for _ in 0..2 {
         let _ = net.forward_t(&(Tensor::randn([2, 600, 6], (Kind::Float, Device::Cpu)) * 0.5), true);
     }
-    let paths = export_model(dir, "random", &vs, &net, &ExportInfo::default()).unwrap();
+    let paths = export_model(dir, "random", &vs, &net, &ExportInfo { imu_correction_gains, ..Default::default() }).unwrap();
     paths.torchscript
 }
 
@@ -53,9 +64,15 @@ fn euroc_bag(dir: &Path) -> Option<PathBuf> {
 fn replay_equals_offline_full_sequence_evaluation() {
     let dir = tempfile::tempdir().unwrap();
     let Some(bag) = euroc_bag(dir.path()) else { return };
-    // The third: a model with one Ĉ_ω per IMU, run as `euroc`.
-    for (mode, seed, imu) in [(Mode::FsdaF, 3, None), (Mode::Digdl, 4, None), (Mode::FsdaF, 7, Some("euroc"))] {
-        let model = export_random_model(dir.path(), mode, seed, imu.is_some());
+    // The third: a model with one Ĉ_ω per IMU, run as `euroc`; the fourth: one shared Ĉ_ω and
+    // a correction gain for `tumvi` (0.3), run as `tumvi`.
+    for (mode, seed, imu) in
+        [(Mode::FsdaF, 3, None), (Mode::Digdl, 4, None), (Mode::FsdaF, 7, Some("euroc")), (Mode::FsdaF, 11, Some("tumvi"))]
+    {
+        let model = match imu {
+            Some("tumvi") => export_random_model_with_gains(dir.path(), mode, seed, false, [("tumvi".to_string(), 0.3)].into()),
+            _ => export_random_model(dir.path(), mode, seed, imu.is_some()),
+        };
         let out_bag = dir.path().join(format!("replayed-{mode:?}-{seed}.mcap"));
         let out = Command::new(bin())
             .args(["replay", "--imu", imu.unwrap_or(""), "--model"])
@@ -90,10 +107,15 @@ fn replay_equals_offline_full_sequence_evaluation() {
         let (f32_ref, _) = correct_with_torchscript(&model, &rec.imu, imu).unwrap();
         let (f64_ref, _) = correct_with_weights_f64(&model, &rec.imu, imu).unwrap();
         if imu.is_some() {
-            // Its own Ĉ_ω (I) gives another output: the IMU's matrix is really applied.
+            // Its own Ĉ_ω (I) and gain 1 give another output: the IMU's matrix or gain is applied.
             let (own, _) = correct_with_torchscript(&model, &rec.imu, None).unwrap();
             let d = own.iter().zip(&f32_ref).map(|(a, b)| (a - b).amax()).fold(0.0, f64::max);
-            assert!(d > 1e-3, "euroc's Ĉ_ω changes the output by only {d:.2e} rad/s");
+            let correction = own.iter().zip(&rec.imu).map(|(o, s)| (o - s.gyro).amax()).fold(0.0, f64::max);
+            assert!(d > 1e-3_f64.min(0.5 * correction), "{imu:?}'s Ĉ_ω or gain changes the output by only {d:.2e} rad/s");
+            if imu == Some("tumvi") {
+                let gained = own.iter().zip(&rec.imu).zip(&f32_ref).map(|((o, s), r)| (s.gyro + (o - s.gyro) * 0.3 - r).amax());
+                assert!(gained.fold(0.0, f64::max) < 1e-5, "the gain is ω + g (ω̂ − ω)");
+            }
         }
         let max_f32 = online.iter().zip(&f32_ref).map(|((_, w), r)| (w - r).amax()).fold(0.0, f64::max);
         let max_f64 = online.iter().zip(&f64_ref).map(|((_, w), r)| (w - r).amax()).fold(0.0, f64::max);
