@@ -28,9 +28,10 @@ rm -f "$work"/*.json "$work"/*.log
 mapfile -t bag_list < <(paper_test_bags "$bin" "$data")
 [ ${#bag_list[@]} -eq 8 ] || { echo "error: importing the test split failed" >&2; exit 1; }
 mstem="$(basename "${model%.pt}")"
-# A model with one Ĉ_ω per IMU adapts from the test IMU's own.
+# A model that knows IMUs by name (one Ĉ_ω or a correction gain per IMU) adapts from, and is
+# judged against, itself as deployed on the test IMU.
 per_imu=0
-grep -q '"imu_gyro_calibrations"' "${model%.pt}.json" && per_imu=1
+grep -q -e '"imu_gyro_calibrations"' -e '"imu_correction_gains"' "${model%.pt}.json" && per_imu=1
 for bag in "${bag_list[@]}"; do
   s="$(basename "${bag%.mcap}")"
   models=(--model "$model" --model "$digdl")

@@ -73,9 +73,11 @@ pub struct NodeParams {
     /// TorchScript model exported by `imu-fsda train` (`.pt`, with its `.json` and `.ot`
     /// beside it); empty: no model, the gyro passes through (a loud warning).
     pub model: String,
-    /// Which IMU this is, for a model trained with one Ĉ_ω per IMU (`imu_gyro_calibrations` in
-    /// its `.json`, e.g. `euroc`, `tumvi`); empty: the model's own Ĉ_ω (I for a new IMU, the
-    /// adapted one for an adapted model). An unknown name stops the node at start-up.
+    /// Which IMU this is, for a model that knows IMUs by name (one Ĉ_ω per IMU,
+    /// `imu_gyro_calibrations`, or a correction gain per IMU, `imu_correction_gains`, in its
+    /// `.json`, e.g. `euroc`, `tumvi`): that IMU's Ĉ_ω and gain. Empty: the model's own Ĉ_ω
+    /// and all of its correction (a new IMU; an adapted model). An unknown name stops the node
+    /// at start-up.
     pub imu_calibration: String,
     /// DDS history depth of the input and output topics.
     pub queue_depth: usize,
