@@ -307,6 +307,9 @@ fn per_imu_calibrations_survive_export() {
 fn correction_gains_survive_export() {
     tch::set_num_threads(1);
     let (vs, net) = random_model(Mode::FsdaF, 41);
+    // A trained-size Ĉ_ω so the correction (and so the gain) is well above float noise.
+    let mut delta = vs.variables()["gyro_calib.delta"].shallow_clone();
+    tch::no_grad(|| delta.copy_(&(Tensor::randn([3, 3], (Kind::Float, Device::Cpu)) * 0.02)));
     let gains: std::collections::BTreeMap<String, f64> = [("euroc".to_string(), 1.0), ("tumvi".to_string(), 0.4)].into();
     let dir = tempfile::tempdir().unwrap();
     let info = ExportInfo { imu_correction_gains: gains.clone(), ..Default::default() };

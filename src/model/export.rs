@@ -369,10 +369,9 @@ impl LoadedNet {
     /// gain 1). An IMU the model does not know is `UnknownImu`.
     pub fn select_imu(&self, imu: Option<&str>) -> Result<(), ModelError> {
         let gain = self.metadata.correction_gain(imu)?;
-        if let Some(name) = self.metadata.imu_to_apply(imu) {
-            if !self.metadata.imu_gyro_calibrations.is_empty() || !self.metadata.imu_correction_gains.contains_key(name) {
-                self.net.select_imu(name)?;
-            }
+        // A name with a gain and no Ĉ_ω of its own runs with the model's (as the trainer fitted it).
+        if let Some(name) = self.metadata.imu_to_apply(imu).filter(|n| self.metadata.imu_gyro_calibrations.contains_key(*n)) {
+            self.net.select_imu(name)?;
         }
         self.correction_gain.set(gain);
         Ok(())
@@ -436,8 +435,8 @@ impl TorchScriptModel {
             return Ok(());
         };
         let m = &self.metadata;
-        if m.imu_gyro_calibrations.is_empty() && m.imu_correction_gains.contains_key(name) {
-            return Ok(()); // one shared Ĉ_ω: only the gain is per IMU
+        if !m.imu_gyro_calibrations.contains_key(name) && m.imu_correction_gains.contains_key(name) {
+            return Ok(()); // a gain and no Ĉ_ω of its own: the traced one
         }
         let (Some(c0), Some(ck)) = (m.torchscript_gyro_calibration, m.imu_gyro_calibrations.get(name)) else {
             let detail = if m.imu_gyro_calibrations.is_empty() {
