@@ -1174,17 +1174,23 @@ mod tests {
         task
     }
 
-    /// A model whose correction is exactly twice what the biased turning task needs (its
-    /// Generator zeroed, Ĉ_ω − I chosen so that (Ĉ_ω − I) ω = 2 (ω_true − ω)): the fitted gain
-    /// is one half, where the task's AOE is zero.
-    #[test]
-    fn the_correction_gain_undoes_a_doubled_correction() {
-        let task = turning_task(10.0);
+    /// A model with its Generator zeroed whose correction `(Ĉ_ω − I) ω` is `share` times what
+    /// the biased turning task needs (gyro (0.01, −0.02, 0.35), truth (0, 0, 0.3) rad/s).
+    fn net_correcting_a_share(share: f32) -> (VarStore, Net) {
         let vs = VarStore::new(Device::Cpu);
         let net = Net::new(&crate::model::Config::for_mode(Mode::FsdaF), &vs.root()).unwrap();
         zero_init_correction(&vs, &net).unwrap();
-        let delta = Tensor::from_slice(&[-2.0f32, 0.0, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, -0.1 / 0.35]).reshape([3, 3]);
+        let delta = Tensor::from_slice(&[-share, 0.0, 0.0, 0.0, -share, 0.0, 0.0, 0.0, -share * 0.05 / 0.35]).reshape([3, 3]);
         tch::no_grad(|| vs.variables()["gyro_calib.delta"].shallow_clone().copy_(&delta));
+        (vs, net)
+    }
+
+    /// A correction exactly twice what the task needs: the fitted gain is one half, where the
+    /// task's AOE is zero.
+    #[test]
+    fn the_correction_gain_undoes_a_doubled_correction() {
+        let task = turning_task(10.0);
+        let (_vs, net) = net_correcting_a_share(2.0);
         let opts = EvalOptions { max_gap_ns: 50_000_000 };
         let gains = fit_correction_gains(&net, std::slice::from_ref(&task), &opts).unwrap();
         assert_eq!(gains.keys().collect::<Vec<_>>(), ["sim"]);
@@ -1198,11 +1204,7 @@ mod tests {
     #[test]
     fn the_correction_gain_never_exceeds_one() {
         let task = turning_task(10.0);
-        let vs = VarStore::new(Device::Cpu);
-        let net = Net::new(&crate::model::Config::for_mode(Mode::FsdaF), &vs.root()).unwrap();
-        zero_init_correction(&vs, &net).unwrap();
-        let delta = Tensor::from_slice(&[-0.5f32, 0.0, 0.0, 0.0, -0.5, 0.0, 0.0, 0.0, -0.025 / 0.35]).reshape([3, 3]);
-        tch::no_grad(|| vs.variables()["gyro_calib.delta"].shallow_clone().copy_(&delta));
+        let (_vs, net) = net_correcting_a_share(0.5);
         let opts = EvalOptions { max_gap_ns: 50_000_000 };
         let at = |g: f64| evaluate_net_with_gain(&net, &task, &opts, g).unwrap().aoe_deg;
         assert!(at(2.0) < 0.05 && at(1.0) > 1.0, "{} vs {}", at(2.0), at(1.0));
