@@ -75,14 +75,18 @@ fn replay_equals_offline_full_sequence_evaluation() {
         };
         let out_bag = dir.path().join(format!("replayed-{mode:?}-{seed}.mcap"));
         let out = Command::new(bin())
-            .args(["replay", "--imu", imu.unwrap_or(""), "--model"])
+            .args(["-v", "replay", "--imu", imu.unwrap_or(""), "--model"])
             .arg(&model)
             .arg(&bag)
             .arg("-o")
             .arg(&out_bag)
             .output()
             .unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let log = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{log}");
+        if imu == Some("tumvi") {
+            assert!(log.contains("its own Ĉ_ω, IMU \"tumvi\"'s correction gain 0.300"), "{log}");
+        }
 
         let (rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
         let mut online = Vec::new();

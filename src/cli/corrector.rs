@@ -6,6 +6,7 @@ use std::path::Path;
 use anyhow::Context;
 use imu_fsda::core::ImuSample;
 use imu_fsda::infer::{BiasCorrector, GyroCorrector, ModelCorrector};
+use imu_fsda::model::export::load_metadata;
 use imu_fsda::model::predict::{correct_with_torchscript, metadata_path};
 
 /// Largest difference allowed between the deployed TorchScript file and the streaming form
@@ -25,11 +26,23 @@ pub fn load_corrector(model: &str, imu: &str) -> anyhow::Result<(Box<dyn GyroCor
     let mut corrector =
         ModelCorrector::load(path, imu).with_context(|| format!("loading model {model} (metadata {})", metadata_path(path).display()))?;
     self_check(path, imu, &mut corrector).with_context(|| format!("model {model} failed its start-up check"))?;
-    let calib = imu.map_or_else(
-        || "its own Ĉ_ω".to_string(),
-        |n| format!("IMU {n:?}'s Ĉ_ω, correction gain {:.3}", corrector.denoiser.correction_gain()),
-    );
+    let meta = load_metadata(&metadata_path(path)).with_context(|| format!("model {model}"))?;
+    let calib = match imu {
+        None => "its own Ĉ_ω".to_string(),
+        Some(n) => {
+            let own = if meta.imu_gyro_calibrations.contains_key(n) { format!("IMU {n:?}'s Ĉ_ω") } else { "its own Ĉ_ω".into() };
+            format!("{own}, IMU {n:?}'s correction gain {:.3}", corrector.denoiser.correction_gain())
+        }
+    };
     tracing::info!("model {} loaded: window N = {}, {} Hz, {calib}", corrector.name, corrector.window(), corrector.rate_hz);
+    let known = meta.imu_names();
+    if imu.is_none() && !known.is_empty() && meta.adapted_from.is_none() {
+        // A model fitted per IMU runs unnamed with all of its correction: say which names exist.
+        tracing::info!(
+            "model {} has a Ĉ_ω or correction gain for IMUs {known:?}: set imu_calibration to one of them to run as on that IMU; unnamed, it applies its whole correction (gain 1)",
+            corrector.name
+        );
+    }
     Ok((Box::new(corrector), "ok".into()))
 }
 
