@@ -48,9 +48,10 @@ pub struct AdaptArgs {
     /// Generator's output bias, adapted by default: docs/adaptation.md).
     #[arg(long)]
     pub embedding_only: bool,
-    /// The IMU's name, for a model with one Ĉ_ω per IMU (its `.json` lists them): adapt from
-    /// that Ĉ_ω (default: the model's own, I for a trained model: a new IMU). The adapted
-    /// model keeps its adapted Ĉ_ω whatever IMU it is later run with.
+    /// The IMU's name, for a model with a Ĉ_ω or correction gain per IMU (its `.json` lists
+    /// them): adapt from that Ĉ_ω, and judge against the starting model run with that IMU's
+    /// gain (default: a new IMU, I for a per-IMU model, gain 1). The adapted model keeps its
+    /// adapted Ĉ_ω and applies its whole correction whatever IMU it is later run with.
     #[arg(long)]
     pub imu: Option<String>,
     /// Adaptation settings as YAML (AdaptConfig); flags override it.

@@ -21,10 +21,11 @@ pub struct EvalArgs {
     /// run over the whole sequence, as deployed.
     #[arg(long = "model")]
     pub models: Vec<PathBuf>,
-    /// Which IMU recorded the bags, for models with one Ĉ_ω per IMU: `NAME` for every bag, or
-    /// `PATTERN=NAME` for the bags whose file name matches PATTERN (`*` any characters);
-    /// repeatable, the first match wins (`--imu 'room*=tumvi' --imu euroc`). Without a match a
-    /// model runs with its own Ĉ_ω (I: a new IMU); models with one shared Ĉ_ω ignore it.
+    /// Which IMU recorded the bags, for models with a Ĉ_ω or correction gain per IMU: `NAME`
+    /// for every bag, or `PATTERN=NAME` for the bags whose file name matches PATTERN (`*` any
+    /// characters); repeatable, the first match wins (`--imu 'room*=tumvi' --imu euroc`).
+    /// Without a match a model runs as on a new IMU (gain 1; Ĉ_ω = I if it has one per IMU,
+    /// else its own); models that know no IMU by name ignore it.
     #[arg(long = "imu", value_name = "[PATTERN=]NAME")]
     pub imus: Vec<String>,
     /// IMU topic (sensor_msgs/Imu).

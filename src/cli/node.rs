@@ -44,8 +44,8 @@ pub struct NodeConfigArgs {
     /// Model file, overriding the parameter `model` ("" = none).
     #[arg(long)]
     pub model: Option<String>,
-    /// The IMU's name for a model with one Ĉ_ω per IMU, overriding the parameter
-    /// `imu_calibration` ("" = the model's own Ĉ_ω).
+    /// The IMU's name, for a model with a Ĉ_ω or correction gain per IMU (its `.json` lists
+    /// them), overriding the parameter `imu_calibration` ("" = a new IMU: the whole correction).
     #[arg(long)]
     pub imu: Option<String>,
 }
