@@ -55,8 +55,16 @@ impl ModelCorrector {
     /// Load `<model>.json` + `<model>.ot` (the `.pt` beside them is the TorchScript form),
     /// with IMU `imu`'s Ĉ_ω (`None`: the model's own).
     pub fn load(model: &std::path::Path, imu: Option<&str>) -> Result<Self, crate::model::ModelError> {
+        Ok(Self::load_with_metadata(model, imu)?.0)
+    }
+
+    /// [`ModelCorrector::load`], also returning the model's metadata.
+    pub fn load_with_metadata(
+        model: &std::path::Path,
+        imu: Option<&str>,
+    ) -> Result<(Self, crate::model::ModelMetadata), crate::model::ModelError> {
         let (denoiser, meta) = crate::model::export::load_streaming(&crate::model::predict::metadata_path(model), imu)?;
-        Ok(ModelCorrector { denoiser, name: meta.name, rate_hz: meta.rate_hz })
+        Ok((ModelCorrector { denoiser, name: meta.name.clone(), rate_hz: meta.rate_hz }, meta))
     }
 }
 

@@ -6,7 +6,6 @@ use std::path::Path;
 use anyhow::Context;
 use imu_fsda::core::ImuSample;
 use imu_fsda::infer::{BiasCorrector, GyroCorrector, ModelCorrector};
-use imu_fsda::model::export::load_metadata;
 use imu_fsda::model::predict::{correct_with_torchscript, metadata_path};
 
 /// Largest difference allowed between the deployed TorchScript file and the streaming form
@@ -23,10 +22,9 @@ pub fn load_corrector(model: &str, imu: &str) -> anyhow::Result<(Box<dyn GyroCor
     }
     let path = Path::new(model);
     let imu = Some(imu).filter(|s| !s.is_empty());
-    let mut corrector =
-        ModelCorrector::load(path, imu).with_context(|| format!("loading model {model} (metadata {})", metadata_path(path).display()))?;
+    let (mut corrector, meta) = ModelCorrector::load_with_metadata(path, imu)
+        .with_context(|| format!("loading model {model} (metadata {})", metadata_path(path).display()))?;
     self_check(path, imu, &mut corrector).with_context(|| format!("model {model} failed its start-up check"))?;
-    let meta = load_metadata(&metadata_path(path)).with_context(|| format!("model {model}"))?;
     let calib = match imu {
         None => "its own Ĉ_ω".to_string(),
         Some(n) => {

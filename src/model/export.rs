@@ -134,6 +134,12 @@ impl ModelMetadata {
             (imu, _) => imu,
         }
     }
+
+    /// The IMU whose own Ĉ_ω to apply when `imu` is asked for: none for an adapted model, or
+    /// for a name with only a correction gain (it runs with the model's Ĉ_ω, as fitted).
+    fn calibration_to_apply<'a>(&self, imu: Option<&'a str>) -> Option<&'a str> {
+        self.imu_to_apply(imu).filter(|n| self.imu_gyro_calibrations.contains_key(*n))
+    }
 }
 
 fn finite_metrics<'de, D: serde::Deserializer<'de>>(d: D) -> Result<BTreeMap<String, f64>, D::Error> {
@@ -369,8 +375,7 @@ impl LoadedNet {
     /// gain 1). An IMU the model does not know is `UnknownImu`.
     pub fn select_imu(&self, imu: Option<&str>) -> Result<(), ModelError> {
         let gain = self.metadata.correction_gain(imu)?;
-        // A name with a gain and no Ĉ_ω of its own runs with the model's (as the trainer fitted it).
-        if let Some(name) = self.metadata.imu_to_apply(imu).filter(|n| self.metadata.imu_gyro_calibrations.contains_key(*n)) {
+        if let Some(name) = self.metadata.calibration_to_apply(imu) {
             self.net.select_imu(name)?;
         }
         self.correction_gain.set(gain);
@@ -430,20 +435,14 @@ impl TorchScriptModel {
     /// ([`ModelMetadata::imu_correction_gains`]); `None` keeps the traced Ĉ_ω and gain 1.
     pub fn select_imu(&mut self, imu: Option<&str>) -> Result<(), ModelError> {
         self.calibration_change = None;
+        // Refuses a name the model knows neither a Ĉ_ω nor a gain for.
         self.correction_gain = self.metadata.correction_gain(imu)?;
-        let Some(name) = self.metadata.imu_to_apply(imu) else {
+        let Some(name) = self.metadata.calibration_to_apply(imu) else {
             return Ok(());
         };
         let m = &self.metadata;
-        if !m.imu_gyro_calibrations.contains_key(name) && m.imu_correction_gains.contains_key(name) {
-            return Ok(()); // a gain and no Ĉ_ω of its own: the traced one
-        }
         let (Some(c0), Some(ck)) = (m.torchscript_gyro_calibration, m.imu_gyro_calibrations.get(name)) else {
-            let detail = if m.imu_gyro_calibrations.is_empty() {
-                "this model has one Ĉ_ω shared by every IMU".to_string()
-            } else {
-                format!("the model knows {:?}", m.imu_gyro_calibrations.keys().collect::<Vec<_>>())
-            };
+            let detail = "the metadata has per-IMU Ĉ_ω but not the one traced into the TorchScript file".to_string();
             return Err(ModelError::UnknownImu { name: name.into(), detail });
         };
         // Row-major Ĉ_k − C₀, transposed for `ω [.., 3] · changeᵀ`.

@@ -127,9 +127,10 @@ fn corrected_gyro(net: &Net, task: &Task) -> anyhow::Result<Vec<nalgebra::Vector
 /// IMU's recordings — a 0.05 grid on [0, 1], then golden-section search within ±0.05 of its
 /// best. g is a share: at most 1, shrinking the correction toward the raw gyro, never
 /// extrapolating it (on EuRoC, where AOE is sharp in g, 1.004 fitted one recording's drift and
-/// moved four of six the other way; docs/training.md, "v8"). The windowed loss fits increments of at most a few seconds; the AOE integrates the
-/// whole recording: on a calibrated IMU with mocap ground truth a correction that fits the
-/// short increments can add more drift than it removes (docs/training.md).
+/// moved four of six the other way; docs/training.md, "v8"). The windowed loss fits
+/// increments of at most a few seconds; the AOE integrates the whole recording: on a
+/// calibrated IMU with mocap ground truth a correction that fits the short increments can add
+/// more drift than it removes (docs/training.md).
 pub fn fit_correction_gains(net: &Net, tasks: &[Task], opts: &EvalOptions) -> anyhow::Result<BTreeMap<String, f64>> {
     // Each recording with its corrected gyro (gain 1), computed once, grouped by IMU.
     type Corrected<'a> = (&'a Task, Vec<nalgebra::Vector3<f64>>);
@@ -889,8 +890,10 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     for task in &data.test {
         let raw = evaluate_raw(task, &eopts)?;
         let gain = gain_of(task);
-        let model = evaluate_net_with_gain(&net, task, &eopts, gain)?;
-        let model_without_gain = if gain == 1.0 { None } else { Some(evaluate_net(&net, task, &eopts)?) };
+        // One forward; scored with the gain, and without it when that differs.
+        let gyro = corrected_gyro(&net, task)?;
+        let model_without_gain = if gain == 1.0 { None } else { Some(evaluate(&task.rec, &gyro, &eopts)?) };
+        let model = evaluate(&task.rec, &with_correction_gain(&task.rec.imu, gyro, gain), &eopts)?;
         tracing::info!(
             "test {}: AOE raw {:.2}° → model {:.2}°{}",
             task.name,
