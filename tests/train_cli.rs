@@ -77,12 +77,12 @@ fn ci_small_learns_exports_and_resumes() {
     assert!(with <= without + 1e-9, "gained score {with} above the ungained {without}");
     assert!(meta.training_data.iter().any(|s| s.contains("MH_01_easy")), "{:?}", meta.training_data);
     assert!(meta.metrics.contains_key("test.MH_04_difficult@0-40s.aoe_deg"), "{:?}", meta.metrics.keys());
-    // The monitor (the test crop itself) is evaluated with the validation set; its last entry
+    // The monitor (the test crop itself) is evaluated with the validation set, at the same epochs.
     let epochs_of = |v: &serde_json::Value| -> Vec<u64> { v["evals"].as_array().unwrap().iter().map(|e| e[0].as_u64().unwrap()).collect() };
     assert_eq!(epochs_of(&summary["monitor"][0]), vec![20, 40, 60]);
     assert_eq!(epochs_of(&summary["monitor"][0]), epochs_of(&summary["validation"][0]));
-    // is the exported model (without the gain, fitted after training), so it equals the test
-    // figure without the gain.
+    // Its last entry is the exported model (without the gain, fitted after training), so it
+    // equals the test figure without the gain.
     let monitored_last = summary["monitor"][0]["evals"][2][1]["aoe_deg"].as_f64().unwrap();
     let tested = meta
         .metrics
