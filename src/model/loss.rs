@@ -62,6 +62,12 @@ pub struct LossConfig {
     /// windows, but a 3000-sample window would otherwise score 17 % of its samples on
     /// outputs the deployed streaming model never produces.
     pub skip_first_samples: i64,
+    /// With `skip_first_samples` > 0: every increment length starts counting at that sample
+    /// (the first output computed without padding) instead of at the window's start, so no
+    /// increment is lost to the alignment. The same outputs are scored, but a 3000-sample window
+    /// after a 517-sample skip holds two increments of 1024 samples instead of one, and one of
+    /// 2048 instead of none: the long terms, which see a residual bias, get the data.
+    pub increments_from_skip: bool,
     /// γ in `L = w_R L^R + γ L^D`.
     pub gamma: f64,
     /// w_R in `L = w_R L^R + γ L^D` (the paper: 1). Unlike γ it leaves the orientation
@@ -80,6 +86,7 @@ impl Default for LossConfig {
             scale: 1e6,
             skip_first_increments: 5,
             skip_first_samples: 0,
+            increments_from_skip: false,
             gamma: 1.0,
             reconstruction_weight: 1.0,
             so3_f64: true,
@@ -95,6 +102,29 @@ impl LossConfig {
         } else {
             self.skip_first_increments
         }
+    }
+
+    /// Where increments of `j` samples are counted from in a window, and how many of them are
+    /// then skipped: `(offset, skipped)`.
+    pub fn increment_layout(&self, j: i64) -> (i64, i64) {
+        if self.increments_from_skip && self.skip_first_samples > 0 {
+            (self.skip_first_samples, 0)
+        } else {
+            (0, self.skipped_increments(j))
+        }
+    }
+
+    /// A training window must be longer than this many samples for every increment length to
+    /// score at least one increment.
+    pub fn min_window_samples(&self) -> i64 {
+        self.increments
+            .iter()
+            .map(|i| {
+                let (offset, skipped) = self.increment_layout(i.samples);
+                offset + i.samples * (skipped + 1)
+            })
+            .max()
+            .unwrap_or(1)
     }
 }
 
@@ -140,8 +170,14 @@ pub fn increment_loss(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attit
     for term in &cfg.increments {
         let j = term.samples;
         assert!(j >= 1, "increment length must be ≥ 1");
-        let m = num_increments(t, j);
-        let skipped = cfg.skipped_increments(j);
+        let (offset, skipped) = cfg.increment_layout(j);
+        if t <= offset {
+            continue;
+        }
+        let (tw, omega, dt, gt) =
+            (t - offset, omega.narrow(1, offset, t - offset), dt.narrow(1, offset, t - offset), gt.narrow(1, offset, t - offset));
+        let (sample_bad, dt_bad) = (sample_bad.narrow(2, offset, tw), dt_bad.narrow(2, offset, tw));
+        let m = num_increments(tw, j);
         if m <= skipped {
             continue;
         }
@@ -312,6 +348,35 @@ mod tests {
         let rf = LossConfig { skip_first_samples: 517, ..Default::default() };
         assert_eq!((rf.skipped_increments(16), rf.skipped_increments(1024)), (33, 1));
         assert_eq!(LossConfig::default().skipped_increments(1024), 5);
+    }
+
+    /// Counted from the skip, the increments are those of the window cut at the skip, and the
+    /// warm-up is still never scored; a window too short for one after its skip scores none.
+    #[test]
+    fn increments_counted_from_the_skip() {
+        tch::manual_seed(6);
+        let omega = Tensor::randn([2, 61, 3], F64) * 0.5;
+        let dt = Tensor::rand([2, 61], F64) * 0.002 + 0.004;
+        let gt = integrate(&omega, &dt);
+        let estimate = &omega + Tensor::randn([2, 61, 3], F64) * 0.05;
+        let terms = vec![IncrementTerm::new(4, 1.0), IncrementTerm::new(16, 0.25)];
+        let from_skip = LossConfig { increments: terms.clone(), skip_first_samples: 13, increments_from_skip: true, ..Default::default() };
+        let cut = LossConfig { increments: terms, skip_first_increments: 0, ..Default::default() };
+        let narrow = |x: &Tensor| x.narrow(1, 13, 48);
+        let a = increment_loss(&from_skip, &estimate, &dt, &gt, None).double_value(&[]);
+        let b = increment_loss(&cut, &narrow(&estimate), &narrow(&dt), &narrow(&gt), None).double_value(&[]);
+        assert!(a > 1e-3 && (a - b).abs() < 1e-12 * a, "{a} vs {b}");
+        // Aligned to the window, 16 would fit twice and both start before sample 13 + 16.
+        assert_eq!(from_skip.increment_layout(16), (13, 0));
+        assert_eq!(from_skip.min_window_samples(), 13 + 16);
+        assert_eq!(LossConfig { increments_from_skip: false, ..from_skip.clone() }.min_window_samples(), 32);
+        let wrong = omega.copy();
+        let _ = wrong.narrow(1, 12, 1).fill_(3.0);
+        assert!(increment_loss(&from_skip, &wrong, &dt, &gt, None).double_value(&[]).abs() < 1e-12);
+        let short = |x: &Tensor| x.narrow(1, 0, 29);
+        assert!(increment_loss(&from_skip, &short(&estimate), &short(&dt), &short(&gt), None).double_value(&[]) > 0.0);
+        let shorter = |x: &Tensor| x.narrow(1, 0, 12);
+        assert_eq!(increment_loss(&from_skip, &shorter(&estimate), &shorter(&dt), &shorter(&gt), None).double_value(&[]), 0.0);
     }
 
     #[test]

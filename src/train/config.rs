@@ -470,7 +470,7 @@ impl TrainConfig {
         {
             return Err("train.loss: huber_delta_rad and scale must be > 0, gamma and reconstruction_weight ≥ 0".into());
         }
-        let min_window = loss.increments.iter().map(|i| i.samples * (loss.skipped_increments(i.samples) + 1)).max().unwrap_or(1) as usize;
+        let min_window = loss.min_window_samples() as usize;
         for (what, w) in [
             ("train.window_samples", t.window_samples),
             ("train.maml.support_window_samples", t.maml.support_window_samples),
@@ -478,7 +478,7 @@ impl TrainConfig {
         ] {
             if w <= min_window {
                 return Err(format!(
-                    "{what} = {w}: must exceed {min_window} samples (every increment length × (its skipped increments + 1))"
+                    "{what} = {w}: must exceed {min_window} samples (every increment length must score one increment after its skip)"
                 ));
             }
         }
