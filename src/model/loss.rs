@@ -366,7 +366,7 @@ mod tests {
         let a = increment_loss(&from_skip, &estimate, &dt, &gt, None).double_value(&[]);
         let b = increment_loss(&cut, &narrow(&estimate), &narrow(&dt), &narrow(&gt), None).double_value(&[]);
         assert!(a > 1e-3 && (a - b).abs() < 1e-12 * a, "{a} vs {b}");
-        // Aligned to the window, 16 would fit twice and both start before sample 13 + 16.
+        // Counted from sample 13, none skipped; aligned to the window, 16 would skip its first.
         assert_eq!(from_skip.increment_layout(16), (13, 0));
         assert_eq!(from_skip.min_window_samples(), 13 + 16);
         assert_eq!(LossConfig { increments_from_skip: false, ..from_skip.clone() }.min_window_samples(), 32);
