@@ -10,6 +10,14 @@ Run with the project's venv (scripts/env.sh: $PYTHON has numpy, torch and mcap):
                                        /imu/denoised): the model's correction c = denoised - raw
                                        split into its recording mean and the rest, scored as
                                        raw + mean(c) + a (c - mean(c)) and raw + a c for a few a
+  error_analysis.py postfilter BAG...  for bags written by `imu-fsda replay`: causal filters a node could
+                                       run after the model, scored beside the model alone: the
+                                       correction c low-passed (raw + EMA_tau(c)), a gravity-aided
+                                       bias observer on the denoised rate (Mahony-style: the
+                                       accelerometer's direction against the integrated attitude's
+                                       gravity, integral gain ki, proportional gain kp; only the
+                                       bias estimate reaches the scored rate), and the model's own
+                                       output over the initial rest subtracted (a zero-rate update)
   error_analysis.py probe --positive PATTERN --train BAG... --test BAG...
                                        whether a window of raw IMU tells which recordings it
                                        comes from: a logistic regression on the log band powers
@@ -202,6 +210,76 @@ def decompose(args):
         print(f"| {name} | {aoe_deg(t, w, gt):.2f} | {aoe_deg(t, w + c, gt):.2f} | " + " | ".join(f"{x:.2f}" for x in cells) + " |", flush=True)
 
 
+def ema(x, t, tau):
+    """Causal exponential moving average of the rows of x, time constant tau seconds."""
+    out = np.empty_like(x)
+    acc = x[0].copy()
+    dt = np.diff(t, prepend=t[0]) * 1e-9
+    for k in range(len(x)):
+        acc += min(dt[k] / tau, 1.0) * (x[k] - acc)
+        out[k] = acc
+    return out
+
+
+def rodrigues(v):
+    """Exp of one rotation vector (numpy; the per-sample loop below is too slow in torch)."""
+    th = np.linalg.norm(v)
+    kx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    if th < 1e-12:
+        return np.eye(3) + kx
+    return np.eye(3) + np.sin(th) / th * kx + (1 - np.cos(th)) / th**2 * (kx @ kx)
+
+
+def gravity_observer(t, gyro, accel, r0, kp, ki, accel_tau=0.0):
+    """The rate minus a Mahony-style bias estimate: the integrated attitude's 'up' in the body
+    frame against the (optionally low-passed) accelerometer's direction; the integral gain
+    drives the bias, the proportional one only the observer's own attitude."""
+    b, r, out = np.zeros(3), r0.copy(), np.empty_like(gyro)
+    af = accel[0].copy()
+    up = np.array([0.0, 0.0, 1.0])
+    for k in range(len(t)):
+        out[k] = gyro[k] - b
+        if k + 1 == len(t):
+            break
+        dt = (t[k + 1] - t[k]) * 1e-9
+        af += (min(dt / accel_tau, 1.0) if accel_tau > 0 else 1.0) * (accel[k] - af)
+        e = np.cross(af / np.linalg.norm(af), r.T @ up)
+        b -= ki * e * dt
+        r = r @ rodrigues((gyro[k] - b + kp * e) * dt)
+    return out
+
+
+def initial_rest(gyro, n=100, max_std=0.01):
+    """Samples of the initial rest: from the start while every n-sample block's gyro std per
+    axis stays below max_std rad/s (rotors off; none if the recording starts moving)."""
+    k = 0
+    while k + n <= len(gyro) and gyro[k : k + n].std(0).max() < max_std:
+        k += n
+    return k
+
+
+def postfilter(args):
+    taus = [float(x) for x in args.taus.split(",")]
+    observers = [tuple(float(v) for v in o.split(":")) for o in args.observers.split(",")]
+    head = [f"EMA {tau:g} s" for tau in taus] + [f"observer kp {o[0]:g} ki {o[1]:g}" + (f" LPF {o[2]:g} s" if len(o) > 2 else "") for o in observers]
+    print("| bag | raw | model | " + " | ".join(head) + " | − model's rest mean |")
+    print("|---|---|---|" + "---|" * (len(head) + 1))
+    for path in args.bags:
+        d = read_bag(path)
+        if "/imu/denoised" not in d:
+            sys.exit(f"{path}: no /imu/denoised (write it with `imu-fsda replay`)")
+        raw, den, gt = d["/imu/data"], d["/imu/denoised"], d["/ground_truth/pose"]
+        rg, covered, _ = gt_at_imu(raw[:, 0], gt)
+        first = int(np.argmax(covered))
+        t, w, a, wd = raw[first:, 0], raw[first:, 1:4], raw[first:, 4:7], den[first:, 1:4]
+        cells = [aoe_deg(t, w + ema(wd - w, t, tau), gt) for tau in taus]
+        cells += [aoe_deg(t, gravity_observer(t, wd, a, rg[first], *o), gt) for o in observers]
+        rest = initial_rest(w)
+        rest_cell = f"{aoe_deg(t, wd - wd[:rest].mean(0), gt):.2f} ({(t[rest] - t[0]) * 1e-9:.1f} s)" if rest else "no rest"
+        name = os.path.splitext(os.path.basename(path))[0]
+        print(f"| {name} | {aoe_deg(t, w, gt):.2f} | {aoe_deg(t, wd, gt):.2f} | " + " | ".join(f"{x:.2f}" for x in cells) + f" | {rest_cell} |", flush=True)
+
+
 def window_features(imu, n=512, bands=16):
     """Log band powers of every channel and the mean accelerometer, per n-sample window."""
     x = imu[:, 1:7]
@@ -255,6 +333,11 @@ def main():
     d.add_argument("bags", nargs="+")
     d.add_argument("--alphas", default="0,0.25,0.5,1")
     d.set_defaults(run=decompose)
+    o = sub.add_parser("postfilter")
+    o.add_argument("bags", nargs="+")
+    o.add_argument("--taus", default="0.5,2,10,30", help="EMA time constants, s")
+    o.add_argument("--observers", default="0.05:1e-3,0.02:2e-4,0.05:1e-3:1,0.01:1e-4:1", help="kp:ki[:accel LPF s],...")
+    o.set_defaults(run=postfilter)
     q = sub.add_parser("probe")
     q.add_argument("--positive", required=True, help="a file-name substring, e.g. V2_")
     q.add_argument("--train", nargs="+", required=True)
