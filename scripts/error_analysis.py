@@ -192,16 +192,26 @@ def floors(args):
         )
 
 
+def read_replayed(path):
+    """Raw IMU, denoised IMU and poses of a bag written by `imu-fsda replay`, the two IMU topics
+    checked to be stamp for stamp the same samples (the analyses pair them row by row)."""
+    d = read_bag(path)
+    for topic in ("/imu/data", "/imu/denoised", "/ground_truth/pose"):
+        if topic not in d:
+            sys.exit(f"{path}: no {topic} (write the bag with `imu-fsda replay` from an imported one)")
+    raw, den = d["/imu/data"], d["/imu/denoised"]
+    if raw.shape != den.shape or not np.array_equal(raw[:, 0], den[:, 0]):
+        sys.exit(f"{path}: /imu/denoised ({len(den)} samples) is not stamp for stamp /imu/data ({len(raw)}): samples dropped in the replay?")
+    return raw, den, d["/ground_truth/pose"]
+
+
 def decompose(args):
     alphas = [float(a) for a in args.alphas.split(",")]
     head = " | ".join(f"mean + {a:g}·rest" for a in alphas) + " | " + " | ".join(f"{a:g}·c" for a in alphas)
     print(f"| bag | raw | model | {head} |")
     print("|---|---|---|" + "---|" * (2 * len(alphas)))
     for path in args.bags:
-        d = read_bag(path)
-        if "/imu/denoised" not in d:
-            sys.exit(f"{path}: no /imu/denoised (write it with `imu-fsda replay`)")
-        raw, den, gt = d["/imu/data"], d["/imu/denoised"], d["/ground_truth/pose"]
+        raw, den, gt = read_replayed(path)
         t, w = raw[:, 0], raw[:, 1:4]
         c = den[:, 1:4] - w
         mean = c.mean(0)
@@ -265,17 +275,14 @@ def postfilter(args):
     print("| bag | raw | model | " + " | ".join(head) + " | − model's rest mean |")
     print("|---|---|---|" + "---|" * (len(head) + 1))
     for path in args.bags:
-        d = read_bag(path)
-        if "/imu/denoised" not in d:
-            sys.exit(f"{path}: no /imu/denoised (write it with `imu-fsda replay`)")
-        raw, den, gt = d["/imu/data"], d["/imu/denoised"], d["/ground_truth/pose"]
+        raw, den, gt = read_replayed(path)
         rg, covered, _ = gt_at_imu(raw[:, 0], gt)
         first = int(np.argmax(covered))
         t, w, a, wd = raw[first:, 0], raw[first:, 1:4], raw[first:, 4:7], den[first:, 1:4]
         cells = [aoe_deg(t, w + ema(wd - w, t, tau), gt) for tau in taus]
         cells += [aoe_deg(t, gravity_observer(t, wd, a, rg[first], *o), gt) for o in observers]
         rest = initial_rest(w)
-        rest_cell = f"{aoe_deg(t, wd - wd[:rest].mean(0), gt):.2f} ({(t[rest] - t[0]) * 1e-9:.1f} s)" if rest else "no rest"
+        rest_cell = f"{aoe_deg(t, wd - wd[:rest].mean(0), gt):.2f} ({(t[rest - 1] - t[0]) * 1e-9:.1f} s)" if rest else "no rest"
         name = os.path.splitext(os.path.basename(path))[0]
         print(f"| {name} | {aoe_deg(t, w, gt):.2f} | {aoe_deg(t, wd, gt):.2f} | " + " | ".join(f"{x:.2f}" for x in cells) + f" | {rest_cell} |", flush=True)
 
