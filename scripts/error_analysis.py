@@ -121,13 +121,13 @@ def aoe_deg(t_imu, gyro, gt):
     rg, covered, _ = gt_at_imu(t_imu, gt)
     first = int(np.argmax(covered))
     steps = so3_exp(torch.tensor(gyro[first:-1] * (np.diff(t_imu[first:]) * 1e-9)[:, None])).numpy()
-    r = rg[first].copy()
-    errs = []
-    for k in range(first, len(t_imu)):
-        if covered[k]:
-            errs.append(np.linalg.norm(so3_log(torch.tensor(rg[k].T @ r)).numpy()))
-        if k + 1 < len(t_imu):
-            r = r @ steps[k - first]
+    # The attitude chain is sequential; the error's Log is taken once over all scored samples.
+    r = np.empty((len(t_imu) - first, 3, 3))
+    r[0] = rg[first]
+    for k in range(1, len(r)):
+        r[k] = r[k - 1] @ steps[k - 1]
+    e = np.einsum("nji,njk->nik", rg[first:], r)[covered[first:]]
+    errs = torch.linalg.norm(so3_log(torch.tensor(e)), dim=-1).numpy()
     return float(np.degrees(np.sqrt(np.mean(np.square(errs)))))
 
 
