@@ -18,6 +18,16 @@ Run with the project's venv (scripts/env.sh: $PYTHON has numpy, torch and mcap):
                                        gravity, integral gain ki, proportional gain kp; only the
                                        bias estimate reaches the scored rate), and the model's own
                                        output over the initial rest subtracted (a zero-rate update)
+  error_analysis.py insobserver BAG... for bags written by `imu-fsda replay`: the denoised rate minus the
+                                       gyro bias of an error-state INS filter (attitude, velocity,
+                                       gyro and accelerometer biases) whose only measurement is a
+                                       bounded-motion prior, velocity 0 +- SIGMA_V every PERIOD s:
+                                       a platform that stays in a room cannot keep accelerating,
+                                       so a tilt error shows as velocity drift. Heading is not
+                                       observable from gravity: neither the heading error nor the
+                                       bias along the body's up axis is updated. Only the bias
+                                       estimate reaches the scored rate. --raw BAG... filters
+                                       imported bags' raw gyro minus --offset instead
   error_analysis.py probe --positive PATTERN --train BAG... --test BAG...
                                        whether a window of raw IMU tells which recordings it
                                        comes from: a logistic regression on the log band powers
@@ -287,6 +297,81 @@ def postfilter(args):
         print(f"| {name} | {aoe_deg(t, w, gt):.2f} | {aoe_deg(t, wd, gt):.2f} | " + " | ".join(f"{x:.2f}" for x in cells) + f" | {rest_cell} |", flush=True)
 
 
+def skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def ins_bias_observer(t, gyro, accel, sigma_v, period_s, sigma_bg0=3e-3, sigma_ba0=0.3, init_s=0.5):
+    """The rate minus the gyro bias of a 12-state error-state INS filter (world-frame attitude
+    error, velocity, gyro bias, accelerometer bias; z up) updated with v = 0 +- sigma_v every
+    period_s seconds. Noise: the ADIS16448's order (ARW 2e-4 rad/s/sqrt(Hz), VRW 2e-3), biases
+    nearly constant."""
+    arw, vrw, bg_rw, ba_rw = 2e-4, 2e-3, 1e-6, 1e-4
+    f0 = accel[: max(1, int(init_s * 200))].mean(0)
+    zb = f0 / np.linalg.norm(f0)  # world up in the body frame (at rest or hovering)
+    xb = np.cross([0.0, 1.0, 0.0], zb) if abs(zb[1]) < 0.9 else np.cross([1.0, 0.0, 0.0], zb)
+    xb /= np.linalg.norm(xb)
+    r = np.vstack([xb, np.cross(zb, xb), zb])  # body -> world, yaw arbitrary
+    v, bg, ba = np.zeros(3), np.zeros(3), np.zeros(3)
+    p = np.diag([2e-2**2] * 2 + [1.0] + [0.1**2] * 3 + [sigma_bg0**2] * 3 + [sigma_ba0**2] * 3)
+    eye = np.eye(12)
+    h = np.zeros((3, 12))
+    h[:, 3:6] = np.eye(3)
+    rm = np.eye(3) * sigma_v**2
+    q_diag = np.array([arw**2] * 3 + [vrw**2] * 3 + [bg_rw**2] * 3 + [ba_rw**2] * 3)
+    out = np.empty_like(gyro)
+    next_update = t[0] + period_s * 1e9
+    for k in range(len(t)):
+        out[k] = gyro[k] - bg
+        if k + 1 == len(t):
+            break
+        dt = (t[k + 1] - t[k]) * 1e-9
+        fw = r @ (accel[k] - ba)
+        f = np.zeros((12, 12))
+        f[0:3, 6:9] = -r
+        f[3:6, 0:3] = -skew(fw)
+        f[3:6, 9:12] = -r
+        phi = eye + f * dt
+        p = phi @ p @ phi.T + np.diag(q_diag * dt)
+        v = v + (fw - np.array([0.0, 0.0, 9.81])) * dt
+        r = r @ rodrigues((gyro[k] - bg) * dt)
+        if t[k + 1] >= next_update:
+            next_update += period_s * 1e9
+            gain = p @ h.T @ np.linalg.inv(h @ p @ h.T + rm)
+            up = r.T @ np.array([0.0, 0.0, 1.0])
+            gain[2, :] = 0.0  # heading: gravity says nothing about it
+            gain[6:9, :] = (np.eye(3) - np.outer(up, up)) @ gain[6:9, :]
+            dx = gain @ -v
+            ikh = eye - gain @ h
+            p = ikh @ p @ ikh.T + gain @ rm @ gain.T  # Joseph form: valid for the edited gain
+            r = rodrigues(dx[0:3]) @ r
+            v, bg, ba = v + dx[3:6], bg + dx[6:9], ba + dx[9:12]
+    return out
+
+
+def insobserver(args):
+    print(f"| bag | input | input − INS bias (sigma_v {args.sigma_v:g} m/s every {args.period:g} s) | final bias, mrad/s |")
+    print("|---|---|---|---|")
+    before, after = [], []
+    for path in args.bags:
+        if args.raw:
+            d = read_bag(path, ("/imu/data", "/ground_truth/pose"))
+            imu, gt = d["/imu/data"], d["/ground_truth/pose"]
+            rate = imu[:, 1:4] - np.array(args.offset)
+        else:
+            imu, den, gt = read_replayed(path)
+            rate = den[:, 1:4]
+        _, covered, _ = gt_at_imu(imu[:, 0], gt)
+        first = int(np.argmax(covered))
+        t, w, a = imu[first:, 0], rate[first:], imu[first:, 4:7]
+        out = ins_bias_observer(t, w, a, args.sigma_v, args.period)
+        before.append(aoe_deg(t, w, gt))
+        after.append(aoe_deg(t, out, gt))
+        name = os.path.splitext(os.path.basename(path))[0]
+        print(f"| {name} | {before[-1]:.2f} | {after[-1]:.2f} | {np.round((w[-1] - out[-1]) * 1e3, 2).tolist()} |", flush=True)
+    print(f"| mean | {np.mean(before):.2f} | {np.mean(after):.2f} | |")
+
+
 def window_features(imu, n=512, bands=16):
     """Log band powers of every channel and the mean accelerometer, per n-sample window."""
     x = imu[:, 1:7]
@@ -345,6 +430,13 @@ def main():
     o.add_argument("--taus", default="0.5,2,10,30", help="EMA time constants, s")
     o.add_argument("--observers", default="0.05:1e-3,0.02:2e-4,0.05:1e-3:1,0.01:1e-4:1", help="kp:ki[:accel LPF s],...")
     o.set_defaults(run=postfilter)
+    i = sub.add_parser("insobserver")
+    i.add_argument("bags", nargs="+")
+    i.add_argument("--sigma-v", type=float, default=2.0, help="m/s, the bounded-motion prior")
+    i.add_argument("--period", type=float, default=2.0, help="s between prior updates")
+    i.add_argument("--raw", action="store_true", help="imported bags: filter the raw gyro minus --offset")
+    i.add_argument("--offset", type=float, nargs=3, default=[0.0, 0.0, 0.0], help="rad/s, with --raw")
+    i.set_defaults(run=insobserver)
     q = sub.add_parser("probe")
     q.add_argument("--positive", required=True, help="a file-name substring, e.g. V2_")
     q.add_argument("--train", nargs="+", required=True)
