@@ -28,6 +28,14 @@ Run with the project's venv (scripts/env.sh: $PYTHON has numpy, torch and mcap):
                                        bias along the body's up axis is updated. Only the bias
                                        estimate reaches the scored rate. --raw BAG... filters
                                        imported bags' raw gyro minus --offset instead
+  error_analysis.py ensemble DIR...    for folders of bags written by `imu-fsda replay` with different models
+                                       (same file names): each model's AOE and that of the mean of their
+                                       /imu/denoised (an output ensemble), per recording
+  error_analysis.py supportbias BAG... for bags written by `imu-fsda replay`: the model's constant error fitted
+                                       on the first S s (the paper's support set, ground truth read there
+                                       only) and removed; AOE over the whole recording and over the query
+                                       (after S, from the ground truth at S) before and after, and a
+                                       two-fold check on the support alone (fit on one half, score the other)
   error_analysis.py probe --positive PATTERN --train BAG... --test BAG...
                                        whether a window of raw IMU tells which recordings it
                                        comes from: a logistic regression on the log band powers
@@ -372,6 +380,58 @@ def insobserver(args):
     print(f"| mean | {np.mean(before):.2f} | {np.mean(after):.2f} | |")
 
 
+def ensemble(args):
+    names = sorted(set.intersection(*(set(f for f in os.listdir(d) if f.endswith(".mcap")) for d in args.dirs)))
+    if not names:
+        sys.exit("no bag file name is in every folder")
+    members = [os.path.basename(os.path.normpath(d)) for d in args.dirs]
+    print("| bag | " + " | ".join(members) + " | mean of the outputs |")
+    print("|---|" + "---|" * (len(members) + 1))
+    for name in names:
+        runs = [read_replayed(os.path.join(d, name)) for d in args.dirs]
+        raw, _, gt = runs[0]
+        for other, _, _ in runs[1:]:
+            if not np.array_equal(other[:, 0], raw[:, 0]):
+                sys.exit(f"{name}: the replays do not hold the same samples")
+        t = raw[:, 0]
+        alone = [aoe_deg(t, den[:, 1:4], gt) for _, den, _ in runs]
+        mean = aoe_deg(t, np.mean([den[:, 1:4] for _, den, _ in runs], axis=0), gt)
+        print(f"| {os.path.splitext(name)[0]} | " + " | ".join(f"{x:.2f}" for x in alone) + f" | {mean:.2f} |", flush=True)
+
+
+def supportbias(args):
+    s = args.support_seconds
+    print(f"| bag | whole: model → − support constant | query (after {s:g} s) | two-fold check on the support (fit one half, score the other) | constant, mrad/s |")
+    print("|---|---|---|---|---|")
+    for path in args.bags:
+        raw, den, gt = read_replayed(path)
+        t, w = raw[:, 0], den[:, 1:4]
+        _, covered, _ = gt_at_imu(t, gt)
+        t0 = t[int(np.argmax(covered))]
+
+        def span(a, z):
+            return (t >= t0 + a * 1e9) & (t < t0 + z * 1e9)
+
+        def fit(m):
+            return fit_calibration(Increments(t[m], w[m], gt, args.increment), False)[1]
+
+        support, query = span(-np.inf, s), ~span(-np.inf, s)
+        if query.sum() < 2:
+            sys.exit(f"{path}: nothing after the first {s:g} s")
+        b = fit(support)
+        first, second = span(0, s / 2), span(s / 2, s)
+        folds = [(second, fit(first)), (first, fit(second))]
+        checks = [(aoe_deg(t[m], w[m], gt), aoe_deg(t[m], w[m] + bf, gt)) for m, bf in folds]
+        passed = all(after < before for before, after in checks)
+        name = os.path.splitext(os.path.basename(path))[0]
+        print(
+            f"| {name} | {aoe_deg(t, w, gt):.2f} → {aoe_deg(t, w + b, gt):.2f} | {aoe_deg(t[query], w[query], gt):.2f} → "
+            f"{aoe_deg(t[query], w[query] + b, gt):.2f} | " + " ; ".join(f"{x:.2f} → {y:.2f}" for x, y in checks)
+            + f" ({'passed' if passed else 'failed'}) | {np.round(b * 1e3, 2).tolist()} |",
+            flush=True,
+        )
+
+
 def window_features(imu, n=512, bands=16):
     """Log band powers of every channel and the mean accelerometer, per n-sample window."""
     x = imu[:, 1:7]
@@ -437,6 +497,14 @@ def main():
     i.add_argument("--raw", action="store_true", help="imported bags: filter the raw gyro minus --offset")
     i.add_argument("--offset", type=float, nargs=3, default=[0.0, 0.0, 0.0], help="rad/s, with --raw")
     i.set_defaults(run=insobserver)
+    e = sub.add_parser("ensemble")
+    e.add_argument("dirs", nargs="+", help="folders of replayed bags, one per model")
+    e.set_defaults(run=ensemble)
+    b = sub.add_parser("supportbias")
+    b.add_argument("bags", nargs="+")
+    b.add_argument("--support-seconds", type=float, default=60.0)
+    b.add_argument("--increment", type=int, default=200, help="J, samples (1 s at 200 Hz)")
+    b.set_defaults(run=supportbias)
     q = sub.add_parser("probe")
     q.add_argument("--positive", required=True, help="a file-name substring, e.g. V2_")
     q.add_argument("--train", nargs="+", required=True)
