@@ -413,7 +413,10 @@ def supportbias(args):
             return (t >= t0 + a * 1e9) & (t < t0 + z * 1e9)
 
         def fit(m):
-            return fit_calibration(Increments(t[m], w[m], gt, args.increment), False)[1]
+            inc = Increments(t[m], w[m], gt, args.increment)
+            if int(inc.valid.sum()) < 3:
+                sys.exit(f"{path}: {int(inc.valid.sum())} ground-truth-covered {args.increment}-sample increments in a span to fit, at least 3 needed (shorter --increment?)")
+            return fit_calibration(inc, False)[1]
 
         support, query = span(-np.inf, s), ~span(-np.inf, s)
         if query.sum() < 2:
