@@ -530,43 +530,12 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
             })
             .collect()
     };
-    let mut fast: Vec<Vec<Tensor>> = (0..n).map(|_| theta.iter().map(Tensor::shallow_clone).collect()).collect();
     let su = augment(&s.imu, &t.augment);
     let sper = m.support_windows as i64;
-    let mut sup = 0.0;
-    // λ_s · Σ w_i L_support,i(θ_e): the support windows through the shipped weights.
-    let mut support_at_meta: Option<Tensor> = None;
-    for k in 0..m.inner_steps {
-        let out = forward(&su, s.calibration_rows.as_ref(), sper, &fast);
-        let ls = task_losses(&out, &s, sper);
-        if k == 0 {
-            sup = ls.iter().zip(&weights).map(|(l, w)| scalar(&l.total) * w).sum();
-            if m.unadapted_support_weight > 0.0 {
-                let l0 = ls.iter().zip(&weights).map(|(l, w)| &l.total * *w).reduce(|a, b| a + b).expect("≥ 1 task");
-                support_at_meta = Some(l0 * m.unadapted_support_weight);
-            }
-        }
-        let sum = ls.iter().map(|l| l.total.shallow_clone()).reduce(|a, b| a + b).expect("≥ 1 task");
-        let flat: Vec<Tensor> = fast.iter().flatten().map(Tensor::shallow_clone).collect();
-        let second = !m.first_order;
-        let keep = second || (k == 0 && support_at_meta.is_some());
-        let grads = Tensor::run_backward(&[&sum], &flat, keep, second);
-        let p = theta.len();
-        fast = (0..n)
-            .map(|i| {
-                (0..p)
-                    .map(|j| {
-                        let (w, g) = (&fast[i][j], &grads[i * p + j]);
-                        if second {
-                            w - g * m.inner_lr
-                        } else {
-                            w - g.detach() * m.inner_lr
-                        }
-                    })
-                    .collect()
-            })
-            .collect();
-    }
+    let support_losses = |fast: &[Vec<Tensor>]| {
+        task_losses(&forward(&su, s.calibration_rows.as_ref(), sper, fast), &s, sper).into_iter().map(|l| l.total).collect()
+    };
+    let (fast, sup, support_at_meta) = inner_adapt_batched(&theta, &weights, m, support_losses);
     let qu = augment(&q.imu, &t.augment);
     let qper = m.query_windows as i64;
     let out = forward(&qu, q.calibration_rows.as_ref(), qper, &fast);
@@ -589,6 +558,56 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
         reconstruction: Some(wsum(&|l| l.reconstruction.as_ref().map_or(0.0, scalar))),
         support: Some(sup),
     }
+}
+
+/// The inner loop of the batched step: `m.inner_steps` gradient steps, each task on its own
+/// copy of the Embedding's weights θ_e. `support_losses(fast)` is every task's support loss with
+/// task i's Embedding at `fast[i]`. Returns the adapted weights, the task-weighted support loss
+/// at θ_e and, when `m.unadapted_support_weight` (λ_s) > 0, that loss in the graph times λ_s.
+///
+/// Each copy starts as a view of θ_e, its own autograd node, so the gradient with respect to
+/// task i's copy is that of the summed losses through task i's Embedding. Shallow clones would
+/// share θ_e's identity and every task would get the gradient of all the tasks' losses: one
+/// shared step, the bundled v9 model's (docs/training.md, "The inner step was shared").
+fn inner_adapt_batched(
+    theta: &[Tensor],
+    weights: &[f64],
+    m: &super::config::MamlConfig,
+    support_losses: impl Fn(&[Vec<Tensor>]) -> Vec<Tensor>,
+) -> (Vec<Vec<Tensor>>, f64, Option<Tensor>) {
+    let (n, p) = (weights.len(), theta.len());
+    let mut fast: Vec<Vec<Tensor>> = (0..n).map(|_| theta.iter().map(|w| w.view_as(w)).collect()).collect();
+    let second = !m.first_order;
+    let (mut sup, mut support_at_meta) = (0.0, None);
+    for k in 0..m.inner_steps {
+        let ls = support_losses(&fast);
+        if k == 0 {
+            sup = ls.iter().zip(weights).map(|(l, w)| scalar(l) * w).sum();
+            if m.unadapted_support_weight > 0.0 {
+                let l0 = ls.iter().zip(weights).map(|(l, w)| l * *w).reduce(|a, b| a + b).expect("≥ 1 task");
+                support_at_meta = Some(l0 * m.unadapted_support_weight);
+            }
+        }
+        let sum = ls.into_iter().reduce(|a, b| a + b).expect("≥ 1 task");
+        let flat: Vec<&Tensor> = fast.iter().flatten().collect();
+        let keep = second || (k == 0 && support_at_meta.is_some());
+        let grads = Tensor::run_backward(&[&sum], &flat, keep, second);
+        fast = (0..n)
+            .map(|i| {
+                (0..p)
+                    .map(|j| {
+                        let (w, g) = (&fast[i][j], &grads[i * p + j]);
+                        if second {
+                            w - g * m.inner_lr
+                        } else {
+                            w - g.detach() * m.inner_lr
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+    }
+    (fast, sup, support_at_meta)
 }
 
 fn epoch_seed(seed: u64, epoch: usize) -> i64 {
@@ -1365,6 +1384,42 @@ mod tests {
         assert_eq!(validation_score(&v, Some(30), TaskWeighting::PerDomain), None);
         assert_eq!(validation_score(&[], None, TaskWeighting::PerDomain), None);
         assert_eq!(validation_score(&[seq("euroc/MH_01_easy", &[])], None, TaskWeighting::Uniform), None);
+    }
+
+    /// The batched inner loop steps each task on its own copy of θ_e: with task i's loss
+    /// c_i · Σ θ (task 1 also reading task 0's copy, as BatchNorm couples them), the first-order
+    /// step moves copy 0 by α (c_0 + 0.1 c_1) and copy 1 by α c_1, not both by the gradient of the
+    /// summed losses with respect to θ_e (what shallow clones of θ_e gave, v9's training).
+    #[test]
+    fn the_batched_inner_step_is_per_task() {
+        let theta = vec![Tensor::zeros([3], (Kind::Float, Device::Cpu)).set_requires_grad(true)];
+        let (c0, c1, lr) = (1.0, 5.0, 0.1);
+        let maml = |first_order: bool, unadapted_support_weight: f64| super::super::config::MamlConfig {
+            inner_lr: lr,
+            inner_steps: 1,
+            first_order,
+            unadapted_support_weight,
+            ..Default::default()
+        };
+        let losses = |fast: &[Vec<Tensor>]| {
+            let sum = |t: &Tensor| t.sum(Kind::Float);
+            vec![sum(&fast[0][0]) * c0, (sum(&fast[1][0]) + sum(&fast[0][0]) * 0.1) * c1]
+        };
+        for first_order in [true, false] {
+            let (fast, sup, at_meta) = inner_adapt_batched(&theta, &[0.25, 0.75], &maml(first_order, 2.0), losses);
+            let v = |t: &Tensor| Vec::<f32>::try_from(t).unwrap();
+            let want0 = -lr * (c0 + 0.1 * c1);
+            assert!(v(&fast[0][0]).iter().all(|x| (f64::from(*x) - want0).abs() < 1e-6), "{:?}", v(&fast[0][0]));
+            assert!(v(&fast[1][0]).iter().all(|x| (f64::from(*x) + lr * c1).abs() < 1e-6), "{:?}", v(&fast[1][0]));
+            assert_eq!(sup, 0.0, "the losses at θ_e = 0");
+            // λ_s · Σ w_i L_i at θ_e stays in the graph and reaches θ_e: 2 (0.25 c0 + 0.75 · 1.1 c1).
+            at_meta.unwrap().backward();
+            let g = v(&theta[0].grad());
+            assert!(g.iter().all(|x| (f64::from(*x) - 2.0 * (0.25 * c0 + 0.75 * 1.1 * c1)).abs() < 1e-5), "{g:?}");
+            let _ = theta[0].grad().zero_();
+        }
+        let (_, _, at_meta) = inner_adapt_batched(&theta, &[0.5, 0.5], &maml(true, 0.0), losses);
+        assert!(at_meta.is_none());
     }
 
     /// The batched MAML step feeds the Generator `[embedding, IMU]` when the model asks for
