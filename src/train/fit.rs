@@ -1392,7 +1392,7 @@ mod tests {
     /// summed losses with respect to θ_e (what shallow clones of θ_e gave, v9's training).
     #[test]
     fn the_batched_inner_step_is_per_task() {
-        let theta = vec![Tensor::zeros([3], (Kind::Float, Device::Cpu)).set_requires_grad(true)];
+        let theta = vec![Tensor::ones([3], (Kind::Float, Device::Cpu)).set_requires_grad(true)];
         let (c0, c1, lr) = (1.0, 5.0, 0.1);
         let maml = |first_order: bool, unadapted_support_weight: f64| super::super::config::MamlConfig {
             inner_lr: lr,
@@ -1408,10 +1408,11 @@ mod tests {
         for first_order in [true, false] {
             let (fast, sup, at_meta) = inner_adapt_batched(&theta, &[0.25, 0.75], &maml(first_order, 2.0), losses);
             let v = |t: &Tensor| Vec::<f32>::try_from(t).unwrap();
-            let want0 = -lr * (c0 + 0.1 * c1);
+            let want0 = 1.0 - lr * (c0 + 0.1 * c1);
             assert!(v(&fast[0][0]).iter().all(|x| (f64::from(*x) - want0).abs() < 1e-6), "{:?}", v(&fast[0][0]));
-            assert!(v(&fast[1][0]).iter().all(|x| (f64::from(*x) + lr * c1).abs() < 1e-6), "{:?}", v(&fast[1][0]));
-            assert_eq!(sup, 0.0, "the losses at θ_e = 0");
+            assert!(v(&fast[1][0]).iter().all(|x| (f64::from(*x) - (1.0 - lr * c1)).abs() < 1e-6), "{:?}", v(&fast[1][0]));
+            // Σ w_i L_i at θ_e = 1: 0.25 · 3 c0 + 0.75 · 3.3 c1.
+            assert!((sup - (0.25 * 3.0 * c0 + 0.75 * 3.3 * c1)).abs() < 1e-4, "{sup}");
             // λ_s · Σ w_i L_i at θ_e stays in the graph and reaches θ_e: 2 (0.25 c0 + 0.75 · 1.1 c1).
             at_meta.unwrap().backward();
             let g = v(&theta[0].grad());
