@@ -418,7 +418,8 @@ def supportbias(args):
                 sys.exit(f"{path}: {int(inc.valid.sum())} ground-truth-covered {args.increment}-sample increments in a span to fit, at least 3 needed (shorter --increment?)")
             return fit_calibration(inc, False)[1]
 
-        support, query = span(-np.inf, s), ~span(-np.inf, s)
+        support = span(-np.inf, s)
+        query = ~support
         if query.sum() < 2:
             sys.exit(f"{path}: nothing after the first {s:g} s")
         b = fit(support)

@@ -271,7 +271,7 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
             let second = !m.first_order;
             let keep = second || (k == 0 && support_at_meta.is_some());
             let grads = Tensor::run_backward(&[&l], &fast, keep, second);
-            fast = fast.iter().zip(&grads).map(|(p, g)| if second { p - g * m.inner_lr } else { p - g.detach() * m.inner_lr }).collect();
+            fast = inner_sgd_step(&fast, &grads, m.inner_lr, second);
         }
         let qu = augment(&q.imu, &t.augment);
         let calibration_rows = q.calibration_rows.as_ref();
@@ -592,20 +592,7 @@ fn inner_adapt_batched(
         let flat: Vec<&Tensor> = fast.iter().flatten().collect();
         let keep = second || (k == 0 && support_at_meta.is_some());
         let grads = Tensor::run_backward(&[&sum], &flat, keep, second);
-        fast = (0..n)
-            .map(|i| {
-                (0..p)
-                    .map(|j| {
-                        let (w, g) = (&fast[i][j], &grads[i * p + j]);
-                        if second {
-                            w - g * m.inner_lr
-                        } else {
-                            w - g.detach() * m.inner_lr
-                        }
-                    })
-                    .collect()
-            })
-            .collect();
+        fast = fast.iter().zip(grads.chunks(p)).map(|(w, g)| inner_sgd_step(w, g, m.inner_lr, second)).collect();
     }
     (fast, sup, support_at_meta)
 }
@@ -1121,8 +1108,13 @@ pub fn embedding_inner_step(
     second_order: bool,
 ) -> (crate::model::loss::LossTerms, Vec<Tensor>) {
     let (terms, grads) = embedding_inner_grads(net, loss, batch, fast, train, second_order);
-    let next = fast.iter().zip(&grads).map(|(p, g)| if second_order { p - g * inner_lr } else { p - g.detach() * inner_lr }).collect();
-    (terms, next)
+    (terms, inner_sgd_step(fast, &grads, inner_lr, second_order))
+}
+
+/// θ' = θ − α g: with `second_order` the gradient stays in the graph, otherwise it is detached
+/// (first order; θ' stays connected to θ).
+fn inner_sgd_step(fast: &[Tensor], grads: &[Tensor], inner_lr: f64, second_order: bool) -> Vec<Tensor> {
+    fast.iter().zip(grads).map(|(w, g)| if second_order { w - g * inner_lr } else { w - g.detach() * inner_lr }).collect()
 }
 
 /// The loss of [`embedding_inner_step`] and its gradient with respect to the fast weights
