@@ -205,6 +205,12 @@ pub struct MamlConfig {
     /// the paper's outer loss never scores; the shipped model runs over them too). Free: it
     /// reuses the inner step's forward at θ_e.
     pub unadapted_support_weight: f64,
+    /// With `batch_tasks` and one inner step: every task takes the same step,
+    /// θ_e − α ∇_θe Σ_i L_support,i (the task batch's summed support losses), instead of the
+    /// paper's per-task θ_e − α ∇ L_support,i. Not MAML; it is how the bundled v9 model was
+    /// trained (a bug until `f55eb49`), kept so that `params/train/fsda-f.yaml` reproduces it.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub shared_inner_step: bool,
 }
 
 impl Default for MamlConfig {
@@ -220,6 +226,7 @@ impl Default for MamlConfig {
             batch_tasks: false,
             unadapted_query_weight: 0.0,
             unadapted_support_weight: 0.0,
+            shared_inner_step: false,
         }
     }
 }
@@ -487,6 +494,9 @@ impl TrainConfig {
         }
         if !non_negative(t.maml.inner_lr) || t.maml.inner_steps == 0 {
             return Err("train.maml.inner_lr must be ≥ 0 and inner_steps ≥ 1".into());
+        }
+        if t.maml.shared_inner_step && (!t.maml.batch_tasks || t.maml.inner_steps != 1) {
+            return Err("train.maml.shared_inner_step needs batch_tasks: true and inner_steps: 1".into());
         }
         if !non_negative(t.maml.unadapted_query_weight) || !non_negative(t.maml.unadapted_support_weight) {
             return Err("train.maml.unadapted_query_weight and unadapted_support_weight must be ≥ 0".into());

@@ -566,9 +566,10 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
 /// at θ_e and, when `m.unadapted_support_weight` (λ_s) > 0, that loss in the graph times λ_s.
 ///
 /// Each copy starts as a view of θ_e, its own autograd node, so the gradient with respect to
-/// task i's copy is that of the summed losses through task i's Embedding. Shallow clones would
-/// share θ_e's identity and every task would get the gradient of all the tasks' losses: one
-/// shared step, the bundled v9 model's (docs/training.md, "The inner step was shared").
+/// task i's copy is that of the summed losses through task i's Embedding. With
+/// `m.shared_inner_step` the copies are shallow clones, which share θ_e's identity: every task
+/// gets the gradient of all the tasks' losses, one shared step, the bundled v9 model's
+/// (docs/training.md, "The inner step was shared").
 fn inner_adapt_batched(
     theta: &[Tensor],
     weights: &[f64],
@@ -576,7 +577,8 @@ fn inner_adapt_batched(
     support_losses: impl Fn(&[Vec<Tensor>]) -> Vec<Tensor>,
 ) -> (Vec<Vec<Tensor>>, f64, Option<Tensor>) {
     let (n, p) = (weights.len(), theta.len());
-    let mut fast: Vec<Vec<Tensor>> = (0..n).map(|_| theta.iter().map(|w| w.view_as(w)).collect()).collect();
+    let copy = |w: &Tensor| if m.shared_inner_step { w.shallow_clone() } else { w.view_as(w) };
+    let mut fast: Vec<Vec<Tensor>> = (0..n).map(|_| theta.iter().map(copy).collect()).collect();
     let second = !m.first_order;
     let (mut sup, mut support_at_meta) = (0.0, None);
     for k in 0..m.inner_steps {
@@ -1413,6 +1415,34 @@ mod tests {
         }
         let (_, _, at_meta) = inner_adapt_batched(&theta, &[0.5, 0.5], &maml(true, 0.0), losses);
         assert!(at_meta.is_none());
+        // The shared step (v9's): both copies move by α ∂(Σ L_i)/∂θ_e = α (c0 + 1.1 c1).
+        for first_order in [true, false] {
+            let shared = super::super::config::MamlConfig { shared_inner_step: true, ..maml(first_order, 0.0) };
+            let (fast, _, _) = inner_adapt_batched(&theta, &[0.5, 0.5], &shared, losses);
+            let want = 1.0 - lr * (c0 + 1.1 * c1);
+            for copy in &fast {
+                let v = Vec::<f32>::try_from(&copy[0]).unwrap();
+                assert!(v.iter().all(|x| (f64::from(*x) - want).abs() < 1e-6), "{v:?}");
+            }
+        }
+    }
+
+    /// `shared_inner_step` is one step for the whole batch: refused without `batch_tasks` or
+    /// with more than one inner step, where "shared" would not say what is computed.
+    #[test]
+    fn a_shared_inner_step_needs_one_batched_step() {
+        let parse = |maml: &str| {
+            TrainConfig::parse(&format!(
+                "model: {{mode: fsda_f}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 1, maml: {maml}}}\n"
+            ))
+            .unwrap()
+            .validate()
+        };
+        assert!(parse("{batch_tasks: true, shared_inner_step: true}").is_ok());
+        for bad in ["{batch_tasks: false, shared_inner_step: true}", "{batch_tasks: true, inner_steps: 2, shared_inner_step: true}"] {
+            let e = parse(bad).unwrap_err().to_string();
+            assert!(e.contains("shared_inner_step"), "{bad}: {e}");
+        }
     }
 
     /// The batched MAML step feeds the Generator `[embedding, IMU]` when the model asks for
