@@ -1440,7 +1440,7 @@ mod tests {
         };
         assert!(parse("{batch_tasks: true, shared_inner_step: true}").is_ok());
         for bad in ["{batch_tasks: false, shared_inner_step: true}", "{batch_tasks: true, inner_steps: 2, shared_inner_step: true}"] {
-            let e = parse(bad).unwrap_err().to_string();
+            let e = parse(bad).unwrap_err();
             assert!(e.contains("shared_inner_step"), "{bad}: {e}");
         }
     }
