@@ -128,6 +128,32 @@ fn ci_small_learns_exports_and_resumes() {
     assert_eq!(resumed["history"].as_array().unwrap().len(), 62);
     assert_eq!(resumed["history"][59]["loss"], summary["history"][59]["loss"]);
     assert_eq!(epochs_of(&resumed["monitor"][0]), vec![20, 40, 60, 62], "the monitor survives the resume");
+
+    // The wall-time budget is the whole run's: resumed under half the seconds already spent,
+    // the run stops after its first new epoch and exports it (three more epochs take a few
+    // seconds, far under that half, so a budget counting only this process would not stop it).
+    let spent = resumed["train_seconds"].as_f64().unwrap();
+    let config = std::fs::read_to_string(manifest().join("params/train/ci-small.yaml")).unwrap();
+    assert!(config.trim_end().lines().last().unwrap().starts_with("  "), "ci-small.yaml must end inside `train:`");
+    let data = manifest().join("../shared/data");
+    let budgeted: String = config
+        .lines()
+        .map(|l| if l.trim_start().starts_with("root:") { format!("  root: {}", data.display()) } else { l.to_string() })
+        .chain([format!("  max_train_seconds: {}", spent / 2.0)])
+        .collect::<Vec<_>>()
+        .join("\n");
+    let budgeted_cfg = dir.path().join("ci-budget.yaml");
+    std::fs::write(&budgeted_cfg, budgeted).unwrap();
+    ok(Command::new(bin())
+        .args(["train", "--config"])
+        .arg(&budgeted_cfg)
+        .arg("--out-dir")
+        .arg(dir.path())
+        .args(["--name", "ci", "--no-progress", "--epochs", "65", "--resume"])
+        .arg(dir.path().join("ci.ckpt.json")));
+    let stopped: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("ci.train.json")).unwrap()).unwrap();
+    assert_eq!(stopped["history"].as_array().unwrap().len(), 63, "stops after the first epoch past the budget");
+    assert_eq!(load_metadata(&dir.path().join("ci.json")).unwrap().metrics["stopped_at_budget"], 63.0);
 }
 
 /// `train.seeds`: one run per seed (two at once), the lowest validation score is exported as

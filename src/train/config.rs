@@ -306,9 +306,10 @@ pub struct TrainSettings {
     /// (it gets no gradient). Names as `SourceConfig::imu_name`.
     #[serde(default)]
     pub calibrated_imus: Vec<String>,
-    /// Wall-time budget of the training loop, seconds (0: none). When an epoch ends past it,
-    /// training stops there and that epoch is exported (recorded as `stopped_at_budget` in the
-    /// metrics); the schedule is not rescaled, so size `epochs` to fit and keep this a guard.
+    /// Wall-time budget of the training loop, seconds (0: none), counted over the whole run (a
+    /// resumed run starts from its checkpoint's seconds). When an epoch ends past it, training
+    /// stops there and that epoch is exported (recorded as `stopped_at_budget` in the metrics);
+    /// the schedule is not rescaled, so size `epochs` to fit and keep this a guard.
     #[serde(default)]
     pub max_train_seconds: f64,
     /// Decay of an exponential moving average of every variable (weights and BatchNorm

@@ -835,8 +835,10 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         if let Some(s) = l.support {
             msg.push_str(&format!(", support {s:.4}"));
         }
-        let over_budget =
-            cfg.train.max_train_seconds > 0.0 && started.elapsed().as_secs_f64() > cfg.train.max_train_seconds && done < epochs;
+        // The budget is the whole run's: a resumed run counts the seconds before its checkpoint.
+        let over_budget = cfg.train.max_train_seconds > 0.0
+            && prior_seconds + started.elapsed().as_secs_f64() > cfg.train.max_train_seconds
+            && done < epochs;
         if over_budget {
             tracing::warn!(
                 "epoch {done}: past the wall-time budget of {:.0} s; stopping and exporting this epoch",
