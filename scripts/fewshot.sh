@@ -7,10 +7,14 @@
 # datasheet errors on). Rooms: the adapted model is also run on the other rooms (same IMU).
 #
 #   bash scripts/fewshot.sh            # writes docs/fewshot.md and docs/fewshot.json
+#   MODEL=models/fsda-f.pt OUT=docs/fewshot-bundled bash scripts/fewshot.sh
+#                                      # the same from the bundled model (the rooms are not
+#                                      # unseen for it; the simulated robots are)
 #
 # Models (defaults): MODEL=models/fsda-f-euroc.pt (params/train/fsda-f-euroc.yaml),
 # DIGDL=models/digdl-euroc.pt (params/train/digdl-euroc.yaml). Bags and adapted models go to
-# the user cache ($IMU_FSDA_CACHE/fewshot), never into the repository.
+# the user cache ($IMU_FSDA_CACHE/fewshot), never into the repository; OUT (default
+# docs/fewshot, relative to the repository) names the page and its JSON.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$here/scripts/env.sh"
@@ -100,5 +104,12 @@ for d in "${domains[@]}"; do
   "$bin" eval "${others[@]}" --method raw --model "$model" "${adapted_models[@]}" --json "$work/eval/$d.others.json" >/dev/null
 done
 
-"$PYTHON" "$here/scripts/fewshot_table.py" "$work" "$mstem" "$support_s" "$here/docs/fewshot.md" "$here/docs/fewshot.json"
-echo "wrote docs/fewshot.md"
+out_page="${OUT:-docs/fewshot}"
+if [ -z "${MODEL:-}" ]; then
+  args=()
+else
+  args=("$("$PYTHON" -c 'import json, sys; print("trained on " + ", ".join(s.split(" (")[0] for s in json.load(open(sys.argv[1]))["training_data"]))' "${model%.pt}.json")"
+    "MODEL=${MODEL#"$here"/} OUT=$out_page bash scripts/fewshot.sh" "Few-shot adaptation from \`$mstem\`")
+fi
+"$PYTHON" "$here/scripts/fewshot_table.py" "$work" "$mstem" "$support_s" "$here/$out_page.md" "$here/$out_page.json" "${args[@]}"
+echo "wrote $out_page.md"

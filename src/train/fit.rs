@@ -662,6 +662,9 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     }
     cfg.validate().map_err(|e| anyhow::anyhow!("config: {e}"))?;
     let seed = cfg.train.seed;
+    // Read now: the checkout can move (a commit, a checkout) during an hour of training, and
+    // the export must name the code that trained, not what the tree holds when it ends.
+    let code_revision = crate::model::export::code_revision();
     flush_denormals_to_zero();
     tch::set_num_threads(cfg.train.threads);
     if cfg.train.threads > 1 && !std::env::var("OMP_WAIT_POLICY").is_ok_and(|v| v.eq_ignore_ascii_case("passive")) {
@@ -1036,13 +1039,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         &opts.name,
         &vs,
         &net,
-        &ExportInfo {
-            training_data,
-            metrics,
-            code_revision: crate::model::export::code_revision(),
-            adapted_from: None,
-            imu_correction_gains: gains.clone(),
-        },
+        &ExportInfo { training_data, metrics, code_revision, adapted_from: None, imu_correction_gains: gains.clone() },
     )
     .with_context(|| format!("exporting {} to {}", opts.name, opts.out_dir.display()))?;
 
