@@ -108,8 +108,7 @@ out_page="${OUT:-docs/fewshot}"
 if [ -z "${MODEL:-}" ]; then
   args=()
 else
-  args=("$("$PYTHON" -c 'import json, sys; print("trained on " + ", ".join(s.split(" (")[0] for s in json.load(open(sys.argv[1]))["training_data"]))' "${model%.pt}.json")"
-    "MODEL=${MODEL#"$here"/} OUT=$out_page bash scripts/fewshot.sh" "Few-shot adaptation from \`$mstem\`")
+  args=("${model%.pt}.json" "MODEL=${MODEL#"$here"/} OUT=$out_page bash scripts/fewshot.sh")
 fi
 "$PYTHON" "$here/scripts/fewshot_table.py" "$work" "$mstem" "$support_s" "$here/$out_page.md" "$here/$out_page.json" "${args[@]}"
 echo "wrote $out_page.md"

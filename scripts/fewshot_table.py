@@ -5,10 +5,14 @@ import os
 import sys
 
 work, mstem, support_s, out_md, out_json = sys.argv[1:6]
-# What the starting model is, the command that regenerates the page, and its title.
-what = sys.argv[6] if len(sys.argv) > 6 else "FSDA-F meta-trained on EuRoC only"
-command = sys.argv[7] if len(sys.argv) > 7 else "bash scripts/fewshot.sh"
-title = sys.argv[8] if len(sys.argv) > 8 else "Few-shot adaptation on unseen domains"
+# Another starting model than the default: its metadata (what it trained on) and the command
+# that regenerates its page.
+if len(sys.argv) > 7:
+    with open(sys.argv[6]) as f:
+        trained_on = [s.split(" (")[0] for s in json.load(f)["training_data"]]
+    what, command, title = "trained on " + ", ".join(trained_on), sys.argv[7], f"Few-shot adaptation from `{mstem}`"
+else:
+    what, command, title = "FSDA-F meta-trained on EuRoC only", "bash scripts/fewshot.sh", "Few-shot adaptation on unseen domains"
 
 
 def load(path):
