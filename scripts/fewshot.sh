@@ -13,8 +13,9 @@
 #
 # Models (defaults): MODEL=models/fsda-f-euroc.pt (params/train/fsda-f-euroc.yaml),
 # DIGDL=models/digdl-euroc.pt (params/train/digdl-euroc.yaml). Bags and adapted models go to
-# the user cache ($IMU_FSDA_CACHE/fewshot), never into the repository; OUT (default
-# docs/fewshot, relative to the repository) names the page and its JSON.
+# the user cache ($IMU_FSDA_CACHE/fewshot, the adaptations and evaluations under runs/<model>-<sha256>/,
+# so two starting models never mix), never into the repository; OUT (default docs/fewshot,
+# relative to the repository) names the page and its JSON.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$here/scripts/env.sh"
@@ -28,7 +29,9 @@ support_s="${SUPPORT_S:-60}"
 scratch_epochs="${SCRATCH_EPOCHS:-300}"
 require_models "$model" "$digdl"
 work="$IMU_FSDA_CACHE/fewshot"
-mkdir -p "$work/bags" "$work/adapted" "$work/scratch" "$work/eval"
+mstem="$(basename "${model%.pt}")"
+run="$work/runs/$mstem-$(sha256sum "$model" | cut -c1-12)"   # keyed by the file's content
+mkdir -p "$work/bags" "$work/scratch" "$run/adapted" "$run/eval"
 
 # Domains: TUM-VI rooms and two simulated robots (3 min each, seeded, byte-identical reruns).
 domains=()
@@ -43,29 +46,28 @@ done
   "$bin" simulate --profile quadruped --grade mpu-9250 --seconds 180 --seed 12 --datasheet-errors -o "$work/bags/sim_quadruped_mpu9250.mcap" >/dev/null
 domains+=(sim_car_mti600 sim_quadruped_mpu9250)
 
-mstem="$(basename "${model%.pt}")"
 for d in "${domains[@]}"; do
   bag="$work/bags/$d.mcap"
   # 1. The paper's few-shot step (Embedding only) on the support set, judged on the query set.
-  out="$work/adapted/$mstem-$d.pt"
+  out="$run/adapted/$mstem-$d.pt"
   start=$(date +%s.%N)
-  if "$bin" adapt --model "$model" --bag "$bag" --support-seconds "$support_s" --embedding-only -o "$out" --json >"$work/adapted/$d.adapt.json" 2>"$work/adapted/$d.adapt.log"; then
+  if "$bin" adapt --model "$model" --bag "$bag" --support-seconds "$support_s" --embedding-only -o "$out" --json >"$run/adapted/$d.adapt.json" 2>"$run/adapted/$d.adapt.log"; then
     status=accepted
   else
     status=rejected
   fi
   end=$(date +%s.%N)
-  echo "{\"domain\": \"$d\", \"status\": \"$status\", \"wall_seconds\": $(echo "$end - $start" | bc)}" >"$work/adapted/$d.status.json"
+  echo "{\"domain\": \"$d\", \"status\": \"$status\", \"wall_seconds\": $(echo "$end - $start" | bc)}" >"$run/adapted/$d.status.json"
   # 1b. The default: also the calibration head (Ĉ_ω and the output bias; beyond the paper).
-  out_cal="$work/adapted/$mstem-$d-cal.pt"
+  out_cal="$run/adapted/$mstem-$d-cal.pt"
   start=$(date +%s.%N)
-  if "$bin" adapt --model "$model" --bag "$bag" --support-seconds "$support_s" -o "$out_cal" --json >"$work/adapted/$d.cal.adapt.json" 2>"$work/adapted/$d.cal.adapt.log"; then
+  if "$bin" adapt --model "$model" --bag "$bag" --support-seconds "$support_s" -o "$out_cal" --json >"$run/adapted/$d.cal.adapt.json" 2>"$run/adapted/$d.cal.adapt.log"; then
     status_cal=accepted
   else
     status_cal=rejected
   fi
   end=$(date +%s.%N)
-  echo "{\"domain\": \"$d\", \"status\": \"$status_cal\", \"wall_seconds\": $(echo "$end - $start" | bc)}" >"$work/adapted/$d.cal.status.json"
+  echo "{\"domain\": \"$d\", \"status\": \"$status_cal\", \"wall_seconds\": $(echo "$end - $start" | bc)}" >"$run/adapted/$d.cal.status.json"
   # 2. From scratch on the same support set (the FSDA framework, no meta-learning), judged on the query set.
   cfg="$work/scratch/$d.yaml"
   cat >"$cfg" <<YAML
@@ -91,17 +93,17 @@ YAML
   [ "$status" = accepted ] && models+=(--model "$out")
   [ "$status_cal" = accepted ] && models+=(--model "$out_cal")
   [ -f "$work/scratch/$d.pt" ] && models+=(--model "$work/scratch/$d.pt")
-  "$bin" eval "$bag" --start-s "$support_s" --method raw "${models[@]}" --json "$work/eval/$d.query.json" >/dev/null
+  "$bin" eval "$bag" --start-s "$support_s" --method raw "${models[@]}" --json "$run/eval/$d.query.json" >/dev/null
 done
 # 4. Rooms: the model adapted on one room, on the other rooms (whole recordings).
 for d in "${domains[@]}"; do
   case "$d" in room*) ;; *) continue ;; esac
   adapted_models=()
-  for a in "$work/adapted/$mstem-$d.pt" "$work/adapted/$mstem-$d-cal.pt"; do [ -f "$a" ] && adapted_models+=(--model "$a"); done
+  for a in "$run/adapted/$mstem-$d.pt" "$run/adapted/$mstem-$d-cal.pt"; do [ -f "$a" ] && adapted_models+=(--model "$a"); done
   [ ${#adapted_models[@]} -gt 0 ] || continue
   others=()
   for o in "${domains[@]}"; do case "$o" in room*) [ "$o" != "$d" ] && others+=("$work/bags/$o.mcap") ;; esac; done
-  "$bin" eval "${others[@]}" --method raw --model "$model" "${adapted_models[@]}" --json "$work/eval/$d.others.json" >/dev/null
+  "$bin" eval "${others[@]}" --method raw --model "$model" "${adapted_models[@]}" --json "$run/eval/$d.others.json" >/dev/null
 done
 
 out_page="${OUT:-docs/fewshot}"
@@ -110,5 +112,5 @@ if [ -z "${MODEL:-}" ]; then
 else
   args=("${model%.pt}.json" "MODEL=${MODEL#"$here"/} OUT=$out_page bash scripts/fewshot.sh")
 fi
-"$PYTHON" "$here/scripts/fewshot_table.py" "$work" "$mstem" "$support_s" "$here/$out_page.md" "$here/$out_page.json" "${args[@]}"
+"$PYTHON" "$here/scripts/fewshot_table.py" "$run" "$mstem" "$support_s" "$here/$out_page.md" "$here/$out_page.json" "${args[@]}"
 echo "wrote $out_page.md"

@@ -213,6 +213,14 @@ fn seed_restarts_export_the_best_validated_run() {
     assert!(again.status.success() && printed.matches("already trained").count() == 2, "{printed}");
     let resume = train(&["--resume", "x.ckpt.json"]);
     assert!(!resume.status.success() && String::from_utf8_lossy(&resume.stderr).contains("--seed"));
+    // A bad override is refused once, before any child starts (no child's "training failed").
+    let zero = run(Command::new(bin()).args(["train", "--config"]).arg(&config).arg("--out-dir").arg(dir.path()).args([
+        "--no-progress",
+        "--epochs",
+        "0",
+    ]));
+    let err = String::from_utf8_lossy(&zero.stderr);
+    assert!(!zero.status.success() && err.contains("train.epochs must be") && !err.contains("training failed"), "{err}");
 
     // A run that cannot start (a training sequence that is not there) fails the command with
     // the child's own error, and nothing is promoted.
