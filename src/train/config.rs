@@ -29,6 +29,11 @@ pub struct SourceConfig {
     /// MCAP bag, relative to `dataset.root`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bag: Option<String>,
+    /// A simulated recording: an `imu-fsda simulate` config (YAML, `params/sim/`), relative to
+    /// the training config's folder, simulated in memory when the data loads (the same config
+    /// and seed give the same samples). Its domain and IMU are `sim`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simulate: Option<String>,
     /// IMU topic of a bag (default `/imu/data`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub imu_topic: Option<String>,
@@ -50,6 +55,14 @@ pub struct SourceConfig {
     pub imu: Option<String>,
 }
 
+/// The domain, and IMU name, of every `simulate` source.
+pub const SIM_DOMAIN: &str = "sim";
+
+/// `params/sim/aerial.yaml` → `aerial`.
+pub fn file_stem(path: &str) -> String {
+    Path::new(path).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| path.to_string())
+}
+
 /// `euroc/MH_01_easy` → `euroc`: the dataset of a source path (its first component).
 pub fn first_path_component(path: &str) -> &str {
     let s = path.trim_start_matches("./");
@@ -57,16 +70,27 @@ pub fn first_path_component(path: &str) -> &str {
 }
 
 impl SourceConfig {
-    /// The IMU's name: `imu`, else the first component of the sequence or bag path.
+    /// The IMU's name: `imu`, else the first component of the sequence or bag path (`sim` for
+    /// a simulation).
     pub fn imu_name(&self) -> String {
         if let Some(imu) = &self.imu {
             return imu.clone();
         }
-        first_path_component(self.sequence.as_deref().or(self.bag.as_deref()).unwrap_or("")).to_string()
+        first_path_component(&self.path()).to_string()
+    }
+
+    /// The source as a dataset path: the sequence or bag, or `sim/<config stem>`, whose first
+    /// component is the domain ([`crate::train::fit::task_domain`]).
+    pub fn path(&self) -> String {
+        match (&self.sequence, &self.bag, &self.simulate) {
+            (Some(p), _, _) | (None, Some(p), _) => p.clone(),
+            (None, None, Some(sim)) => format!("{SIM_DOMAIN}/{}", file_stem(sim)),
+            (None, None, None) => "?".into(),
+        }
     }
 
     pub fn describe(&self) -> String {
-        let what = self.sequence.as_deref().or(self.bag.as_deref()).unwrap_or("?");
+        let what = self.path();
         match (self.start_s, self.end_s) {
             (None, None) => what.to_string(),
             (a, b) => format!("{what} [{}–{} s]", a.unwrap_or(0.0), b.map_or("end".to_string(), |b| b.to_string())),
@@ -106,6 +130,13 @@ pub struct DatasetConfig {
     /// pose is at most this far away, ms (DIGDL on TUM-VI: 10 ms).
     #[serde(default = "default_nearest")]
     pub max_nearest_gt_ms: f64,
+}
+
+impl DatasetConfig {
+    /// Every source of every list (train, validation, test, monitor).
+    fn sources_mut(&mut self) -> impl Iterator<Item = &mut SourceConfig> {
+        self.train.iter_mut().chain(self.validation.iter_mut()).chain(self.test.iter_mut()).chain(self.monitor.iter_mut())
+    }
 }
 
 fn default_root() -> PathBuf {
@@ -375,9 +406,14 @@ impl TrainConfig {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io { path: path.into(), source })?;
         let mut cfg = Self::parse(&text).map_err(|msg| ConfigError::Parse { path: path.into(), msg })?;
+        let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
         if cfg.dataset.root.is_relative() {
-            let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
             cfg.dataset.root = base.join(&cfg.dataset.root);
+        }
+        for src in cfg.dataset.sources_mut() {
+            if let Some(sim) = src.simulate.as_mut().filter(|s| Path::new(s.as_str()).is_relative()) {
+                *sim = base.join(sim.as_str()).to_string_lossy().into_owned();
+            }
         }
         cfg.validate().map_err(|msg| ConfigError::Invalid { path: path.into(), msg })?;
         Ok(cfg)
@@ -425,8 +461,8 @@ impl TrainConfig {
             ("monitor", &self.dataset.monitor),
         ] {
             for (i, s) in list.iter().enumerate() {
-                if s.sequence.is_some() == s.bag.is_some() {
-                    return Err(format!("dataset.{what}[{i}]: give exactly one of `sequence` or `bag`"));
+                if [s.sequence.is_some(), s.bag.is_some(), s.simulate.is_some()].iter().filter(|x| **x).count() != 1 {
+                    return Err(format!("dataset.{what}[{i}]: give exactly one of `sequence`, `bag` or `simulate`"));
                 }
                 if let (Some(a), Some(b)) = (s.start_s, s.end_s) {
                     if !is_after(a, b) {

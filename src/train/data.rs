@@ -18,10 +18,11 @@ use std::path::{Path, PathBuf};
 use rand::Rng;
 use tch::Tensor;
 
-use super::config::{DatasetConfig, SourceConfig};
-use crate::bag::{read_recording, RecordingTopics, GROUND_TRUTH_TOPIC, IMU_TOPIC};
+use super::config::{file_stem, DatasetConfig, SourceConfig, SIM_DOMAIN};
+use crate::bag::{read_recording, LoadReport, RecordingTopics, GROUND_TRUTH_TOPIC, IMU_TOPIC};
 use crate::core::Recording;
 use crate::dataset::load_sequence;
+use crate::sim::{simulate, SimConfig};
 use crate::so3::slerp_at;
 
 /// Why a recording cannot be used; every one is reported before training starts.
@@ -106,6 +107,8 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
     let (mut rec, report) = if let Some(seq) = &src.sequence {
         let (_, rec, report) = load_sequence(&resolve(root, seq)).map_err(|e| load_err(e.to_string()))?;
         (rec, report)
+    } else if let Some(sim) = &src.simulate {
+        (simulated(Path::new(sim)).map_err(load_err)?, LoadReport::default())
     } else {
         let bag = src.bag.as_deref().expect("validated: sequence or bag");
         let topics = RecordingTopics {
@@ -116,8 +119,8 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
         read_recording(resolve(root, bag), &topics).map_err(|e| load_err(e.to_string()))?
     };
     let name = src.name.clone().unwrap_or_else(|| {
-        let base = src.sequence.as_deref().or(src.bag.as_deref()).unwrap_or("?");
-        let stem = Path::new(base).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| base.to_string());
+        let stem = file_stem(&src.path());
+        let stem = if src.simulate.is_some() { format!("{SIM_DOMAIN}_{stem}") } else { stem };
         let stem = stem.trim_start_matches("dataset-").trim_end_matches("_512_16").to_string();
         match (src.start_s, src.end_s) {
             (None, None) => stem,
@@ -135,6 +138,13 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
         return Err(DataError::NoGroundTruth(name));
     }
     Ok(rec)
+}
+
+/// A `simulate` source: the simulator's recording (IMU and ground-truth pose), never a bag.
+fn simulated(config: &Path) -> Result<Recording, String> {
+    let text = std::fs::read_to_string(config).map_err(|e| format!("{}: {e}", config.display()))?;
+    let cfg: SimConfig = serde_yaml::from_str(&text).map_err(|e| format!("{}: not a simulation config: {e}", config.display()))?;
+    Ok(simulate(&cfg).map_err(|e| format!("{}: {e}", config.display()))?.recording)
 }
 
 /// Ground truth at the IMU stamps and its validity (see the module doc).
@@ -337,5 +347,48 @@ mod tests {
         assert!(gt[44].is_some()); // 220 ms: interpolated across the 40 ms hole …
         assert!(!valid[44]); // … but 20 ms from the nearest pose: masked
         assert!(valid[10] && valid[60]);
+    }
+
+    /// A `simulate` source is the recording `imu-fsda simulate` writes to a bag (the IMU
+    /// exactly, the poses to 1e-12), loaded without one; its domain and IMU are `sim`, and bad
+    /// configs are errors.
+    #[test]
+    fn simulate_source_equals_the_simulated_bag() {
+        let dir = tempfile::tempdir().unwrap();
+        let sim_yaml = dir.path().join("hover.yaml");
+        std::fs::write(&sim_yaml, "profile: aerial\ngrade: adis16448\nrate_hz: 200\nseconds: 4\nseed: 5\ndatasheet_errors: true\n")
+            .unwrap();
+        let train_yaml = dir.path().join("t.yaml");
+        std::fs::write(&train_yaml, "model: {}\ndataset: {train: [{simulate: hover.yaml}]}\ntrain: {epochs: 1}\n").unwrap();
+        let cfg = crate::train::TrainConfig::load(&train_yaml).unwrap();
+        let src = &cfg.dataset.train[0];
+        assert_eq!((src.imu_name().as_str(), src.path().as_str()), ("sim", "sim/hover"));
+        let rec = read_source(&cfg.dataset.root, src).unwrap();
+        assert_eq!(rec.name, "sim_hover");
+
+        let sim: SimConfig = serde_yaml::from_str(&std::fs::read_to_string(&sim_yaml).unwrap()).unwrap();
+        let bag = dir.path().join("hover.mcap");
+        crate::sim::write_bag(&bag, &simulate(&sim).unwrap()).unwrap();
+        let (from_bag, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
+        assert_eq!(rec.imu.len(), 800);
+        assert_eq!(rec.imu, from_bag.imu);
+        assert_eq!(rec.ground_truth.len(), from_bag.ground_truth.len());
+        for (a, b) in rec.ground_truth.iter().zip(&from_bag.ground_truth) {
+            let d = (a.position_in_world - b.position_in_world).norm() + a.world_from_body.angle_to(&b.world_from_body);
+            assert!(a.stamp_ns == b.stamp_ns && d < 1e-12, "{a:?} {b:?}");
+        }
+
+        for (text, expected) in [
+            ("profile: aerial\n", "not a simulation config"),
+            ("profile: aerial\ngrade: bmi160\nrate_hz: -1\nseconds: 4\nseed: 0\n", "rate"),
+        ] {
+            std::fs::write(&sim_yaml, text).unwrap();
+            let err = read_source(&cfg.dataset.root, src).unwrap_err().to_string();
+            assert!(err.contains(expected) && err.contains("hover.yaml"), "{err}");
+        }
+        let missing = SourceConfig { simulate: Some(dir.path().join("none.yaml").to_string_lossy().into_owned()), ..Default::default() };
+        assert!(read_source(&cfg.dataset.root, &missing).unwrap_err().to_string().contains("none.yaml"));
+        let two = "model: {}\ndataset: {train: [{simulate: a.yaml, bag: b.mcap}]}\ntrain: {epochs: 1}\n";
+        assert!(crate::train::TrainConfig::parse(two).unwrap().validate().unwrap_err().contains("exactly one"));
     }
 }
