@@ -110,7 +110,7 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
     } else if let Some(sim) = &src.simulate {
         (simulated(Path::new(sim)).map_err(load_err)?, LoadReport::default())
     } else {
-        let bag = src.bag.as_deref().expect("validated: sequence or bag");
+        let bag = src.bag.as_deref().expect("validated: exactly one of sequence, bag or simulate");
         let topics = RecordingTopics {
             imu: src.imu_topic.clone().unwrap_or_else(|| IMU_TOPIC.into()),
             ground_truth: Some(src.ground_truth_topic.clone().unwrap_or_else(|| GROUND_TRUTH_TOPIC.into())),
