@@ -49,10 +49,7 @@ pub struct SimulateArgs {
 /// The config the arguments describe.
 fn config(args: &SimulateArgs) -> anyhow::Result<SimConfig> {
     let mut cfg = match &args.config {
-        Some(path) => {
-            let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-            serde_yaml::from_str::<SimConfig>(&text).with_context(|| format!("{}: not a valid simulation config", path.display()))?
-        }
+        Some(path) => SimConfig::load(path)?,
         None => SimConfig::default(),
     };
     if let Some(p) = args.profile {

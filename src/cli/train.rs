@@ -42,11 +42,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         args.name.clone().unwrap_or_else(|| args.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or("model".into()));
     // The overrides are checked here, before `train.seeds` starts a child per seed that would
     // each report the same error.
-    let mut overridden = cfg.clone();
-    if let Some(e) = args.epochs {
-        overridden.train.epochs = e;
-    }
-    overridden.validate().map_err(|e| anyhow::anyhow!("{}: {e}", args.config.display()))?;
+    fit::with_overrides(&cfg, None, args.epochs).with_context(|| args.config.display().to_string())?;
     if args.seed.is_none() && cfg.train.seeds.len() > 1 {
         if args.resume.is_some() {
             anyhow::bail!(

@@ -60,6 +60,11 @@ pub enum SimError {
     BadTemperature(String),
     #[error(transparent)]
     Physics(#[from] PhysicsError),
+    // The I/O error is in the message, not a `source`, so a chain printer does not repeat it.
+    #[error("reading {path}: {error}")]
+    Read { path: std::path::PathBuf, error: std::io::Error },
+    #[error("{path}: not a simulation config: {msg}")]
+    Parse { path: std::path::PathBuf, msg: String },
 }
 
 fn default_start() -> i64 {
@@ -156,6 +161,13 @@ impl Default for SimConfig {
 }
 
 impl SimConfig {
+    /// Reads a simulation config file (YAML, `params/sim/`); the values are checked by
+    /// [`SimConfig::validate`] when it is simulated.
+    pub fn load(path: &Path) -> Result<Self, SimError> {
+        let text = std::fs::read_to_string(path).map_err(|error| SimError::Read { path: path.into(), error })?;
+        serde_yaml::from_str(&text).map_err(|e| SimError::Parse { path: path.into(), msg: e.to_string() })
+    }
+
     /// The noise model in use: the explicit one, else the grade's.
     pub fn noise(&self) -> NoiseModel {
         self.simulator_noise.unwrap_or_else(|| self.grade.spec().noise())

@@ -142,8 +142,7 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
 
 /// A `simulate` source: the simulator's recording (IMU and ground-truth pose), never a bag.
 fn simulated(config: &Path) -> Result<Recording, String> {
-    let text = std::fs::read_to_string(config).map_err(|e| format!("{}: {e}", config.display()))?;
-    let cfg: SimConfig = serde_yaml::from_str(&text).map_err(|e| format!("{}: not a simulation config: {e}", config.display()))?;
+    let cfg = SimConfig::load(config).map_err(|e| e.to_string())?;
     Ok(simulate(&cfg).map_err(|e| format!("{}: {e}", config.display()))?.recording)
 }
 

@@ -652,15 +652,21 @@ pub fn flush_denormals_to_zero() {
 }
 
 /// Trains, evaluates and exports; returns the summary (also written to `<out>/<name>.train.json`).
-pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummary> {
+/// The config with the command line's `--seed` / `--epochs` applied, checked again.
+pub fn with_overrides(cfg: &TrainConfig, seed: Option<u64>, epochs: Option<usize>) -> anyhow::Result<TrainConfig> {
     let mut cfg = cfg.clone();
-    if let Some(s) = opts.seed {
+    if let Some(s) = seed {
         cfg.train.seed = s;
     }
-    if let Some(e) = opts.epochs {
+    if let Some(e) = epochs {
         cfg.train.epochs = e;
     }
     cfg.validate().map_err(|e| anyhow::anyhow!("config: {e}"))?;
+    Ok(cfg)
+}
+
+pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummary> {
+    let cfg = with_overrides(cfg, opts.seed, opts.epochs)?;
     let seed = cfg.train.seed;
     // Read now: the checkout can move (a commit, a checkout) during an hour of training, and
     // the export must name the code that trained, not what the tree holds when it ends.
