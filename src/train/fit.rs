@@ -651,7 +651,6 @@ pub fn flush_denormals_to_zero() {
     }
 }
 
-/// Trains, evaluates and exports; returns the summary (also written to `<out>/<name>.train.json`).
 /// The config with the command line's `--seed` / `--epochs` applied, checked again.
 pub fn with_overrides(cfg: &TrainConfig, seed: Option<u64>, epochs: Option<usize>) -> anyhow::Result<TrainConfig> {
     let mut cfg = cfg.clone();
@@ -665,6 +664,7 @@ pub fn with_overrides(cfg: &TrainConfig, seed: Option<u64>, epochs: Option<usize
     Ok(cfg)
 }
 
+/// Trains, evaluates and exports; returns the summary (also written to `<out>/<name>.train.json`).
 pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummary> {
     let cfg = with_overrides(cfg, opts.seed, opts.epochs)?;
     let seed = cfg.train.seed;
