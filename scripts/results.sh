@@ -44,8 +44,10 @@ Methods so far:
 MD
   cat <<'MD'
 - `digdl-euroc` (`models/digdl-euroc.pt`): our `digdl` mode (DIGDL's architecture, loss and
-  schedule as published, `params/train/digdl-euroc.yaml`; the first 600 of its 1800 epochs —
-  the full schedule gave 2.82 / 3.43° EuRoC mean on two seeds, docs/training.md) trained on
+  schedule as published, `params/train/digdl-euroc.yaml`; the first 600 of its 1800 epochs,
+  trained before that config took DIGDL's residual frame (`residual_frame: end`; this model's is
+  the paper's) — the full schedule gave 2.82 / 3.43° EuRoC mean on two seeds in the paper's
+  frame and 2.88 / 2.49° in DIGDL's, docs/training.md) trained on
   the EuRoC training split only, so on TUM-VI it is a cross-domain baseline (the paper's DIGDL
   column trained per dataset).
 - `fsda-f` (`models/fsda-f.pt`): the bundled learned model (FSDA-F, trained by

@@ -17,7 +17,8 @@ use tch::{Kind, Reduction, Tensor};
 
 use super::net::NetOutput;
 use super::so3_tensor::{
-    increment_residual, increments_from_attitudes, increments_from_gyro, num_increments, quat_identity_like, so3_kind,
+    increment_residual, increment_residual_at_end, increments_from_attitudes, increments_from_gyro, num_increments, quat_identity_like,
+    so3_kind,
 };
 
 /// One term of `L^D`: increments over `samples` IMU samples, weighted by `weight`.
@@ -41,6 +42,19 @@ impl IncrementTerm {
     pub const fn new(samples: i64, weight: f64) -> Self {
         Self { samples, weight, huber_delta_rad: None }
     }
+}
+
+/// The body frame an increment's residual rotation vector is expressed in. Both give the same
+/// angle; the Huber function is applied per axis, so in its linear part the two weigh a
+/// residual differently (and give different gradients) when the body turns within the increment.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ResidualFrame {
+    /// `Log(δR_gt δR̂ᵀ)`, the frame at the increment's start: the paper's formula.
+    #[default]
+    Start,
+    /// `Log(δR̂ᵀ δR_gt)`, the frame at its end: what DIGDL's published code computes.
+    End,
 }
 
 /// Loss hyper-parameters.
@@ -76,6 +90,8 @@ pub struct LossConfig {
     pub reconstruction_weight: f64,
     /// Run the SO(3) part in f64 (as DIGDL does) whatever the network's kind.
     pub so3_f64: bool,
+    /// The frame of each increment's residual (the paper's start frame by default).
+    pub residual_frame: ResidualFrame,
 }
 
 impl Default for LossConfig {
@@ -90,6 +106,7 @@ impl Default for LossConfig {
             gamma: 1.0,
             reconstruction_weight: 1.0,
             so3_f64: true,
+            residual_frame: ResidualFrame::Start,
         }
     }
 }
@@ -183,8 +200,12 @@ pub fn increment_loss(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attit
         }
         let estimate = increments_from_gyro(&omega, &dt, j);
         let truth = increments_from_attitudes(&gt, j);
-        let residual = increment_residual(&truth, &estimate); // [B, M, 3]
-                                                              // Increment m is valid when samples mj … (m+1)j have ground truth and mj … (m+1)j − 1 a good dt.
+        // [B, M, 3]
+        let residual = match cfg.residual_frame {
+            ResidualFrame::Start => increment_residual(&truth, &estimate),
+            ResidualFrame::End => increment_residual_at_end(&truth, &estimate),
+        };
+        // Increment m is valid when samples mj … (m+1)j have ground truth and mj … (m+1)j − 1 a good dt.
         let gt_gap = sample_bad.narrow(2, 0, m * j + 1).max_pool1d([j + 1], [j], [0], [1], false).squeeze_dim(1);
         let dt_gap = dt_bad.narrow(2, 0, m * j).max_pool1d([j], [j], [0], [1], false).squeeze_dim(1);
         let not_skipped = Tensor::arange(m, (kind, omega.device())).ge(skipped as f64).to_kind(kind).expand([b, m], false);
@@ -274,6 +295,32 @@ mod tests {
         assert!((flat_q - flat_m).abs() < 1e-3 * flat_m, "linear part: {flat_q} vs {flat_m}");
         let (quad_q, quad_m) = (loss_at(Some(1.0), quarter), loss_at(Some(1.0), mean));
         assert!(quad_q > 1.2 * quad_m, "quadratic: {quad_q} vs {quad_m}");
+    }
+
+    /// The residual's frame only matters in the Huber function's linear part: with δ above every
+    /// residual the loss is half the mean squared angle in either frame; with a small δ and a
+    /// turning body the per-axis sums differ.
+    #[test]
+    fn the_residual_frame_matters_only_in_the_linear_part() {
+        tch::manual_seed(8);
+        let omega = Tensor::randn([2, 65, 3], F64) * 2.0;
+        let dt = Tensor::full([2, 65], 0.005, F64);
+        let gt = integrate(&omega, &dt);
+        let biased = &omega + Tensor::from_slice(&[0.05, -0.03, 0.02]);
+        let loss = |frame: ResidualFrame, delta: f64| {
+            let cfg = LossConfig {
+                increments: vec![IncrementTerm::new(32, 1.0)],
+                skip_first_increments: 0,
+                huber_delta_rad: delta,
+                residual_frame: frame,
+                ..Default::default()
+            };
+            increment_loss(&cfg, &biased, &dt, &gt, None).double_value(&[])
+        };
+        let (qs, qe) = (loss(ResidualFrame::Start, 1.0), loss(ResidualFrame::End, 1.0));
+        assert!((qs - qe).abs() < 1e-9 * qs, "quadratic part: {qs} vs {qe}");
+        let (ls, le) = (loss(ResidualFrame::Start, 1e-4), loss(ResidualFrame::End, 1e-4));
+        assert!((ls - le).abs() > 1e-3 * ls, "linear part: {ls} vs {le}");
     }
 
     #[test]

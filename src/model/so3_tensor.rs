@@ -168,6 +168,12 @@ pub fn increment_residual(gt: &Tensor, estimate: &Tensor) -> Tensor {
     quat_log(&quat_mul(gt, &quat_conj(estimate)))
 }
 
+/// The residual `Log(δR̂ᵀ δR_gt)`, in the body frame at the increment's end (DIGDL's code):
+/// the same angle as [`increment_residual`], rotated by `δR_gt`ᵀ.
+pub fn increment_residual_at_end(gt: &Tensor, estimate: &Tensor) -> Tensor {
+    quat_log(&quat_mul(&quat_conj(estimate), gt))
+}
+
 /// The kind the SO(3) computations run in: `Double` when `f64` is asked, else the input's.
 pub(crate) fn so3_kind(input: Kind, f64_asked: bool) -> Kind {
     if f64_asked {
@@ -192,6 +198,26 @@ mod tests {
 
     fn quat_of(v: &[f64]) -> UnitQuaternion<f64> {
         UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(v[0], v[1], v[2], v[3]))
+    }
+
+    /// `δR_gt δR̂ᵀ = δR_gt (δR̂ᵀ δR_gt) δR_gtᵀ`: the start-frame residual is the end-frame one
+    /// rotated by the ground-truth increment (same angle, other axes).
+    #[test]
+    fn the_end_frame_residual_is_the_start_one_rotated_back() {
+        tch::manual_seed(11);
+        let gt = quat_exp(&(Tensor::randn([40, 3], F64) * 0.8));
+        let est = quat_mul(&gt, &quat_exp(&(Tensor::randn([40, 3], F64) * 0.01)));
+        let (start, end) = (to_vec(&increment_residual(&gt, &est)), to_vec(&increment_residual_at_end(&gt, &est)));
+        let g = to_vec(&gt);
+        let mut turned = 0;
+        for i in 0..40 {
+            let (s, e) =
+                (Vector3::new(start[3 * i], start[3 * i + 1], start[3 * i + 2]), Vector3::new(end[3 * i], end[3 * i + 1], end[3 * i + 2]));
+            let rotated = quat_of(&g[4 * i..4 * i + 4]) * e;
+            assert!((s - rotated).norm() < 1e-12 * s.norm().max(1e-3), "{i}: {s:?} vs {rotated:?}");
+            turned += usize::from((s - e).norm() > 0.1 * s.norm());
+        }
+        assert!(turned > 30, "the frames differ when the body turns ({turned} of 40)");
     }
 
     #[test]
