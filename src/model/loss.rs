@@ -247,6 +247,16 @@ mod tests {
         prefix_products(&Tensor::cat(&[id, steps], 1))
     }
 
+    /// Two recordings of 65 samples at 5 ms, random rates of scale `rate` rad/s, and their
+    /// exact attitudes: `(omega, dt, gt)`.
+    fn random_motion(seed: i64, rate: f64) -> (Tensor, Tensor, Tensor) {
+        tch::manual_seed(seed);
+        let omega = Tensor::randn([2, 65, 3], F64) * rate;
+        let dt = Tensor::full([2, 65], 0.005, F64);
+        let gt = integrate(&omega, &dt);
+        (omega, dt, gt)
+    }
+
     fn small_cfg() -> LossConfig {
         LossConfig {
             increments: vec![IncrementTerm::new(4, 1.0), IncrementTerm::new(8, 0.5)],
@@ -276,10 +286,7 @@ mod tests {
     /// of two), with a per-term δ above it only the mean is the minimum.
     #[test]
     fn a_per_term_delta_turns_the_flat_median_into_a_mean() {
-        tch::manual_seed(5);
-        let omega = Tensor::randn([2, 65, 3], F64) * 0.3;
-        let dt = Tensor::full([2, 65], 0.005, F64);
-        let gt = integrate(&omega, &dt);
+        let (omega, dt, gt) = random_motion(5, 0.3);
         let need = Tensor::from_slice(&[0.0, 0.02]).reshape([2, 1, 1]); // b₁, b₂ rad/s
         let loss_at = |delta: Option<f64>, c: f64| {
             let cfg = LossConfig {
@@ -302,10 +309,7 @@ mod tests {
     /// turning body the per-axis sums differ.
     #[test]
     fn the_residual_frame_matters_only_in_the_linear_part() {
-        tch::manual_seed(8);
-        let omega = Tensor::randn([2, 65, 3], F64) * 2.0;
-        let dt = Tensor::full([2, 65], 0.005, F64);
-        let gt = integrate(&omega, &dt);
+        let (omega, dt, gt) = random_motion(8, 2.0);
         let biased = &omega + Tensor::from_slice(&[0.05, -0.03, 0.02]);
         let loss = |frame: ResidualFrame, delta: f64| {
             let cfg = LossConfig {
