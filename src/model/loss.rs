@@ -5,7 +5,8 @@
 //! - `L^D = Σ_j w_j · s · mean_{valid m, axes} ρ_δ(Log(δR^gt_{m,j} δR̂_{m,j}ᵀ))`, over
 //!   non-overlapping increments of `j` samples (`m·j … (m+1)·j`), `ρ_δ` the Huber function.
 //!   DIGDL's settings are the defaults: j ∈ {16, 32} with weights 1 and ½, δ = 0.005 rad,
-//!   s = 10⁶, the first 5 increments of each sequence skipped (they see the padding).
+//!   s = 10⁶, the first 5 increments of each sequence skipped (they see the padding). The
+//!   residual is the paper's; DIGDL's code takes `Log(δR̂ᵀ δR^gt)` (`LossConfig::residual_frame`).
 //!
 //! `δR̂` integrates the corrected gyro with the real per-sample `dt` (`dt_k = t_{k+1} − t_k`),
 //! never a fixed period. `δR^gt = R_{mj}ᵀ R_{(m+1)j}` from the ground-truth attitudes at the
@@ -200,7 +201,7 @@ pub fn increment_loss(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attit
         }
         let estimate = increments_from_gyro(&omega, &dt, j);
         let truth = increments_from_attitudes(&gt, j);
-        // [B, M, 3]
+        // Rotation vectors, [B, M, 3].
         let residual = match cfg.residual_frame {
             ResidualFrame::Start => increment_residual(&truth, &estimate),
             ResidualFrame::End => increment_residual_at_end(&truth, &estimate),
