@@ -167,58 +167,115 @@ pub fn reconstruction_loss(reconstruction: &Tensor, target: &Tensor) -> Tensor {
 /// non-finite entries count as invalid) and an optional validity mask `gt_valid: [B, T]`
 /// (bool or 0/1). Returns a scalar of `gyro_hat`'s kind.
 pub fn increment_loss(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attitude: &Tensor, gt_valid: Option<&Tensor>) -> Tensor {
-    let kind = so3_kind(gyro_hat.kind(), cfg.so3_f64);
-    let omega = gyro_hat.to_kind(kind);
-    let gt = gt_attitude.to_kind(kind);
-    let dt = dt.to_kind(kind);
-    let (b, t) = (omega.size()[0], omega.size()[1]);
-    let mut sample_ok = gt.isfinite().all_dim(-1, false);
-    if let Some(mask) = gt_valid {
-        sample_ok = sample_ok.logical_and(&mask.to_kind(Kind::Bool));
-    }
-    let dt_ok = dt.isfinite().logical_and(&dt.gt(0.0));
-    // Sanitised inputs: invalid entries get harmless values (and are masked below), so no
-    // NaN reaches the graph.
-    let gt = gt.where_self(&sample_ok.unsqueeze(-1), &quat_identity_like(&gt));
-    let dt = dt.where_self(&dt_ok, &dt.zeros_like());
-    let sample_bad = sample_ok.logical_not().to_kind(kind).unsqueeze(1); // [B, 1, T]
-    let dt_bad = dt_ok.logical_not().to_kind(kind).unsqueeze(1);
-
+    let [omega, dt, gt, sample_bad, dt_bad] = sanitised(cfg, gyro_hat, dt, gt_attitude, gt_valid);
+    let kind = omega.kind();
     let mut terms = Vec::with_capacity(cfg.increments.len());
     for term in &cfg.increments {
-        let j = term.samples;
-        assert!(j >= 1, "increment length must be ≥ 1");
-        let (offset, skipped) = cfg.increment_layout(j);
-        if t <= offset {
+        let Some(Scored { residual, valid3, .. }) = scored_increments(cfg, term.samples, &omega, &dt, &gt, &sample_bad, &dt_bad) else {
             continue;
-        }
-        let (tw, omega, dt, gt) =
-            (t - offset, omega.narrow(1, offset, t - offset), dt.narrow(1, offset, t - offset), gt.narrow(1, offset, t - offset));
-        let (sample_bad, dt_bad) = (sample_bad.narrow(2, offset, tw), dt_bad.narrow(2, offset, tw));
-        let m = num_increments(tw, j);
-        if m <= skipped {
-            continue;
-        }
-        let estimate = increments_from_gyro(&omega, &dt, j);
-        let truth = increments_from_attitudes(&gt, j);
-        // Rotation vectors, [B, M, 3].
-        let residual = match cfg.residual_frame {
-            ResidualFrame::Start => increment_residual(&truth, &estimate),
-            ResidualFrame::End => increment_residual_at_end(&truth, &estimate),
         };
-        // Increment m is valid when samples mj … (m+1)j have ground truth and mj … (m+1)j − 1 a good dt.
-        let gt_gap = sample_bad.narrow(2, 0, m * j + 1).max_pool1d([j + 1], [j], [0], [1], false).squeeze_dim(1);
-        let dt_gap = dt_bad.narrow(2, 0, m * j).max_pool1d([j], [j], [0], [1], false).squeeze_dim(1);
-        let not_skipped = Tensor::arange(m, (kind, omega.device())).ge(skipped as f64).to_kind(kind).expand([b, m], false);
-        let valid = (gt_gap.maximum(&dt_gap) * -1.0 + 1.0) * not_skipped; // [B, M]
-        let valid3 = valid.unsqueeze(-1).expand([b, m, 3], false);
-        let residual = residual.where_self(&valid3.gt(0.5), &residual.zeros_like());
         let huber = residual.huber_loss(&residual.zeros_like(), Reduction::None, term.huber_delta_rad.unwrap_or(cfg.huber_delta_rad));
         let count = valid3.sum(kind).clamp_min(1.0);
         terms.push((huber * &valid3).sum(kind) / count * (cfg.scale * term.weight));
     }
     let total = terms.into_iter().fold(Tensor::zeros([], (kind, omega.device())), |acc, t| acc + t);
     total.to_kind(gyro_hat.kind())
+}
+
+/// One increment length's residuals in a window, as `increment_loss` scores them.
+struct Scored {
+    /// `[B, M, 3]` rotation vectors, zero where not scored.
+    residual: Tensor,
+    /// `[B, M, 3]`, 1 where scored.
+    valid3: Tensor,
+    /// `[B, M·j]`, the sanitised dt of the samples the increments span.
+    dt: Tensor,
+}
+
+/// The scored increments of `j` samples (layout and mask of `increment_loss`), from sanitised
+/// inputs (`omega`, `dt`, `gt` of the SO(3) kind; `sample_bad`, `dt_bad`: `[B, 1, T]`, 1 where
+/// bad); `None` when the window holds none.
+fn scored_increments(
+    cfg: &LossConfig,
+    j: i64,
+    omega: &Tensor,
+    dt: &Tensor,
+    gt: &Tensor,
+    sample_bad: &Tensor,
+    dt_bad: &Tensor,
+) -> Option<Scored> {
+    assert!(j >= 1, "increment length must be ≥ 1");
+    let (kind, b, t) = (omega.kind(), omega.size()[0], omega.size()[1]);
+    let (offset, skipped) = cfg.increment_layout(j);
+    if t <= offset {
+        return None;
+    }
+    let tw = t - offset;
+    let (omega, dt, gt) = (omega.narrow(1, offset, tw), dt.narrow(1, offset, tw), gt.narrow(1, offset, tw));
+    let (sample_bad, dt_bad) = (sample_bad.narrow(2, offset, tw), dt_bad.narrow(2, offset, tw));
+    let m = num_increments(tw, j);
+    if m <= skipped {
+        return None;
+    }
+    let estimate = increments_from_gyro(&omega, &dt, j);
+    let truth = increments_from_attitudes(&gt, j);
+    // Rotation vectors, [B, M, 3].
+    let residual = match cfg.residual_frame {
+        ResidualFrame::Start => increment_residual(&truth, &estimate),
+        ResidualFrame::End => increment_residual_at_end(&truth, &estimate),
+    };
+    // Increment m is valid when samples mj … (m+1)j have ground truth and mj … (m+1)j − 1 a good dt.
+    let gt_gap = sample_bad.narrow(2, 0, m * j + 1).max_pool1d([j + 1], [j], [0], [1], false).squeeze_dim(1);
+    let dt_gap = dt_bad.narrow(2, 0, m * j).max_pool1d([j], [j], [0], [1], false).squeeze_dim(1);
+    let not_skipped = Tensor::arange(m, (kind, omega.device())).ge(skipped as f64).to_kind(kind).expand([b, m], false);
+    let valid = (gt_gap.maximum(&dt_gap) * -1.0 + 1.0) * not_skipped; // [B, M]
+    let valid3 = valid.unsqueeze(-1).expand([b, m, 3], false);
+    let residual = residual.where_self(&valid3.gt(0.5), &residual.zeros_like());
+    Some(Scored { residual, valid3, dt: dt.narrow(1, 0, m * j) })
+}
+
+/// Sanitised SO(3)-kind inputs of the increment terms: `(omega, dt, gt, sample_bad, dt_bad)`.
+fn sanitised(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attitude: &Tensor, gt_valid: Option<&Tensor>) -> [Tensor; 5] {
+    let kind = so3_kind(gyro_hat.kind(), cfg.so3_f64);
+    let omega = gyro_hat.to_kind(kind);
+    let gt = gt_attitude.to_kind(kind);
+    let dt = dt.to_kind(kind);
+    let mut sample_ok = gt.isfinite().all_dim(-1, false);
+    if let Some(mask) = gt_valid {
+        sample_ok = sample_ok.logical_and(&mask.to_kind(Kind::Bool));
+    }
+    let dt_ok = dt.isfinite().logical_and(&dt.gt(0.0));
+    // Invalid entries get harmless values (and are masked), so no NaN reaches the graph.
+    let gt = gt.where_self(&sample_ok.unsqueeze(-1), &quat_identity_like(&gt));
+    let dt = dt.where_self(&dt_ok, &dt.zeros_like());
+    let sample_bad = sample_ok.logical_not().to_kind(kind).unsqueeze(1); // [B, 1, T]
+    let dt_bad = dt_ok.logical_not().to_kind(kind).unsqueeze(1);
+    [omega, dt, gt, sample_bad, dt_bad]
+}
+
+/// Each window's mean gyro error `ω̂ − ω` over its scored increments of `j` samples, `[B, 3]`
+/// rad/s in the SO(3) kind: `−Σ_m r_m / Σ_m Δt_m` with `r_m` the residual rotation vectors
+/// (`r ≈ (ω − ω̂) Δt` for a small error); zero for a window with no scored increment. The
+/// recording-drift term (`train.recording_drift`) averages it over many steps.
+pub fn mean_rate_error(
+    cfg: &LossConfig,
+    j: i64,
+    gyro_hat: &Tensor,
+    dt: &Tensor,
+    gt_attitude: &Tensor,
+    gt_valid: Option<&Tensor>,
+) -> Tensor {
+    let [omega, dt, gt, sample_bad, dt_bad] = sanitised(cfg, gyro_hat, dt, gt_attitude, gt_valid);
+    let kind = omega.kind();
+    match scored_increments(cfg, j, &omega, &dt, &gt, &sample_bad, &dt_bad) {
+        Some(Scored { residual, valid3, dt }) => {
+            let (b, m) = (valid3.size()[0], valid3.size()[1]);
+            let seconds = dt.reshape([b, m, j]).sum_dim_intlist(-1, false, kind); // [B, M]
+            let time = (seconds * valid3.select(-1, 0)).sum_dim_intlist(-1, false, kind).clamp_min(1e-9).unsqueeze(-1);
+            residual.sum_dim_intlist(1, false, kind) / time * -1.0
+        }
+        None => Tensor::zeros([omega.size()[0], 3], (kind, omega.device())),
+    }
 }
 
 /// `L = w_R L^R + γ L^D` from a forward's output.
@@ -470,5 +527,30 @@ mod tests {
             let t = total(w_r, gamma).total.double_value(&[]);
             assert!((t - (w_r * r + gamma * d)).abs() < 1e-9 * (1.0 + t.abs()), "w_R {w_r} γ {gamma}: {t}");
         }
+    }
+
+    /// The mean gyro error of a window is the bias added to the true rate, over its scored
+    /// increments only: a gap in the ground truth and the skipped start do not bias it, and a
+    /// window with nothing scored gives zero.
+    #[test]
+    fn the_mean_rate_error_is_the_added_bias() {
+        let (omega, dt, gt) = random_motion(11, 0.3);
+        let bias = Tensor::from_slice(&[2e-3, -1e-3, 5e-4]).view([1, 1, 3]).to_kind(Kind::Double);
+        // A wild gyro where the ground truth has a gap: masked, it must not count.
+        let gap = Tensor::zeros([2, 65], F64);
+        let _ = gap.narrow(1, 20, 10).fill_(1.0);
+        let valid = gap.eq(0.0);
+        let hat = (&omega + &bias) + gap.unsqueeze(-1) * 5.0;
+        let cfg = LossConfig { skip_first_samples: 8, increments_from_skip: true, ..LossConfig::default() };
+        let e = mean_rate_error(&cfg, 8, &hat, &dt, &gt, Some(&valid));
+        assert_eq!(e.size(), [2, 3]);
+        let e: Vec<f64> = Vec::try_from(e.view(-1)).unwrap();
+        for (i, v) in e.iter().enumerate() {
+            let b = [2e-3, -1e-3, 5e-4][i % 3];
+            assert!((v - b).abs() < 1e-4, "window {} axis {}: {v} against {b}", i / 3, i % 3);
+        }
+        // Nothing scored: zero, not NaN.
+        let none = mean_rate_error(&cfg, 8, &hat, &dt, &gt, Some(&valid.zeros_like()));
+        assert_eq!(none.abs().sum(Kind::Double).double_value(&[]), 0.0);
     }
 }

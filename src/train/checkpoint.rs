@@ -36,6 +36,9 @@ pub struct CheckpointMeta {
     pub best: Option<(usize, f64)>,
     /// Seconds of training before this checkpoint (for the time per epoch).
     pub train_seconds: f64,
+    /// With `train.recording_drift`: the memory of each task's mean gyro error.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recording_drift: Option<super::drift::DriftMemory>,
 }
 
 pub fn paths(out_dir: &Path, name: &str) -> (PathBuf, PathBuf) {

@@ -349,11 +349,49 @@ pub struct TrainSettings {
     /// noise averages out of the slowly learned parts (the static bias, Ĉ_ω).
     #[serde(default)]
     pub ema_decay: f64,
+    /// The recording-drift term (absent: off): a memory, across steps, of each training
+    /// recording's mean gyro error, which pushes every window of that recording against it.
+    /// A bias of a few tenths of a mrad/s is lost in one window's noise but is what a whole
+    /// recording's AOE integrates; the memory averages the noise out. FSDA-F with batched tasks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recording_drift: Option<RecordingDrift>,
     /// After training, fit one correction gain per IMU of `dataset.validation`
     /// ([`crate::train::fit::fit_correction_gains`]) and export it with the model
     /// (`ModelMetadata::imu_correction_gains`); the test recordings are scored with their IMU's.
     #[serde(default)]
     pub correction_gains: bool,
+}
+
+/// See [`TrainSettings::recording_drift`]. Each step, task i's query windows give their mean
+/// gyro error ē_i (rad/s, over the scored increments of `increment_samples`); the memory is
+/// b̄_i ← decay · b̄_i + (1 − decay) · ē_i (bias-corrected like Adam's moments), and the loss
+/// gains `weight · s · Σ_i w_i clamp(b̄_i, ±delta)ᵀ ē_i` (s the loss's scale, w_i the task
+/// weights, b̄ held constant): the gradient of a Huber function of each recording's mean error,
+/// `weight · s · Σ_i w_i ρ_delta(b̄_i)`, when b̄ tracks ē's mean. The clamp keeps the untrained
+/// model's 0.1-rad/s biases from swamping the other terms (and Adam's second moments). With s =
+/// 10⁶, weight 1 and delta 1 mrad/s, a recording 1 mrad/s off pushes each axis with 10³ per rad/s
+/// of ē, about four times what v9's long Huber terms push one window with in their linear part.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordingDrift {
+    pub weight: f64,
+    /// Where the push stops growing, rad/s.
+    #[serde(default = "default_drift_delta")]
+    pub delta: f64,
+    #[serde(default = "default_drift_decay")]
+    pub decay: f64,
+    #[serde(default = "default_drift_increment")]
+    pub increment_samples: i64,
+}
+
+fn default_drift_delta() -> f64 {
+    1e-3
+}
+fn default_drift_decay() -> f64 {
+    0.95
+}
+fn default_drift_increment() -> i64 {
+    16
 }
 
 /// See [`TrainSettings::task_weighting`].
@@ -541,6 +579,24 @@ impl TrainConfig {
         if t.correction_gains && self.dataset.validation.is_empty() {
             return Err("train.correction_gains fits on dataset.validation, which is empty".into());
         }
+        if let Some(d) = &t.recording_drift {
+            if !non_negative(d.weight) || !positive(d.delta) || !(0.0..1.0).contains(&d.decay) || d.increment_samples < 1 {
+                return Err(format!(
+                    "train.recording_drift: weight must be ≥ 0, delta > 0, decay in [0, 1) and increment_samples ≥ 1, got {d:?}"
+                ));
+            }
+            if self.model.mode != Mode::FsdaF || !t.maml.batch_tasks {
+                return Err("train.recording_drift needs model.mode fsda_f with train.maml.batch_tasks: true".into());
+            }
+            let (offset, skipped) = loss.increment_layout(d.increment_samples);
+            let need = offset + d.increment_samples * (skipped + 1);
+            if t.maml.query_window_samples as i64 <= need {
+                return Err(format!(
+                    "train.recording_drift.increment_samples = {}: a query window of {} samples holds none after the skip (needs > {need})",
+                    d.increment_samples, t.maml.query_window_samples
+                ));
+            }
+        }
         if !(0.0..1.0).contains(&t.ema_decay) {
             return Err(format!("train.ema_decay must be in [0, 1), got {}", t.ema_decay));
         }
@@ -683,5 +739,28 @@ mod tests {
         assert!(maml("{unadapted_query_weight: 1.0}").is_ok());
         assert!(maml("{unadapted_query_weight: -1.0}").unwrap_err().contains("unadapted_query_weight"));
         assert!(maml("{unadapted_support_weight: -1.0}").unwrap_err().contains("unadapted_support_weight"));
+    }
+
+    #[test]
+    fn recording_drift_settings_are_checked() {
+        let with = |model: &str, maml: &str, drift: &str| {
+            TrainConfig::parse(&format!(
+                "model: {{mode: {model}}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 3, maml: {maml}, recording_drift: {drift}}}\n"
+            ))
+            .map_err(|e| e.to_string())
+            .and_then(|c| c.validate().map(|_| c))
+        };
+        let batched = "{batch_tasks: true, query_window_samples: 700}";
+        let cfg = with("fsda_f", batched, "{weight: 1.0}").unwrap();
+        let d = cfg.train.recording_drift.unwrap();
+        assert_eq!((d.weight, d.delta, d.decay, d.increment_samples), (1.0, 1e-3, 0.95, 16));
+        assert!(with("fsda_f", batched, "{weight: -1.0}").unwrap_err().contains("recording_drift"));
+        assert!(with("fsda_f", batched, "{weight: 1.0, delta: 0.0}").unwrap_err().contains("delta"));
+        assert!(with("fsda_f", batched, "{weight: 1.0, decay: 1.0}").unwrap_err().contains("decay"));
+        assert!(with("fsda_f", batched, "{weight: 1.0, increment_samples: 0}").unwrap_err().contains("increment_samples"));
+        assert!(with("fsda_f", batched, "{weight: 1.0, increment_samples: 4096}").unwrap_err().contains("holds none"));
+        assert!(with("fsda_f", batched, "{weight: 1.0, tau: 3}").unwrap_err().contains("unknown field"));
+        assert!(with("fsda_f", "{batch_tasks: false}", "{weight: 1.0}").unwrap_err().contains("batch_tasks"));
+        assert!(with("digdl", "{}", "{weight: 1.0}").unwrap_err().contains("fsda_f"));
     }
 }

@@ -23,11 +23,12 @@ use tch::{nn::VarStore, Device, Kind, Tensor};
 use super::checkpoint::{self, CheckpointMeta};
 use super::config::{Augment, TaskWeighting, TrainConfig, TrainSettings};
 use super::data::{self, Batch, Task};
+use super::drift::{self, DriftMemory};
 use super::optim::Adam;
 use super::report::{EpochRecord, SequenceEvals, TaskInfo, TestResult, TrainSummary};
 use crate::eval::{evaluate, EvalOptions, OrientationErrors};
 use crate::model::export::{export_model, ExportInfo};
-use crate::model::loss::total_loss;
+use crate::model::loss::{mean_rate_error, total_loss};
 use crate::model::predict::{correct_with_net, with_correction_gain};
 use crate::model::{ForwardOptions, Mode, Net};
 
@@ -207,6 +208,8 @@ struct StepLosses {
     increment: f64,
     reconstruction: Option<f64>,
     support: Option<f64>,
+    /// With `train.recording_drift`: the task-weighted RMS of the memory, mrad/s.
+    drift_mrad_s: Option<f64>,
 }
 
 fn scalar(t: &Tensor) -> f64 {
@@ -239,6 +242,7 @@ fn plain_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng
         increment: scalar(&terms.increment),
         reconstruction: terms.reconstruction.as_ref().map(scalar),
         support: None,
+        drift_mrad_s: None,
     }
 }
 
@@ -290,7 +294,7 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
         inc += scalar(&terms.increment) / n;
         rec += terms.reconstruction.as_ref().map_or(0.0, scalar) / n;
     }
-    StepLosses { loss, increment: inc, reconstruction: Some(rec), support: Some(sup) }
+    StepLosses { loss, increment: inc, reconstruction: Some(rec), support: Some(sup), drift_mrad_s: None }
 }
 
 /// The domain of a training source: the first path component (`euroc/MH_01_easy` → `euroc`).
@@ -489,7 +493,14 @@ fn slice_out(out: &crate::model::NetOutput, start: i64, len: i64) -> crate::mode
 /// `MamlConfig::batch_tasks`): per-task fast Embedding weights; the inner gradient of task i
 /// is that of the summed support losses w.r.t. task i's fast weights (the other tasks' losses
 /// depend on them only through the shared BatchNorm statistics).
-fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
+fn maml_step_batched(
+    net: &Net,
+    heads: &Heads,
+    cfg: &TrainConfig,
+    tasks: &[Task],
+    rng: &mut ChaCha8Rng,
+    drift: Option<&mut DriftMemory>,
+) -> StepLosses {
     let t = &cfg.train;
     let m = &t.maml;
     let theta = net.embedding_parameters();
@@ -550,6 +561,18 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
         parts.push(l0 * m.unadapted_query_weight);
     }
     parts.extend(support_at_meta);
+    let mut drift_mrad_s = None;
+    if let (Some(memory), Some(d)) = (drift, &t.recording_drift) {
+        // Each task's mean gyro error over its query windows, [n, 3].
+        let e = mean_rate_error(&t.loss, d.increment_samples, &out.gyro, &q.dt, &q.gt, Some(&q.valid)).view([n as i64, qper, 3]).mean_dim(
+            1,
+            false,
+            None::<Kind>,
+        );
+        let remembered = memory.update(&drift::rows(&e), d.decay);
+        drift_mrad_s = Some(DriftMemory::rms_mrad_s(&remembered, &weights));
+        parts.push(drift::drift_term(&e, &remembered, &weights, d.weight, d.delta, t.loss.scale).to_kind(outer.kind()));
+    }
     parts.into_iter().reduce(|a, b| a + b).expect("the query loss").backward();
     let wsum = |f: &dyn Fn(&crate::model::loss::LossTerms) -> f64| ls.iter().zip(&weights).map(|(l, w)| f(l) * w).sum::<f64>();
     StepLosses {
@@ -557,6 +580,7 @@ fn maml_step_batched(net: &Net, heads: &Heads, cfg: &TrainConfig, tasks: &[Task]
         increment: wsum(&|l| scalar(&l.increment)),
         reconstruction: Some(wsum(&|l| l.reconstruction.as_ref().map_or(0.0, scalar))),
         support: Some(sup),
+        drift_mrad_s,
     }
 }
 
@@ -737,6 +761,19 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         }
         tracing::info!("resumed from {} at epoch {start_epoch}", opts.resume.as_ref().unwrap().display());
     }
+    let mut drift = match (&cfg.train.recording_drift, resume.as_ref().and_then(|r| r.meta.recording_drift.clone())) {
+        (None, _) => None,
+        (Some(_), Some(m)) if m.ema.len() == data.train.len() => Some(m),
+        (Some(_), Some(m)) => {
+            anyhow::bail!("--resume: the checkpoint's recording-drift memory has {} tasks, the config {}", m.ema.len(), data.train.len())
+        }
+        (Some(_), None) => {
+            if resume.is_some() {
+                tracing::warn!("--resume: the checkpoint has no recording-drift memory; it starts empty");
+            }
+            Some(DriftMemory::new(data.train.len()))
+        }
+    };
     let mut ema = (cfg.train.ema_decay > 0.0)
         .then(|| checkpoint::Ema::new(&vs, cfg.train.ema_decay, resume.as_ref().map(|r| &r.tensors), adam.step.max(0) as u64));
     let fresh = |tasks: &[Task]| -> anyhow::Result<Vec<SequenceEvals>> {
@@ -779,6 +816,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
                      best: Option<(usize, f64)>,
                      best_vars: Option<&BTreeMap<String, Tensor>>,
                      ema: Option<&checkpoint::Ema>,
+                     drift: Option<&DriftMemory>,
                      seconds: f64|
      -> anyhow::Result<PathBuf> {
         let meta = CheckpointMeta {
@@ -792,6 +830,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             monitor: monitor.to_vec(),
             best,
             train_seconds: seconds,
+            recording_drift: drift.cloned(),
         };
         checkpoint::save(&opts.out_dir, &opts.name, &vs, adam, best_vars, ema.map(|e| &e.avg), &meta)
     };
@@ -810,7 +849,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         adam.zero_grad();
         let l = match mode {
             Mode::FsdaF => match &heads {
-                Some(h) => maml_step_batched(&net, h, &cfg, &data.train, &mut rng),
+                Some(h) => maml_step_batched(&net, h, &cfg, &data.train, &mut rng, drift.as_mut()),
                 None => maml_step(&net, &cfg, &data.train, &mut rng),
             },
             Mode::Fsda | Mode::Digdl => plain_step(&net, &cfg, &data.train, &mut rng),
@@ -831,6 +870,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             increment: l.increment,
             reconstruction: l.reconstruction,
             support_loss: l.support,
+            recording_drift_mrad_s: l.drift_mrad_s,
             grad_norm,
             seconds: t0.elapsed().as_secs_f64(),
         });
@@ -843,6 +883,9 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         );
         if let Some(s) = l.support {
             msg.push_str(&format!(", support {s:.4}"));
+        }
+        if let Some(d) = l.drift_mrad_s {
+            msg.push_str(&format!(", drift {d:.3} mrad/s"));
         }
         // The budget is the whole run's: a resumed run counts the seconds before its checkpoint.
         let over_budget = cfg.train.max_train_seconds > 0.0
@@ -888,13 +931,24 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         }
         if cfg.train.checkpoint_every > 0 && done % cfg.train.checkpoint_every == 0 && done < epochs {
             let secs = prior_seconds + started.elapsed().as_secs_f64();
-            save_ckpt(done, &adam, &history, &validation, &monitor, best, best_vars.as_ref(), ema.as_ref(), secs)?;
+            save_ckpt(done, &adam, &history, &validation, &monitor, best, best_vars.as_ref(), ema.as_ref(), drift.as_ref(), secs)?;
         }
     }
     pb.finish();
     let train_seconds = prior_seconds + started.elapsed().as_secs_f64();
     let last_epoch = stopped_at.unwrap_or(epochs);
-    let ckpt = save_ckpt(last_epoch, &adam, &history, &validation, &monitor, best, best_vars.as_ref(), ema.as_ref(), train_seconds)?;
+    let ckpt = save_ckpt(
+        last_epoch,
+        &adam,
+        &history,
+        &validation,
+        &monitor,
+        best,
+        best_vars.as_ref(),
+        ema.as_ref(),
+        drift.as_ref(),
+        train_seconds,
+    )?;
     tracing::info!("checkpoint {}", ckpt.display());
 
     // The exported weights: the best validated epoch if asked, else the last (averaged when
@@ -1290,7 +1344,7 @@ mod tests {
         let net = Net::new(&cfg.model, &vs.root()).unwrap();
         let heads = Heads::new(&vs, &net).unwrap();
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng);
+        maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng, None);
         (vs, cfg)
     }
 
@@ -1313,7 +1367,7 @@ mod tests {
         assign_calibration_rows(&net, &mut data, &[]).unwrap();
         assert_eq!((data.train[0].calibration_row, data.test[0].calibration_row), (Some(1), Some(2)));
         let heads = Heads::new(&vs, &net).unwrap();
-        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3));
+        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3), None);
         let g = vs.variables()["gyro_calib.per_imu"].grad();
         let norm = |k: i64| g.get(k).abs().sum(Kind::Double).double_value(&[]);
         assert_eq!(norm(0), 0.0, "IMU a has no data");
@@ -1328,9 +1382,49 @@ mod tests {
         for mut t in vs.trainable_variables() {
             t.zero_grad();
         }
-        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3));
+        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3), None);
         let g = vs.variables()["gyro_calib.per_imu"].grad();
         assert_eq!(g.abs().sum(Kind::Double).double_value(&[]), 0.0, "a calibrated IMU's Ĉ_ω stays I");
+    }
+
+    /// `train.recording_drift` on one biased, turning task (gyro (0.01, −0.02, 0.35) against
+    /// the truth's (0, 0, 0.3) rad/s, its query windows with ground truth): one step puts the
+    /// task's error in the memory, and the term's gradient on Ĉ_ω is `weight · s · b̄ ⊗ mean ω`,
+    /// what the step without the term lacks.
+    #[test]
+    fn the_recording_drift_remembers_a_biased_task_and_pushes_against_it() {
+        let step = |drift: Option<&mut DriftMemory>| {
+            let text = "model: {mode: fsda_f}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 1, zero_init_correction: true, \
+                        loss: {skip_first_samples: 0}, recording_drift: {weight: 0.5, delta: 1.0}, maml: {first_order: true, batch_tasks: true, \
+                        support_window_samples: 700, query_window_samples: 700}}\n";
+            let cfg = TrainConfig::parse(text).unwrap();
+            cfg.validate().unwrap();
+            let mut task = turning_task(10.0);
+            let _ = task.valid.fill_(1.0);
+            let vs = VarStore::new(Device::Cpu);
+            let net = Net::new(&cfg.model, &vs.root()).unwrap();
+            zero_init_correction(&vs, &net).unwrap();
+            let heads = Heads::new(&vs, &net).unwrap();
+            maml_step_batched(&net, &heads, &cfg, &[task], &mut ChaCha8Rng::seed_from_u64(3), drift);
+            vs.variables()["gyro_calib.delta"].grad().to_kind(Kind::Double)
+        };
+        let mut memory = DriftMemory::new(1);
+        let with = step(Some(&mut memory));
+        let without = step(None);
+        assert_eq!(memory.steps, 1);
+        let remembered = memory.ema[0].map(|v| v / (1.0 - 0.95));
+        for (k, want) in [0.01, -0.02, 0.05].into_iter().enumerate() {
+            assert!((remembered[k] - want).abs() < 2e-3, "axis {k}: {remembered:?}");
+        }
+        let diff: Vec<f64> = Vec::try_from((with - without).view(-1)).unwrap();
+        let mean_omega = [0.01, -0.02, 0.35];
+        for a in 0..3 {
+            for b in 0..3 {
+                let want = 0.5 * 1e6 * remembered[a] * mean_omega[b];
+                let got = diff[a * 3 + b];
+                assert!((got - want).abs() <= 0.1 * want.abs() + 1e-6, "Ĉ_ω gradient [{a}][{b}]: {got} against {want}");
+            }
+        }
     }
 
     #[test]
@@ -1492,7 +1586,7 @@ mod tests {
             };
             let before = generator();
             let mut rng = ChaCha8Rng::seed_from_u64(3);
-            maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng);
+            maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng, None);
             adam.step(1e-3, 0.0);
             let eye = Tensor::eye(3, (tch::Kind::Float, tch::Device::Cpu));
             let moved = (net.gyro_calibration() - eye).abs().max().double_value(&[]);
