@@ -500,6 +500,7 @@ fn maml_step_batched(
     tasks: &[Task],
     rng: &mut ChaCha8Rng,
     drift: Option<&mut DriftMemory>,
+    lr: f64,
 ) -> StepLosses {
     let t = &cfg.train;
     let m = &t.maml;
@@ -571,7 +572,7 @@ fn maml_step_batched(
         );
         let remembered = memory.update(&drift::rows(&e), d.decay);
         drift_mrad_s = Some(DriftMemory::rms_mrad_s(&remembered, &weights));
-        parts.push(drift::drift_term(&e, &remembered, &weights, d.weight, d.delta, t.loss.scale).to_kind(outer.kind()));
+        parts.push(drift::drift_term(&e, &remembered, &weights, d.weight_at(lr, t.lr), d.delta, t.loss.scale).to_kind(outer.kind()));
     }
     parts.into_iter().reduce(|a, b| a + b).expect("the query loss").backward();
     let wsum = |f: &dyn Fn(&crate::model::loss::LossTerms) -> f64| ls.iter().zip(&weights).map(|(l, w)| f(l) * w).sum::<f64>();
@@ -849,7 +850,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         adam.zero_grad();
         let l = match mode {
             Mode::FsdaF => match &heads {
-                Some(h) => maml_step_batched(&net, h, &cfg, &data.train, &mut rng, drift.as_mut()),
+                Some(h) => maml_step_batched(&net, h, &cfg, &data.train, &mut rng, drift.as_mut(), lr),
                 None => maml_step(&net, &cfg, &data.train, &mut rng),
             },
             Mode::Fsda | Mode::Digdl => plain_step(&net, &cfg, &data.train, &mut rng),
@@ -1344,7 +1345,7 @@ mod tests {
         let net = Net::new(&cfg.model, &vs.root()).unwrap();
         let heads = Heads::new(&vs, &net).unwrap();
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng, None);
+        maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng, None, 0.01);
         (vs, cfg)
     }
 
@@ -1367,7 +1368,7 @@ mod tests {
         assign_calibration_rows(&net, &mut data, &[]).unwrap();
         assert_eq!((data.train[0].calibration_row, data.test[0].calibration_row), (Some(1), Some(2)));
         let heads = Heads::new(&vs, &net).unwrap();
-        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3), None);
+        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3), None, 0.01);
         let g = vs.variables()["gyro_calib.per_imu"].grad();
         let norm = |k: i64| g.get(k).abs().sum(Kind::Double).double_value(&[]);
         assert_eq!(norm(0), 0.0, "IMU a has no data");
@@ -1382,7 +1383,7 @@ mod tests {
         for mut t in vs.trainable_variables() {
             t.zero_grad();
         }
-        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3), None);
+        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3), None, 0.01);
         let g = vs.variables()["gyro_calib.per_imu"].grad();
         assert_eq!(g.abs().sum(Kind::Double).double_value(&[]), 0.0, "a calibrated IMU's Ĉ_ω stays I");
     }
@@ -1405,7 +1406,7 @@ mod tests {
             let net = Net::new(&cfg.model, &vs.root()).unwrap();
             zero_init_correction(&vs, &net).unwrap();
             let heads = Heads::new(&vs, &net).unwrap();
-            maml_step_batched(&net, &heads, &cfg, &[task], &mut ChaCha8Rng::seed_from_u64(3), drift);
+            maml_step_batched(&net, &heads, &cfg, &[task], &mut ChaCha8Rng::seed_from_u64(3), drift, 0.01);
             vs.variables()["gyro_calib.delta"].grad().to_kind(Kind::Double)
         };
         let mut memory = DriftMemory::new(1);
@@ -1586,7 +1587,7 @@ mod tests {
             };
             let before = generator();
             let mut rng = ChaCha8Rng::seed_from_u64(3);
-            maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng, None);
+            maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng, None, 0.01);
             adam.step(1e-3, 0.0);
             let eye = Tensor::eye(3, (tch::Kind::Float, tch::Device::Cpu));
             let moved = (net.gyro_calibration() - eye).abs().max().double_value(&[]);
