@@ -1389,13 +1389,15 @@ mod tests {
     }
 
     /// `train.recording_drift` on one biased, turning task (gyro (0.01, −0.02, 0.35) against
-    /// the truth's (0, 0, 0.3) rad/s, its query windows with ground truth): one step puts the
+    /// the truth's (0, 0, 0.3) rad/s, its query windows with ground truth; no augmentation,
+    /// whose random offsets would move the mean rate by 10 % on x): one step puts the
     /// task's error in the memory, and the term's gradient on Ĉ_ω is `weight · s · b̄ ⊗ mean ω`,
     /// what the step without the term lacks.
     #[test]
     fn the_recording_drift_remembers_a_biased_task_and_pushes_against_it() {
         let step = |drift: Option<&mut DriftMemory>| {
             let text = "model: {mode: fsda_f}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 1, zero_init_correction: true, \
+                        augment: {gyro_noise_std: 0.0, accel_noise_std: 0.0, gyro_offset: 0.0}, \
                         loss: {skip_first_samples: 0}, recording_drift: {weight: 0.5, delta: 1.0}, maml: {first_order: true, batch_tasks: true, \
                         support_window_samples: 700, query_window_samples: 700}}\n";
             let cfg = TrainConfig::parse(text).unwrap();
