@@ -135,14 +135,13 @@ impl LossConfig {
     /// A training window must be longer than this many samples for every increment length to
     /// score at least one increment.
     pub fn min_window_samples(&self) -> i64 {
-        self.increments
-            .iter()
-            .map(|i| {
-                let (offset, skipped) = self.increment_layout(i.samples);
-                offset + i.samples * (skipped + 1)
-            })
-            .max()
-            .unwrap_or(1)
+        self.increments.iter().map(|i| self.min_window_samples_for(i.samples)).max().unwrap_or(1)
+    }
+
+    /// A window must be longer than this many samples to score one increment of `j` samples.
+    pub fn min_window_samples_for(&self, j: i64) -> i64 {
+        let (offset, skipped) = self.increment_layout(j);
+        offset + j * (skipped + 1)
     }
 }
 

@@ -18,7 +18,8 @@ pub fn imu_tensor(imu: &[ImuSample], kind: Kind) -> Tensor {
     Tensor::from_slice(&flat).reshape([1, imu.len() as i64, 6]).to_kind(kind)
 }
 
-fn to_vectors(t: &Tensor) -> Result<Vec<Vector3<f64>>, ModelError> {
+/// `[…, 3]` rows of a tensor as f64 vectors.
+pub(crate) fn to_vectors(t: &Tensor) -> Result<Vec<Vector3<f64>>, ModelError> {
     let v = Vec::<f64>::try_from(t.to_kind(Kind::Double).reshape([-1]))?;
     Ok(v.chunks_exact(3).map(|c| Vector3::new(c[0], c[1], c[2])).collect())
 }

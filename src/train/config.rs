@@ -604,8 +604,7 @@ impl TrainConfig {
             if self.model.mode != Mode::FsdaF || !t.maml.batch_tasks {
                 return Err("train.recording_drift needs model.mode fsda_f with train.maml.batch_tasks: true".into());
             }
-            let (offset, skipped) = loss.increment_layout(d.increment_samples);
-            let need = offset + d.increment_samples * (skipped + 1);
+            let need = loss.min_window_samples_for(d.increment_samples);
             if t.maml.query_window_samples as i64 <= need {
                 return Err(format!(
                     "train.recording_drift.increment_samples = {}: a query window of {} samples holds none after the skip (needs > {need})",

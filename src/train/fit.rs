@@ -570,7 +570,8 @@ fn maml_step_batched(
             false,
             None::<Kind>,
         );
-        let remembered = memory.update(&drift::rows(&e), d.decay);
+        let now = crate::model::predict::to_vectors(&e.detach()).expect("an f64 [n, 3] tensor");
+        let remembered = memory.update(&now, d.decay);
         drift_mrad_s = Some(DriftMemory::rms_mrad_s(&remembered, &weights));
         parts.push(drift::drift_term(&e, &remembered, &weights, d.weight_at(lr, t.lr), d.delta, t.loss.scale).to_kind(outer.kind()));
     }
@@ -1415,7 +1416,7 @@ mod tests {
         let with = step(Some(&mut memory));
         let without = step(None);
         assert_eq!(memory.steps, 1);
-        let remembered = memory.ema[0].map(|v| v / (1.0 - 0.95));
+        let remembered = memory.ema[0] / (1.0 - 0.95);
         for (k, want) in [0.01, -0.02, 0.05].into_iter().enumerate() {
             assert!((remembered[k] - want).abs() < 2e-3, "axis {k}: {remembered:?}");
         }
