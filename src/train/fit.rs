@@ -93,7 +93,8 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
     Ok(Datasets { train, validation: load_eval(&d.validation)?, test: load_eval(&d.test)?, monitor: load_eval(&d.monitor)? })
 }
 
-fn eval_opts(cfg: &TrainConfig) -> EvalOptions {
+/// The evaluation options of a run's config.
+pub fn eval_opts(cfg: &TrainConfig) -> EvalOptions {
     EvalOptions { max_gap_ns: (cfg.dataset.max_interpolation_gap_ms * 1e6) as i64 }
 }
 
@@ -342,7 +343,7 @@ fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
 /// the model has no Ĉ_ω for and not declared calibrated is an error (a misspelt name would
 /// silently train with I); an evaluation one gets I, as a new IMU would in the node.
 /// Recordings of `calibrated` IMUs get I (the last row) in training and evaluation.
-fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[String]) -> anyhow::Result<()> {
+pub fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[String]) -> anyhow::Result<()> {
     let names = &net.config().imu_calibrations;
     if names.is_empty() && calibrated.is_empty() {
         // One shared Ĉ_ω: the plain forward, as the models before per-IMU Ĉ_ω were trained
@@ -623,6 +624,47 @@ fn inner_adapt_batched(
         fast = fast.iter().zip(grads.chunks(p)).map(|(w, g)| inner_sgd_step(w, g, m.inner_lr, second)).collect();
     }
     (fast, sup, support_at_meta)
+}
+
+/// Re-estimates BatchNorm's running statistics for the weights now in `vs`: they are reset,
+/// then `steps` training steps' worth of forwards run without gradient — each task's support
+/// and query windows, augmented, through θ_e, in training mode — which update them as a
+/// training step's two forwards do (momentum 0.1). For averaged weights
+/// ([`super::average`]): the mean of the running statistics a run passed through is not the
+/// statistics of the mean weights. FSDA-F with batched tasks only, the shipped recipe.
+pub fn recalibrate_batch_norm(vs: &VarStore, net: &Net, cfg: &TrainConfig, tasks: &[Task], steps: usize, seed: u64) -> anyhow::Result<()> {
+    if net.config().mode != Mode::FsdaF || !cfg.train.maml.batch_tasks {
+        anyhow::bail!("BatchNorm re-estimation is implemented for fsda_f with maml.batch_tasks only");
+    }
+    let heads = Heads::new(vs, net)?;
+    let emb = net.embedding().ok_or_else(|| anyhow::anyhow!("fsda_f has an Embedding"))?;
+    let theta = net.embedding_parameters();
+    tch::no_grad(|| {
+        for (n, v) in vs.variables() {
+            if n.ends_with(".running_mean") {
+                let _ = v.shallow_clone().zero_();
+            } else if n.ends_with(".running_var") {
+                let _ = v.shallow_clone().fill_(1.0);
+            }
+        }
+    });
+    let m = &cfg.train.maml;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    tch::manual_seed(seed as i64);
+    let refs: Vec<&Task> = tasks.iter().collect();
+    tch::no_grad(|| {
+        for _ in 0..steps {
+            let s = data::sample_windows(&refs, |x| (0, x.support_end), m.support_windows, m.support_window_samples, &mut rng);
+            let q = data::sample_windows(&refs, |x| (x.support_end, x.len()), m.query_windows, m.query_window_samples, &mut rng);
+            for b in [s, q] {
+                let u = augment(&b.imu, &cfg.train.augment);
+                let un = net.normalize(&u);
+                let e = emb.forward_with(&un, &theta);
+                let _ = heads.forward(net, &u, un, &e, b.calibration_rows.as_ref());
+            }
+        }
+    });
+    Ok(())
 }
 
 fn epoch_seed(seed: u64, epoch: usize) -> i64 {
@@ -1429,6 +1471,54 @@ mod tests {
                 assert!((got - want).abs() <= 0.1 * want.abs() + 1e-6, "Ĉ_ω gradient [{a}][{b}]: {got} against {want}");
             }
         }
+    }
+
+    /// Re-estimating BatchNorm's running statistics forgets what they held (two different
+    /// corrupted starts give the same statistics, bit for bit, from the same seed), moves
+    /// every layer's, and leaves every trained weight as it was.
+    #[test]
+    fn batch_norm_statistics_are_re_estimated_from_the_tasks_alone() {
+        let text = "model: {mode: fsda_f}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 1, \
+                    maml: {first_order: true, batch_tasks: true, support_window_samples: 700, query_window_samples: 700}}\n";
+        let cfg = TrainConfig::parse(text).unwrap();
+        cfg.validate().unwrap();
+        let task = turning_task(10.0);
+        let vs = VarStore::new(Device::Cpu);
+        let net = Net::new(&cfg.model, &vs.root()).unwrap();
+        let stats = |vs: &VarStore| -> BTreeMap<String, Tensor> {
+            vs.variables().into_iter().filter(|(n, _)| n.contains(".running_")).map(|(n, t)| (n, t.copy())).collect()
+        };
+        let weights_before = checkpoint::snapshot(&vs);
+        let mut after = Vec::new();
+        for corrupt in [10.0, 3.0] {
+            tch::no_grad(|| {
+                for (_, v) in vs.variables().into_iter().filter(|(n, _)| n.contains(".running_")) {
+                    let _ = v.shallow_clone().fill_(corrupt);
+                }
+            });
+            recalibrate_batch_norm(&vs, &net, &cfg, std::slice::from_ref(&task), 20, 7).unwrap();
+            after.push(stats(&vs));
+        }
+        assert!(!after[0].is_empty());
+        for (n, t) in &after[0] {
+            assert!(t.equal(&after[1][n]), "{n}: depends on where the statistics started");
+            let start = Tensor::full(t.size(), 10.0, (t.kind(), Device::Cpu));
+            assert!((t - &start).abs().max().double_value(&[]) > 1e-3, "{n}: not re-estimated");
+        }
+        for (n, w) in &weights_before {
+            if !n.contains(".running_") {
+                assert!(w.equal(&vs.variables()[n]), "{n}: changed by the re-estimation");
+            }
+        }
+        let err = recalibrate_batch_norm(
+            &vs,
+            &net,
+            &TrainConfig::parse(&text.replace("batch_tasks: true", "batch_tasks: false")).unwrap(),
+            &[task],
+            1,
+            7,
+        );
+        assert!(err.unwrap_err().to_string().contains("batch_tasks"));
     }
 
     #[test]

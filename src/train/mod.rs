@@ -5,8 +5,10 @@
 //! Files: [`config`] (the YAML), [`data`] (recordings → checked tasks, windows,
 //! normalisation), [`optim`] (Adam with saveable state), [`checkpoint`], [`report`] (the
 //! run's JSON), [`curves`] (its figure), [`drift`] (the recording-drift memory), [`fit`] (the
-//! loop), [`seeds`] (restarts: the best of several seeds by validation score).
+//! loop), [`seeds`] (restarts: the best of several seeds by validation score), [`average`]
+//! (checkpoints averaged, an experiment: `examples/average_weights.rs`).
 
+pub mod average;
 pub mod checkpoint;
 pub mod config;
 pub mod curves;
