@@ -1,4 +1,4 @@
-//! Experiment (docs/training.md, "Averaged weights"): scores a run's checkpoints averaged
+//! Experiment (docs/training.md, "v9 retrained on the AVX2 VM, and averaged weights"): scores a run's checkpoints averaged
 //! over an epoch range against its last weights, the way `train` scores its export (the
 //! correction gains fitted on the validation recordings, the validation score with them, the
 //! test recordings as deployed).
@@ -30,27 +30,28 @@ fn main() -> anyhow::Result<()> {
     let eopts = fit::eval_opts(&cfg);
     let gains = fit::fit_correction_gains(&net, &data.validation, &eopts)?;
     let gain_of = |t: &imu_fsda::train::data::Task| gains.get(&t.imu_name).copied().unwrap_or(1.0);
-    let (mut euroc, mut rooms) = (Vec::new(), Vec::new());
+    // The validation score as `train` computes it: each recording's AOE, weighted like the tasks.
+    let mut by_domain: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
+    let (mut aoe, mut domains) = (Vec::new(), Vec::new());
     for t in &data.validation {
         let a = fit::evaluate_net_with_gain(&net, t, &eopts, gain_of(t))?.aoe_deg;
-        if fit::task_domain(t) == "tumvi" {
-            rooms.push(a)
-        } else {
-            euroc.push(a)
-        }
+        by_domain.entry(fit::task_domain(t)).or_default().push(a);
+        aoe.push(a);
+        domains.push(fit::task_domain(t));
     }
+    let score: f64 = fit::domain_weights(&domains, cfg.train.task_weighting).iter().zip(&aoe).map(|(w, a)| w * a).sum();
     let mean_of = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    let score = (mean_of(&euroc) + mean_of(&rooms)) / 2.0;
-    let mut line =
-        format!("n {} recal {recal} gains {gains:?} score {score:.3} val {:.2}/{:.2} test", paths.len(), mean_of(&euroc), mean_of(&rooms));
-    let mut test_euroc = Vec::new();
+    let per_domain: Vec<String> = by_domain.iter().map(|(d, v)| format!("{d} {:.2}", mean_of(v))).collect();
+    let mut line = format!("n {} recal {recal} gains {gains:?} score {score:.3} val {} test", paths.len(), per_domain.join(" / "));
+    let mut test_by_domain: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
     for t in &data.test {
         let a = fit::evaluate_net_with_gain(&net, t, &eopts, gain_of(t))?.aoe_deg;
         line.push_str(&format!(" {}={a:.2}", t.name));
-        if fit::task_domain(t) != "tumvi" {
-            test_euroc.push(a);
-        }
+        test_by_domain.entry(fit::task_domain(t)).or_default().push(a);
     }
-    println!("{line} euroc_mean {:.3}", mean_of(&test_euroc));
+    for (d, v) in &test_by_domain {
+        line.push_str(&format!(" {d}_mean {:.3}", mean_of(v)));
+    }
+    println!("{line}");
     Ok(())
 }
