@@ -1474,11 +1474,14 @@ mod tests {
     }
 
     /// Re-estimating BatchNorm's running statistics forgets what they held (two different
-    /// corrupted starts give the same statistics, bit for bit, from the same seed), moves
-    /// every layer's, and leaves every trained weight as it was.
+    /// corrupted starts give the same statistics, bit for bit, from the same window seed), moves
+    /// every layer's, and leaves every trained weight as it was. Dropout, the Restructor's noise
+    /// and the augmentation are off: they draw from libtorch's one global generator, which the
+    /// tests running beside this one in other threads draw from too.
     #[test]
     fn batch_norm_statistics_are_re_estimated_from_the_tasks_alone() {
-        let text = "model: {mode: fsda_f}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 1, \
+        let text = "model: {mode: fsda_f, dropout: 0.0, restructor_noise_std: 0.0}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 1, \
+                    augment: {gyro_noise_std: 0.0, accel_noise_std: 0.0, gyro_offset: 0.0}, \
                     maml: {first_order: true, batch_tasks: true, support_window_samples: 700, query_window_samples: 700}}\n";
         let cfg = TrainConfig::parse(text).unwrap();
         cfg.validate().unwrap();
