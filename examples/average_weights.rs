@@ -1,7 +1,7 @@
-//! Experiment (docs/training.md, "v9 retrained on the AVX2 VM, and averaged weights"): scores a run's checkpoints averaged
-//! over an epoch range against its last weights, the way `train` scores its export (the
-//! correction gains fitted on the validation recordings, the validation score with them, the
-//! test recordings as deployed).
+//! Experiment (docs/training.md, "v9 retrained on the AVX2 VM, and averaged weights"): scores
+//! a run's checkpoints averaged over an epoch range against its last weights, the way `train`
+//! scores its export (the correction gains fitted on the validation recordings, the validation
+//! score with them, the test recordings as deployed).
 //!
 //! `cargo run --release --example average_weights -- CONFIG RECAL_STEPS CKPT.json...`
 //! (RECAL_STEPS 0: the averaged running statistics, not re-estimated).
