@@ -19,6 +19,10 @@ pub fn mean_of_checkpoints(paths: &[PathBuf]) -> anyhow::Result<BTreeMap<String,
     let mut kinds: BTreeMap<String, tch::Kind> = BTreeMap::new();
     for (i, p) in paths.iter().enumerate() {
         let loaded = checkpoint::load(p).with_context(|| format!("averaging {}", p.display()))?;
+        // Every checkpoint must hold every variable, or its mean would be divided by too many.
+        if let Some(k) = sum.keys().find(|k| !loaded.tensors.contains_key(*k)) {
+            anyhow::bail!("{k}: in {}, not in {}", paths[0].display(), p.display());
+        }
         for (k, t) in loaded.tensors.into_iter().filter(|(k, _)| k.starts_with("vs.")) {
             match sum.get_mut(&k) {
                 Some(acc) if acc.is_floating_point() => {

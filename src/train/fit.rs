@@ -632,6 +632,7 @@ fn inner_adapt_batched(
 /// training step's two forwards do (momentum 0.1). For averaged weights
 /// ([`super::average`]): the mean of the running statistics a run passed through is not the
 /// statistics of the mean weights. FSDA-F with batched tasks only, the shipped recipe.
+/// Reseeds libtorch's global generator with `seed` (dropout, noise, augmentation).
 pub fn recalibrate_batch_norm(vs: &VarStore, net: &Net, cfg: &TrainConfig, tasks: &[Task], steps: usize, seed: u64) -> anyhow::Result<()> {
     if net.config().mode != Mode::FsdaF || !cfg.train.maml.batch_tasks {
         anyhow::bail!("BatchNorm re-estimation is implemented for fsda_f with maml.batch_tasks only");
