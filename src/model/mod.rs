@@ -169,6 +169,11 @@ pub struct Config {
     pub gyro_calib_init_std: f64,
     /// BatchNorm after each hidden conv (DIGDL: yes). Folded into the convs for inference.
     pub batch_norm: bool,
+    /// BatchNorm in the Restructor's hidden convs; absent: as `batch_norm`. The Restructor is
+    /// training-only, so with `batch_norm: false` and this on, the deployed network has no
+    /// batch statistics while `L^R` keeps its normalised CNN.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub restructor_batch_norm: Option<bool>,
     /// Dropout probability after each hidden conv (training only; DIGDL: 0.1).
     pub dropout: f64,
     /// The CNN of [`Mode::Digdl`].
@@ -206,6 +211,7 @@ impl Config {
             output_scale_deg_s: [1.0, 2.0, 5.0],
             gyro_calib_init_std: 0.0,
             batch_norm: true,
+            restructor_batch_norm: None,
             dropout: 0.1,
             digdl: CnnConfig::digdl(),
             embedding: EmbeddingConfig::default(),

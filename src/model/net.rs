@@ -492,6 +492,28 @@ mod tests {
         }
     }
 
+    /// `batch_norm: false` with `restructor_batch_norm: true`: BatchNorm in the training-only
+    /// Restructor alone, so the deployed network holds no batch statistics and its eval-mode
+    /// output is the same whatever batches the training forwards saw.
+    #[test]
+    fn batch_norm_in_the_restructor_alone() {
+        let cfg = Config { batch_norm: false, restructor_batch_norm: Some(true), ..Config::for_mode(Mode::FsdaF) };
+        let (vs, net) = random_net_with(&cfg, 3, Kind::Double);
+        let names: Vec<String> = vs.variables().into_keys().collect();
+        assert!(names.iter().any(|n| n.starts_with("restructor.bn")), "{names:?}");
+        assert!(!names.iter().any(|n| n.starts_with("generator.bn")), "{names:?}");
+        let u = Tensor::randn([1, 900, 6], (Kind::Double, Device::Cpu));
+        let before = net.forward_t(&u, false);
+        let diff = (&before - net.inference().forward(&u)).abs().max().double_value(&[]);
+        assert!(diff < 1e-12, "folded vs eval {diff:e}");
+        let _ = net.forward_t(&(Tensor::randn([2, 300, 6], (Kind::Double, Device::Cpu)) * 3.0), true);
+        assert_eq!((net.forward_t(&u, false) - before).abs().max().double_value(&[]), 0.0);
+        // Absent from the metadata unless set, so older models' metadata reads back the same.
+        let plain = serde_json::to_string(&Config::for_mode(Mode::FsdaF)).unwrap();
+        assert!(!plain.contains("restructor_batch_norm"));
+        assert_eq!(serde_json::from_str::<Config>(&serde_json::to_string(&cfg).unwrap()).unwrap(), cfg);
+    }
+
     /// The skip connection around the Embedding: the Generator gets 6 more input channels,
     /// folding is exact, and with the embedding held constant the IMU still reaches the
     /// output through the skip alone, causally and over exactly N samples.
