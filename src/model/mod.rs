@@ -172,7 +172,6 @@ pub struct Config {
     /// BatchNorm in the Restructor's hidden convs; absent: as `batch_norm`. The Restructor is
     /// training-only, so with `batch_norm: false` and this on, the deployed network has no
     /// batch statistics while `L^R` keeps its normalised CNN.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub restructor_batch_norm: Option<bool>,
     /// Dropout probability after each hidden conv (training only; DIGDL: 0.1).
     pub dropout: f64,

@@ -709,6 +709,10 @@ mod tests {
         let cfg = TrainConfig::parse(text).unwrap();
         assert_eq!(cfg.model, ModelConfig::for_mode(Mode::Digdl));
         assert!(TrainConfig::parse("model: {mode: digdl, nope: 1}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3}\n").is_err());
+        // Every model key a config may set is known to the merge, optional ones included.
+        let rbn = "model: {batch_norm: false, restructor_batch_norm: true}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3}\n";
+        let cfg = TrainConfig::parse(rbn).unwrap();
+        assert_eq!((cfg.model.batch_norm, cfg.model.restructor_batch_norm), (false, Some(true)));
         assert!(TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3, bogus: 1}\n").is_err());
         let both = TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a, bag: b}]}\ntrain: {epochs: 3}\n").unwrap();
         assert!(both.validate().unwrap_err().contains("exactly one"));
