@@ -226,6 +226,12 @@ impl Config {
         }
     }
 
+    /// Whether the Restructor's hidden convs have BatchNorm (`restructor_batch_norm`, else
+    /// `batch_norm`).
+    pub fn restructor_has_batch_norm(&self) -> bool {
+        self.restructor_batch_norm.unwrap_or(self.batch_norm)
+    }
+
     /// Receptive field N in samples: the output at n depends on inputs n−N+1 … n.
     /// 511 for DIGDL's CNN, 517 for the paper's Generator.
     pub fn receptive_field(&self) -> i64 {

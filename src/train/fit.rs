@@ -447,7 +447,7 @@ impl Heads {
         let vars = vs.variables();
         Ok(Self {
             generator: fn_layers(&vars, "generator", &c.generator, c.batch_norm)?,
-            restructor: fn_layers(&vars, "restructor", &c.restructor, c.batch_norm)?,
+            restructor: fn_layers(&vars, "restructor", &c.restructor, c.restructor_has_batch_norm())?,
             gen_pad: c.generator.receptive_field() - 1,
             rest_pad: c.restructor.receptive_field() - 1,
             dropout: c.dropout,
@@ -1654,6 +1654,21 @@ mod tests {
         assert_eq!(w.size()[1], cfg.model.embedding.dim + 6);
         let skip_grad = w.grad().narrow(1, cfg.model.embedding.dim, 6).abs().sum(tch::Kind::Double).double_value(&[]);
         assert!(skip_grad > 0.0);
+    }
+
+    /// `restructor_batch_norm` reaches the batched step's own CNN code: the Restructor's
+    /// BatchNorm is used (γ gets a gradient, the running mean moves) while the Generator has none.
+    #[test]
+    fn the_batched_step_uses_batch_norm_in_the_restructor_alone() {
+        let (vs, _) = one_batched_step(
+            "{mode: fsda_f, batch_norm: false, restructor_batch_norm: true}",
+            "{first_order: true, batch_tasks: true, support_window_samples: 700, query_window_samples: 700, unadapted_support_weight: 1.0}",
+        );
+        let vars = vs.variables();
+        assert!(!vars.keys().any(|k| k.starts_with("generator.bn")));
+        let abs_sum = |t: &Tensor| t.abs().sum(tch::Kind::Double).double_value(&[]);
+        assert!(abs_sum(&vars["restructor.bn0.weight"].grad()) > 0.0);
+        assert!(abs_sum(&vars["restructor.bn0.running_mean"]) > 0.0);
     }
 
     /// With `freeze_gyro_calibration` an optimiser step leaves Ĉ_ω at the identity while the
