@@ -15,9 +15,13 @@ const TOL_RAD_S: f64 = 1e-5;
 
 /// A seeded model with non-trivial normalisation and BatchNorm statistics.
 fn random_model(mode: Mode, seed: i64) -> (VarStore, Net) {
+    random_model_with(&Config::for_mode(mode), seed)
+}
+
+fn random_model_with(cfg: &Config, seed: i64) -> (VarStore, Net) {
     tch::manual_seed(seed);
     let vs = VarStore::new(Device::Cpu);
-    let net = Net::new(&Config::for_mode(mode), &vs.root()).unwrap();
+    let net = Net::new(cfg, &vs.root()).unwrap();
     net.set_normalization(&[0.01, -0.02, 0.03, 9.3, 0.1, -1.0], &[0.4, 0.5, 0.3, 1.5, 1.2, 1.1]).unwrap();
     for _ in 0..3 {
         let _ = net.forward_t(&(Tensor::randn([2, 400, 6], (Kind::Float, Device::Cpu)) * 0.5 + 0.2), true);
@@ -119,8 +123,11 @@ fn to_samples(u: &Tensor) -> Vec<imu_fsda::core::ImuSample> {
 #[test]
 fn export_round_trip_matches_in_memory_forward() {
     tch::set_num_threads(1);
-    for (mode, seed) in [(Mode::Digdl, 21), (Mode::FsdaF, 22)] {
-        let (vs, net) = random_model(mode, seed);
+    // The channel LayerNorm is kept in the inference form, not folded: it must trace too.
+    let layer_norm = Config { batch_norm: false, layer_norm: true, ..Config::for_mode(Mode::FsdaF) };
+    for (cfg, seed) in [(Config::for_mode(Mode::Digdl), 21), (Config::for_mode(Mode::FsdaF), 22), (layer_norm, 23)] {
+        let mode = cfg.mode;
+        let (vs, net) = random_model_with(&cfg, seed);
         let dir = tempfile::tempdir().unwrap();
         let info = ExportInfo { training_data: vec!["synthetic".into()], ..Default::default() };
         let paths = export::export_model(dir.path(), "model", &vs, &net, &info).unwrap();

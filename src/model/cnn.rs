@@ -5,22 +5,33 @@
 //! sample (replication padding), then every conv is a "valid" conv, so the output has the
 //! input's length and `y_n` depends on `x_{n−N+1} … x_n` only.
 //!
-//! Weight paths: `<path>/conv{l}/{weight,bias}` and `<path>/bn{l}/{weight,bias,running_mean,
-//! running_var}` for layer `l`.
+//! Weight paths: `<path>/conv{l}/{weight,bias}`, and `<path>/bn{l}/{weight,bias,running_mean,
+//! running_var}` (BatchNorm) or `<path>/ln{l}/{weight,bias}` (channel LayerNorm) for layer `l`.
 
 use tch::nn::{self, ModuleT};
 use tch::Tensor;
 
-use super::CnnConfig;
+use super::{CnnConfig, HiddenNorm};
 
-/// One conv layer of the CNN with its optional BatchNorm.
+/// ε of the channel LayerNorm (torch's default).
+pub const LAYER_NORM_EPS: f64 = 1e-5;
+
+/// The normalisation of one hidden layer.
+#[derive(Debug)]
+enum NormLayer {
+    Batch(nn::BatchNorm),
+    /// γ and β, `[C]` each.
+    ChannelLayer(Tensor, Tensor),
+}
+
+/// One conv layer of the CNN with its optional normalisation.
 #[derive(Debug)]
 struct CnnLayer {
     weight: Tensor,
     bias: Tensor,
-    batch_norm: Option<nn::BatchNorm>,
+    norm: Option<NormLayer>,
     dilation: i64,
-    /// Hidden layers are followed by (BN), GELU and Dropout; the output layer is linear.
+    /// Hidden layers are followed by (a norm), GELU and Dropout; the output layer is linear.
     hidden: bool,
 }
 
@@ -41,6 +52,8 @@ pub struct FoldedConv {
     pub bias: Tensor,
     /// Dilation, samples.
     pub dilation: i64,
+    /// Channel LayerNorm's γ and β after the conv, detached (it cannot be folded).
+    pub layer_norm: Option<[Tensor; 2]>,
     /// GELU after the conv (hidden layers).
     pub gelu: bool,
 }
@@ -55,7 +68,7 @@ pub(crate) fn torch_default_init(fan_in: i64) -> nn::Init {
 impl DilatedCausalCnn {
     /// Builds the layers under `path`. `in_channels` and `out_channels` are the first and last
     /// widths; `cfg.hidden_channels` the ones in between.
-    pub fn new(cfg: &CnnConfig, in_channels: i64, out_channels: i64, batch_norm: bool, dropout: f64, path: &nn::Path) -> Self {
+    pub fn new(cfg: &CnnConfig, in_channels: i64, out_channels: i64, norm: HiddenNorm, dropout: f64, path: &nn::Path) -> Self {
         let n = cfg.kernel_sizes.len();
         let mut widths = Vec::with_capacity(n + 1);
         widths.push(in_channels);
@@ -69,11 +82,22 @@ impl DilatedCausalCnn {
                 let weight = conv.var("weight", &[c_out, c_in, k], init);
                 let bias = conv.var("bias", &[c_out], init);
                 let hidden = l + 1 < n;
-                let batch_norm = (hidden && batch_norm).then(|| {
-                    let bn_cfg = nn::BatchNormConfig { ws_init: nn::Init::Const(1.0), ..Default::default() };
-                    nn::batch_norm1d(path / format!("bn{l}"), c_out, bn_cfg)
-                });
-                CnnLayer { weight, bias, batch_norm, dilation: cfg.dilations[l], hidden }
+                let norm = match norm {
+                    _ if !hidden => None,
+                    HiddenNorm::None => None,
+                    HiddenNorm::Batch => {
+                        let bn_cfg = nn::BatchNormConfig { ws_init: nn::Init::Const(1.0), ..Default::default() };
+                        Some(NormLayer::Batch(nn::batch_norm1d(path / format!("bn{l}"), c_out, bn_cfg)))
+                    }
+                    HiddenNorm::ChannelLayer => {
+                        let ln = path / format!("ln{l}");
+                        Some(NormLayer::ChannelLayer(
+                            ln.var("weight", &[c_out], nn::Init::Const(1.0)),
+                            ln.var("bias", &[c_out], nn::Init::Const(0.0)),
+                        ))
+                    }
+                };
+                CnnLayer { weight, bias, norm, dilation: cfg.dilations[l], hidden }
             })
             .collect();
         Self { layers, left_pad: cfg.receptive_field() - 1, dropout }
@@ -84,14 +108,18 @@ impl DilatedCausalCnn {
         self.left_pad + 1
     }
 
-    /// Number of trainable scalars (conv weights and biases, BatchNorm γ and β).
+    /// Number of trainable scalars (conv weights and biases, the norms' γ and β).
     pub fn parameter_count(&self) -> i64 {
         let numel = |t: &Tensor| t.numel() as i64;
         self.layers
             .iter()
             .map(|l| {
-                let bn = l.batch_norm.as_ref().map_or(0, |bn| bn.ws.as_ref().map_or(0, numel) + bn.bs.as_ref().map_or(0, numel));
-                numel(&l.weight) + numel(&l.bias) + bn
+                let norm = match &l.norm {
+                    None => 0,
+                    Some(NormLayer::Batch(bn)) => bn.ws.as_ref().map_or(0, numel) + bn.bs.as_ref().map_or(0, numel),
+                    Some(NormLayer::ChannelLayer(g, b)) => numel(g) + numel(b),
+                };
+                numel(&l.weight) + numel(&l.bias) + norm
             })
             .sum()
     }
@@ -102,8 +130,10 @@ impl DilatedCausalCnn {
         for layer in &self.layers {
             h = h.conv1d(&layer.weight, Some(&layer.bias), [1], [0], [layer.dilation], 1);
             if layer.hidden {
-                if let Some(bn) = &layer.batch_norm {
-                    h = bn.forward_t(&h, train);
+                match &layer.norm {
+                    None => {}
+                    Some(NormLayer::Batch(bn)) => h = bn.forward_t(&h, train),
+                    Some(NormLayer::ChannelLayer(g, b)) => h = channel_layer_norm(&h, g, b),
                 }
                 h = h.gelu("none").dropout(self.dropout, train);
             }
@@ -118,9 +148,10 @@ impl DilatedCausalCnn {
             self.layers
                 .iter()
                 .map(|layer| {
-                    let (weight, bias) = match &layer.batch_norm {
-                        None => (layer.weight.detach().copy(), layer.bias.detach().copy()),
-                        Some(bn) => {
+                    let plain = || (layer.weight.detach().copy(), layer.bias.detach().copy());
+                    let (weight, bias) = match &layer.norm {
+                        None | Some(NormLayer::ChannelLayer(..)) => plain(),
+                        Some(NormLayer::Batch(bn)) => {
                             let eps = 1e-5; // nn::BatchNormConfig::default().eps, used by forward_t
                             let mut scale = (&bn.running_var + eps).rsqrt();
                             if let Some(gamma) = &bn.ws {
@@ -133,7 +164,11 @@ impl DilatedCausalCnn {
                             (&layer.weight * scale.unsqueeze(-1).unsqueeze(-1), bias)
                         }
                     };
-                    FoldedConv { weight: weight.detach(), bias: bias.detach(), dilation: layer.dilation, gelu: layer.hidden }
+                    let layer_norm = match &layer.norm {
+                        Some(NormLayer::ChannelLayer(g, b)) => Some([g.detach().copy(), b.detach().copy()]),
+                        _ => None,
+                    };
+                    FoldedConv { weight: weight.detach(), bias: bias.detach(), dilation: layer.dilation, layer_norm, gelu: layer.hidden }
                 })
                 .collect()
         })
@@ -145,6 +180,9 @@ pub fn folded_forward(layers: &[FoldedConv], left_pad: i64, x: &Tensor) -> Tenso
     let mut h = x.replication_pad1d([left_pad, 0]);
     for layer in layers {
         h = h.conv1d(&layer.weight, Some(&layer.bias), [1], [0], [layer.dilation], 1);
+        if let Some([g, b]) = &layer.layer_norm {
+            h = channel_layer_norm(&h, g, b);
+        }
         if layer.gelu {
             h = h.gelu("none");
         }
@@ -152,7 +190,29 @@ pub fn folded_forward(layers: &[FoldedConv], left_pad: i64, x: &Tensor) -> Tenso
     h
 }
 
+/// LayerNorm over the channels of each time step of `h: [B, C, T]` (γ, β: `[C]`). Uses no
+/// other time step and no other batch element, so it is causal and the same in training and
+/// inference.
+pub fn channel_layer_norm(h: &Tensor, gamma: &Tensor, beta: &Tensor) -> Tensor {
+    let c = h.size()[1];
+    h.transpose(1, 2).layer_norm([c], Some(gamma), Some(beta), LAYER_NORM_EPS, false).transpose(1, 2)
+}
+
 /// Receptive field of folded layers.
 pub fn folded_receptive_field(layers: &[FoldedConv]) -> i64 {
     1 + layers.iter().map(|l| (l.weight.size()[2] - 1) * l.dilation).sum::<i64>()
+}
+
+/// Test helper: every channel LayerNorm's γ and β of `vs` drawn away from (1, 0), so a
+/// mix-up of the two or a norm left out shows in an output.
+#[cfg(test)]
+pub(crate) fn perturb_layer_norms(vs: &nn::VarStore) {
+    tch::no_grad(|| {
+        for (name, t) in vs.variables() {
+            if name.contains(".ln") {
+                let centre = if name.ends_with("weight") { 1.0 } else { 0.0 };
+                t.shallow_clone().copy_(&(t.randn_like() * 0.3 + centre));
+            }
+        }
+    });
 }

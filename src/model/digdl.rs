@@ -20,7 +20,7 @@ pub struct DigdlCnn {
 impl DigdlCnn {
     /// Builds the CNN under `path` from `cfg.digdl`.
     pub fn new(cfg: &Config, path: &nn::Path) -> Self {
-        Self { cnn: DilatedCausalCnn::new(&cfg.digdl, INPUT_CHANNELS, OUTPUT_CHANNELS, cfg.batch_norm, cfg.dropout, path) }
+        Self { cnn: DilatedCausalCnn::new(&cfg.digdl, INPUT_CHANNELS, OUTPUT_CHANNELS, cfg.generator_norm(), cfg.dropout, path) }
     }
 
     /// Number of trainable scalars.

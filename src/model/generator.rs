@@ -21,7 +21,7 @@ impl Generator {
     /// the 6 normalised IMU channels when `cfg.generator_sees_imu`).
     pub fn new(cfg: &Config, path: &nn::Path) -> Self {
         let inputs = cfg.embedding.dim + if cfg.generator_sees_imu { INPUT_CHANNELS } else { 0 };
-        Self { cnn: DilatedCausalCnn::new(&cfg.generator, inputs, OUTPUT_CHANNELS, cfg.batch_norm, cfg.dropout, path) }
+        Self { cnn: DilatedCausalCnn::new(&cfg.generator, inputs, OUTPUT_CHANNELS, cfg.generator_norm(), cfg.dropout, path) }
     }
 
     /// Number of trainable scalars.

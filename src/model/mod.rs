@@ -151,6 +151,17 @@ impl Default for EmbeddingConfig {
     }
 }
 
+/// What follows each hidden conv of a CNN before its GELU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HiddenNorm {
+    /// Nothing.
+    None,
+    /// BatchNorm (running statistics at inference, folded into the conv).
+    Batch,
+    /// LayerNorm over the channels of each time step, with a learned per-channel γ and β.
+    ChannelLayer,
+}
+
 /// The model's hyper-parameters: everything needed to rebuild the network from its weights.
 /// Travels in the exported metadata.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -173,6 +184,10 @@ pub struct Config {
     /// training-only, so with `batch_norm: false` and this on, the deployed network has no
     /// batch statistics while `L^R` keeps its normalised CNN.
     pub restructor_batch_norm: Option<bool>,
+    /// LayerNorm over each time step's channels after each hidden conv, in place of
+    /// BatchNorm (refused with `batch_norm: true`). No batch statistics and causal, so the
+    /// deployed output depends on the window alone; kept as is for inference (not folded).
+    pub layer_norm: bool,
     /// Dropout probability after each hidden conv (training only; DIGDL: 0.1).
     pub dropout: f64,
     /// The CNN of [`Mode::Digdl`].
@@ -211,6 +226,7 @@ impl Config {
             gyro_calib_init_std: 0.0,
             batch_norm: true,
             restructor_batch_norm: None,
+            layer_norm: false,
             dropout: 0.1,
             digdl: CnnConfig::digdl(),
             embedding: EmbeddingConfig::default(),
@@ -226,10 +242,23 @@ impl Config {
         }
     }
 
-    /// Whether the Restructor's hidden convs have BatchNorm (`restructor_batch_norm`, else
-    /// `batch_norm`).
-    pub fn restructor_has_batch_norm(&self) -> bool {
-        self.restructor_batch_norm.unwrap_or(self.batch_norm)
+    /// The normalisation after the Generator's (or DIGDL's) hidden convs.
+    pub fn generator_norm(&self) -> HiddenNorm {
+        match (self.batch_norm, self.layer_norm) {
+            (true, _) => HiddenNorm::Batch,
+            (false, true) => HiddenNorm::ChannelLayer,
+            (false, false) => HiddenNorm::None,
+        }
+    }
+
+    /// The normalisation after the Restructor's hidden convs: BatchNorm if
+    /// `restructor_batch_norm` (absent: `batch_norm`) says so, else as the Generator's.
+    pub fn restructor_norm(&self) -> HiddenNorm {
+        match self.restructor_batch_norm.unwrap_or(self.batch_norm) {
+            true => HiddenNorm::Batch,
+            false if self.layer_norm => HiddenNorm::ChannelLayer,
+            false => HiddenNorm::None,
+        }
     }
 
     /// Receptive field N in samples: the output at n depends on inputs n−N+1 … n.
@@ -269,7 +298,13 @@ impl Config {
                 self.imu_calibrations
             )));
         }
+        if self.batch_norm && self.layer_norm {
+            return Err(ModelError::InvalidConfig("layer_norm replaces BatchNorm: set batch_norm: false with it".into()));
+        }
         match self.mode {
+            Mode::Digdl if self.restructor_batch_norm.is_some() => {
+                Err(ModelError::InvalidConfig("restructor_batch_norm is for the FSDA modes (DIGDL has no Restructor)".into()))
+            }
             Mode::Digdl if self.generator_sees_imu => {
                 Err(ModelError::InvalidConfig("generator_sees_imu is for the FSDA modes (DIGDL's CNN already sees the IMU)".into()))
             }

@@ -412,7 +412,13 @@ impl InferenceNet {
             convs: self
                 .convs
                 .iter()
-                .map(|l| FoldedConv { weight: c(&l.weight), bias: c(&l.bias), dilation: l.dilation, gelu: l.gelu })
+                .map(|l| FoldedConv {
+                    weight: c(&l.weight),
+                    bias: c(&l.bias),
+                    dilation: l.dilation,
+                    layer_norm: l.layer_norm.as_ref().map(|[g, b]| [c(g), c(b)]),
+                    gelu: l.gelu,
+                })
                 .collect(),
             left_pad: self.left_pad,
         }
@@ -513,6 +519,53 @@ mod tests {
         old.as_object_mut().unwrap().remove("restructor_batch_norm");
         assert_eq!(serde_json::from_value::<Config>(old).unwrap().restructor_batch_norm, None);
         assert_eq!(serde_json::from_str::<Config>(&serde_json::to_string(&cfg).unwrap()).unwrap(), cfg);
+    }
+
+    /// `layer_norm: true`: a channel LayerNorm after every hidden conv of the three CNNs in
+    /// place of BatchNorm. The inference form keeps it (equal to the eval forward), the
+    /// output holds no batch statistics, stays causal, and the config reads back; LayerNorm
+    /// with BatchNorm is refused, and so is `restructor_batch_norm` in DIGDL.
+    #[test]
+    fn channel_layer_norm_in_place_of_batch_norm() {
+        for mode in [Mode::Digdl, Mode::FsdaF] {
+            let cfg = Config { batch_norm: false, layer_norm: true, ..Config::for_mode(mode) };
+            let (vs, net) = random_net_with(&cfg, 4, Kind::Double);
+            let names: Vec<String> = vs.variables().into_keys().collect();
+            assert!(!names.iter().any(|n| n.contains(".bn")), "{names:?}");
+            let prefixes: &[&str] = if mode == Mode::Digdl { &["digdl"] } else { &["generator", "restructor"] };
+            for p in prefixes {
+                let cnn = if *p == "digdl" { &cfg.digdl } else { &cfg.generator };
+                let hidden = cnn.kernel_sizes.len() - 1;
+                assert_eq!(names.iter().filter(|n| n.starts_with(&format!("{p}.ln"))).count(), 2 * hidden, "{p}: {names:?}");
+            }
+            let plain = Net::new(&Config { batch_norm: false, ..Config::for_mode(mode) }, &VarStore::new(Device::Cpu).root()).unwrap();
+            let width: i64 =
+                if mode == Mode::Digdl { cfg.digdl.hidden_channels.iter().sum() } else { cfg.generator.hidden_channels.iter().sum() };
+            let (a, b) = (net.parameter_counts(), plain.parameter_counts());
+            assert_eq!(a.generator + a.digdl - b.generator - b.digdl, 2 * width, "{mode:?}: γ and β per hidden channel");
+            assert_eq!(a.total, vs.trainable_variables().iter().map(|t| t.numel() as i64).sum::<i64>());
+            // Non-trivial γ and β, so a mix-up of the two or a missing norm shows.
+            crate::model::cnn::perturb_layer_norms(&vs);
+            let u = Tensor::randn([2, 900, 6], (Kind::Double, Device::Cpu));
+            let before = net.forward_t(&u, false);
+            let diff = (&before - net.inference().forward(&u)).abs().max().double_value(&[]);
+            assert!(diff < 1e-12, "{mode:?}: inference vs eval {diff:e}");
+            let _ = net.forward_t(&(Tensor::randn([2, 300, 6], (Kind::Double, Device::Cpu)) * 3.0), true);
+            assert_eq!((net.forward_t(&u, false) - &before).abs().max().double_value(&[]), 0.0, "{mode:?}: batch statistics");
+            // One batch element does not see the other, and the future is not seen.
+            let alone = net.forward_t(&u.narrow(0, 1, 1).narrow(1, 0, 500), false);
+            let diff = (alone - before.narrow(0, 1, 1).narrow(1, 0, 500)).abs().max().double_value(&[]);
+            assert!(diff < 1e-12, "{mode:?}: {diff:e}");
+            assert_eq!(serde_json::from_str::<Config>(&serde_json::to_string(&cfg).unwrap()).unwrap(), cfg);
+        }
+        let both = Config { layer_norm: true, ..Config::for_mode(Mode::FsdaF) };
+        assert!(matches!(both.validate(), Err(ModelError::InvalidConfig(m)) if m.contains("layer_norm")));
+        let digdl = Config { restructor_batch_norm: Some(true), ..Config::for_mode(Mode::Digdl) };
+        assert!(matches!(digdl.validate(), Err(ModelError::InvalidConfig(m)) if m.contains("restructor_batch_norm")));
+        // Metadata written before the key existed reads as no LayerNorm.
+        let mut old = serde_json::to_value(Config::for_mode(Mode::FsdaF)).unwrap();
+        old.as_object_mut().unwrap().remove("layer_norm");
+        assert!(!serde_json::from_value::<Config>(old).unwrap().layer_norm);
     }
 
     /// The skip connection around the Embedding: the Generator gets 6 more input channels,

@@ -20,8 +20,7 @@ pub struct Restructor {
 impl Restructor {
     /// Builds the CNN under `path` (`cfg.restructor`, input `cfg.embedding.dim` channels).
     pub fn new(cfg: &Config, path: &nn::Path) -> Self {
-        let cnn =
-            DilatedCausalCnn::new(&cfg.restructor, cfg.embedding.dim, INPUT_CHANNELS, cfg.restructor_has_batch_norm(), cfg.dropout, path);
+        let cnn = DilatedCausalCnn::new(&cfg.restructor, cfg.embedding.dim, INPUT_CHANNELS, cfg.restructor_norm(), cfg.dropout, path);
         Self { cnn, noise_std: cfg.restructor_noise_std }
     }
 

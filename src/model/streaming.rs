@@ -14,6 +14,7 @@
 use nalgebra::{Matrix3, Vector3};
 use tch::{Kind, Tensor};
 
+use super::cnn::LAYER_NORM_EPS;
 use super::net::{InferenceNet, Net};
 use super::{ModelError, INPUT_CHANNELS};
 use crate::core::ImuSample;
@@ -64,6 +65,8 @@ struct StreamConv {
     /// `[tap][out][in]`, tap 0 the oldest input.
     weight: Vec<f64>,
     bias: Vec<f64>,
+    /// Channel LayerNorm's γ and β after the conv (`Config::layer_norm`).
+    layer_norm: Option<(Vec<f64>, Vec<f64>)>,
     activation: Activation,
     /// Ring of the last `rows` inputs, `[rows][n_in]`.
     history: Vec<f64>,
@@ -101,6 +104,9 @@ impl StreamConv {
             for (o, y) in out.iter_mut().enumerate() {
                 *y += dot(&w[o * self.n_in..(o + 1) * self.n_in], x);
             }
+        }
+        if let Some((gamma, beta)) = &self.layer_norm {
+            channel_layer_norm(out, gamma, beta);
         }
         if self.activation != Activation::Identity {
             for y in out.iter_mut() {
@@ -204,6 +210,20 @@ impl StreamingDenoiser {
             }
             let rows = (kernel - 1) * dilation + 1;
             let activation = if layer.gelu { Activation::Gelu } else { Activation::Identity };
+            let layer_norm = match &layer.layer_norm {
+                Some([g, b]) => {
+                    let (g, b) = (to_vec(g)?, to_vec(b)?);
+                    if g.len() != n_out || b.len() != n_out {
+                        return Err(ModelError::InvalidConfig(format!(
+                            "layer norm of {} / {} channels after a {n_out}-channel conv",
+                            g.len(),
+                            b.len()
+                        )));
+                    }
+                    Some((g, b))
+                }
+                None => None,
+            };
             convs.push(StreamConv {
                 n_in,
                 n_out,
@@ -211,6 +231,7 @@ impl StreamingDenoiser {
                 dilation,
                 weight,
                 bias: to_vec(&layer.bias)?,
+                layer_norm,
                 activation,
                 history: vec![0.0; rows * n_in],
                 rows,
@@ -369,6 +390,18 @@ impl StreamingDenoiser {
     }
 }
 
+/// `y ← γ (y − mean) / √(var + ε) + β` over the channels of one time step (biased variance,
+/// as torch's `layer_norm`).
+fn channel_layer_norm(y: &mut [f64], gamma: &[f64], beta: &[f64]) {
+    let n = y.len() as f64;
+    let mean = y.iter().sum::<f64>() / n;
+    let var = y.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n;
+    let inv = 1.0 / (var + LAYER_NORM_EPS).sqrt();
+    for ((v, g), b) in y.iter_mut().zip(gamma).zip(beta) {
+        *v = (*v - mean) * inv * g + b;
+    }
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     // Four accumulators: lets the compiler vectorise without reassociating one chain.
     let mut acc = [0.0; 4];
@@ -457,6 +490,8 @@ mod tests {
         for _ in 0..3 {
             let _ = net.forward_t(&(Tensor::randn([2, 300, 6], (Kind::Float, Device::Cpu)) * 0.5 + 0.2), true);
         }
+        // LayerNorm's γ and β away from (1, 0), so a mix-up shows.
+        crate::model::cnn::perturb_layer_norms(&vs);
         (vs, net)
     }
 
@@ -518,7 +553,8 @@ mod tests {
         tch::set_num_threads(1);
         let samples = random_imu(3000, 7);
         let skip = Config { generator_sees_imu: true, ..Config::for_mode(Mode::FsdaF) };
-        for cfg in [Config::for_mode(Mode::Digdl), Config::for_mode(Mode::FsdaF), skip] {
+        let layer_norm = Config { batch_norm: false, layer_norm: true, ..Config::for_mode(Mode::FsdaF) };
+        for cfg in [Config::for_mode(Mode::Digdl), Config::for_mode(Mode::FsdaF), skip, layer_norm] {
             let mode = (cfg.mode, cfg.generator_sees_imu);
             let (_vs, net) = random_net_with(&cfg, 11);
             let mut d = StreamingDenoiser::from_net(&net).unwrap();

@@ -27,10 +27,11 @@ use super::drift::{self, DriftMemory};
 use super::optim::Adam;
 use super::report::{EpochRecord, SequenceEvals, TaskInfo, TestResult, TrainSummary};
 use crate::eval::{evaluate, EvalOptions, OrientationErrors};
+use crate::model::cnn::channel_layer_norm;
 use crate::model::export::{export_model, ExportInfo};
 use crate::model::loss::{mean_rate_error, total_loss};
 use crate::model::predict::{correct_with_net, with_correction_gain};
-use crate::model::{ForwardOptions, Mode, Net};
+use crate::model::{ForwardOptions, HiddenNorm, Mode, Net};
 
 /// How to run (the CLI's flags).
 #[derive(Debug, Clone)]
@@ -392,9 +393,17 @@ fn freeze_gyro_calibration(vs: &VarStore) -> anyhow::Result<()> {
 struct FnLayer {
     weight: Tensor,
     bias: Tensor,
-    bn: Option<[Tensor; 4]>,
+    norm: Option<FnNorm>,
     dilation: i64,
     hidden: bool,
+}
+
+/// A hidden layer's normalisation in [`FnLayer`].
+enum FnNorm {
+    /// γ, β, running mean, running variance.
+    Batch([Tensor; 4]),
+    /// γ, β.
+    ChannelLayer([Tensor; 2]),
 }
 
 /// The Restructor's and Generator's CNNs, Ĉ_ω and σ as functions of an embedding batch:
@@ -413,27 +422,30 @@ fn fn_layers(
     vars: &std::collections::HashMap<String, Tensor>,
     prefix: &str,
     cnn: &crate::model::CnnConfig,
-    bn: bool,
+    norm: HiddenNorm,
 ) -> anyhow::Result<Vec<FnLayer>> {
     let get = |n: String| vars.get(&n).map(Tensor::shallow_clone).ok_or_else(|| anyhow::anyhow!("no variable {n}"));
     let n = cnn.kernel_sizes.len();
     (0..n)
         .map(|l| {
             let hidden = l + 1 < n;
-            let bn = if hidden && bn {
-                Some([
+            let norm = match norm {
+                _ if !hidden => None,
+                HiddenNorm::None => None,
+                HiddenNorm::Batch => Some(FnNorm::Batch([
                     get(format!("{prefix}.bn{l}.weight"))?,
                     get(format!("{prefix}.bn{l}.bias"))?,
                     get(format!("{prefix}.bn{l}.running_mean"))?,
                     get(format!("{prefix}.bn{l}.running_var"))?,
-                ])
-            } else {
-                None
+                ])),
+                HiddenNorm::ChannelLayer => {
+                    Some(FnNorm::ChannelLayer([get(format!("{prefix}.ln{l}.weight"))?, get(format!("{prefix}.ln{l}.bias"))?]))
+                }
             };
             Ok(FnLayer {
                 weight: get(format!("{prefix}.conv{l}.weight"))?,
                 bias: get(format!("{prefix}.conv{l}.bias"))?,
-                bn,
+                norm,
                 dilation: cnn.dilations[l],
                 hidden,
             })
@@ -446,8 +458,8 @@ impl Heads {
         let c = net.config();
         let vars = vs.variables();
         Ok(Self {
-            generator: fn_layers(&vars, "generator", &c.generator, c.batch_norm)?,
-            restructor: fn_layers(&vars, "restructor", &c.restructor, c.restructor_has_batch_norm())?,
+            generator: fn_layers(&vars, "generator", &c.generator, c.generator_norm())?,
+            restructor: fn_layers(&vars, "restructor", &c.restructor, c.restructor_norm())?,
             gen_pad: c.generator.receptive_field() - 1,
             rest_pad: c.restructor.receptive_field() - 1,
             dropout: c.dropout,
@@ -461,8 +473,12 @@ impl Heads {
         for l in layers {
             h = h.conv1d(&l.weight, Some(&l.bias), [1], [0], [l.dilation], 1);
             if l.hidden {
-                if let Some([g, b, rm, rv]) = &l.bn {
-                    h = Tensor::batch_norm(&h, Some(g), Some(b), Some(rm), Some(rv), true, 0.1, 1e-5, false);
+                match &l.norm {
+                    None => {}
+                    Some(FnNorm::Batch([g, b, rm, rv])) => {
+                        h = Tensor::batch_norm(&h, Some(g), Some(b), Some(rm), Some(rv), true, 0.1, 1e-5, false)
+                    }
+                    Some(FnNorm::ChannelLayer([g, b])) => h = channel_layer_norm(&h, g, b),
                 }
                 h = h.gelu("none").dropout(self.dropout, true);
             }
@@ -1669,6 +1685,39 @@ mod tests {
         let abs_sum = |t: &Tensor| t.abs().sum(tch::Kind::Double).double_value(&[]);
         assert!(abs_sum(&vars["restructor.bn0.weight"].grad()) > 0.0);
         assert!(abs_sum(&vars["restructor.bn0.running_mean"]) > 0.0);
+    }
+
+    /// With `layer_norm`, the batched step's own CNN code is the model's: with dropout and the
+    /// Restructor's noise off, its Generator and Restructor outputs equal the modules' training
+    /// forward, and every LayerNorm γ gets a gradient from one step.
+    #[test]
+    fn the_batched_step_uses_the_channel_layer_norm() {
+        let text = "model: {mode: fsda_f, batch_norm: false, layer_norm: true, dropout: 0.0, restructor_noise_std: 0.0}\n\
+                    dataset: {train: [{sequence: a}]}\ntrain: {epochs: 1}\n";
+        let cfg = TrainConfig::parse(text).unwrap();
+        let vs = VarStore::new(Device::Cpu);
+        let net = Net::new(&cfg.model, &vs.root()).unwrap();
+        crate::model::cnn::perturb_layer_norms(&vs);
+        let heads = Heads::new(&vs, &net).unwrap();
+        let u = Tensor::randn([2, 800, 6], (Kind::Float, Device::Cpu));
+        let module = net.forward_with(&u, &ForwardOptions { train: true, reconstruct: true, ..Default::default() });
+        let un = net.normalize(&u);
+        let e = net.embedding().unwrap().forward(&un);
+        let functional = heads.forward(&net, &u, un, &e, None);
+        let diff = |a: &Tensor, b: &Tensor| (a - b).abs().max().double_value(&[]);
+        assert!(diff(&module.gyro, &functional.gyro) < 1e-6);
+        assert!(diff(module.reconstruction.as_ref().unwrap(), functional.reconstruction.as_ref().unwrap()) < 1e-5);
+        let (vs, _) = one_batched_step(
+            "{mode: fsda_f, batch_norm: false, layer_norm: true}",
+            "{first_order: true, batch_tasks: true, support_window_samples: 700, query_window_samples: 700, unadapted_support_weight: 1.0}",
+        );
+        let vars = vs.variables();
+        assert!(!vars.keys().any(|k| k.contains(".bn")));
+        let lns: Vec<_> = vars.iter().filter(|(k, _)| k.contains(".ln") && k.ends_with("weight")).collect();
+        assert_eq!(lns.len(), 2 * (cfg.model.generator.kernel_sizes.len() - 1));
+        for (k, t) in lns {
+            assert!(t.grad().abs().sum(Kind::Double).double_value(&[]) > 0.0, "{k} has no gradient");
+        }
     }
 
     /// With `freeze_gyro_calibration` an optimiser step leaves Ĉ_ω at the identity while the
