@@ -1687,26 +1687,43 @@ mod tests {
         assert!(abs_sum(&vars["restructor.bn0.running_mean"]) > 0.0);
     }
 
-    /// With `layer_norm`, the batched step's own CNN code is the model's: with dropout and the
-    /// Restructor's noise off, its Generator and Restructor outputs equal the modules' training
-    /// forward, and every LayerNorm γ gets a gradient from one step.
+    /// The batched step's own CNN code (`Heads`) is the model's, whatever the normalisation:
+    /// with dropout and the Restructor's noise off, its Generator and Restructor outputs equal
+    /// the modules' training forward (batch statistics in both where there is BatchNorm).
     #[test]
-    fn the_batched_step_uses_the_channel_layer_norm() {
-        let text = "model: {mode: fsda_f, batch_norm: false, layer_norm: true, dropout: 0.0, restructor_noise_std: 0.0}\n\
-                    dataset: {train: [{sequence: a}]}\ntrain: {epochs: 1}\n";
-        let cfg = TrainConfig::parse(text).unwrap();
-        let vs = VarStore::new(Device::Cpu);
-        let net = Net::new(&cfg.model, &vs.root()).unwrap();
-        crate::model::cnn::perturb_layer_norms(&vs);
-        let heads = Heads::new(&vs, &net).unwrap();
-        let u = Tensor::randn([2, 800, 6], (Kind::Float, Device::Cpu));
-        let module = net.forward_with(&u, &ForwardOptions { train: true, reconstruct: true, ..Default::default() });
-        let un = net.normalize(&u);
-        let e = net.embedding().unwrap().forward(&un);
-        let functional = heads.forward(&net, &u, un, &e, None);
-        let diff = |a: &Tensor, b: &Tensor| (a - b).abs().max().double_value(&[]);
-        assert!(diff(&module.gyro, &functional.gyro) < 1e-6);
-        assert!(diff(module.reconstruction.as_ref().unwrap(), functional.reconstruction.as_ref().unwrap()) < 1e-5);
+    fn the_batched_steps_cnn_code_equals_the_modules() {
+        for model in [
+            "{mode: fsda_f}",
+            "{mode: fsda_f, batch_norm: false}",
+            "{mode: fsda_f, batch_norm: false, restructor_batch_norm: true}",
+            "{mode: fsda_f, batch_norm: false, layer_norm: true}",
+            "{mode: fsda_f, batch_norm: false, layer_norm: true, restructor_batch_norm: true, generator_sees_imu: true}",
+        ] {
+            let model = model.replace('}', ", dropout: 0.0, restructor_noise_std: 0.0}");
+            let cfg =
+                TrainConfig::parse(&format!("model: {model}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 1}}\n")).unwrap();
+            let vs = VarStore::new(Device::Cpu);
+            let net = Net::new(&cfg.model, &vs.root()).unwrap();
+            crate::model::cnn::perturb_layer_norms(&vs);
+            let heads = Heads::new(&vs, &net).unwrap();
+            let u = Tensor::randn([2, 800, 6], (Kind::Float, Device::Cpu));
+            let module = net.forward_with(&u, &ForwardOptions { train: true, reconstruct: true, ..Default::default() });
+            let un = net.normalize(&u);
+            let e = net.embedding().unwrap().forward(&un);
+            let functional = heads.forward(&net, &u, un, &e, None);
+            let diff = |a: &Tensor, b: &Tensor| (a - b).abs().max().double_value(&[]);
+            let d = [
+                diff(&module.gyro, &functional.gyro),
+                diff(module.reconstruction.as_ref().unwrap(), functional.reconstruction.as_ref().unwrap()),
+            ];
+            assert!(d[0] < 1e-6 && d[1] < 1e-5, "{model}: Generator {:e}, Restructor {:e}", d[0], d[1]);
+        }
+    }
+
+    /// With `layer_norm`, one batched step gives every LayerNorm γ a gradient.
+    #[test]
+    fn the_batched_step_trains_the_channel_layer_norm() {
+        let cfg = crate::model::Config::for_mode(Mode::FsdaF);
         let (vs, _) = one_batched_step(
             "{mode: fsda_f, batch_norm: false, layer_norm: true}",
             "{first_order: true, batch_tasks: true, support_window_samples: 700, query_window_samples: 700, unadapted_support_weight: 1.0}",
@@ -1714,7 +1731,7 @@ mod tests {
         let vars = vs.variables();
         assert!(!vars.keys().any(|k| k.contains(".bn")));
         let lns: Vec<_> = vars.iter().filter(|(k, _)| k.contains(".ln") && k.ends_with("weight")).collect();
-        assert_eq!(lns.len(), 2 * (cfg.model.generator.kernel_sizes.len() - 1));
+        assert_eq!(lns.len(), 2 * (cfg.generator.kernel_sizes.len() - 1));
         for (k, t) in lns {
             assert!(t.grad().abs().sum(Kind::Double).double_value(&[]) > 0.0, "{k} has no gradient");
         }
