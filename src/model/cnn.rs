@@ -149,8 +149,9 @@ impl DilatedCausalCnn {
                 .iter()
                 .map(|layer| {
                     let plain = || (layer.weight.detach().copy(), layer.bias.detach().copy());
-                    let (weight, bias) = match &layer.norm {
-                        None | Some(NormLayer::ChannelLayer(..)) => plain(),
+                    let ((weight, bias), layer_norm) = match &layer.norm {
+                        None => (plain(), None),
+                        Some(NormLayer::ChannelLayer(g, b)) => (plain(), Some([g.detach().copy(), b.detach().copy()])),
                         Some(NormLayer::Batch(bn)) => {
                             let eps = 1e-5; // nn::BatchNormConfig::default().eps, used by forward_t
                             let mut scale = (&bn.running_var + eps).rsqrt();
@@ -161,12 +162,8 @@ impl DilatedCausalCnn {
                             if let Some(beta) = &bn.bs {
                                 bias += beta;
                             }
-                            (&layer.weight * scale.unsqueeze(-1).unsqueeze(-1), bias)
+                            ((&layer.weight * scale.unsqueeze(-1).unsqueeze(-1), bias), None)
                         }
-                    };
-                    let layer_norm = match &layer.norm {
-                        Some(NormLayer::ChannelLayer(g, b)) => Some([g.detach().copy(), b.detach().copy()]),
-                        _ => None,
                     };
                     FoldedConv { weight: weight.detach(), bias: bias.detach(), dilation: layer.dilation, layer_norm, gelu: layer.hidden }
                 })

@@ -244,20 +244,20 @@ impl Config {
 
     /// The normalisation after the Generator's (or DIGDL's) hidden convs.
     pub fn generator_norm(&self) -> HiddenNorm {
-        match (self.batch_norm, self.layer_norm) {
-            (true, _) => HiddenNorm::Batch,
-            (false, true) => HiddenNorm::ChannelLayer,
-            (false, false) => HiddenNorm::None,
-        }
+        self.norm_with_batch_norm(self.batch_norm)
     }
 
     /// The normalisation after the Restructor's hidden convs: BatchNorm if
     /// `restructor_batch_norm` (absent: `batch_norm`) says so, else as the Generator's.
     pub fn restructor_norm(&self) -> HiddenNorm {
-        match self.restructor_batch_norm.unwrap_or(self.batch_norm) {
-            true => HiddenNorm::Batch,
-            false if self.layer_norm => HiddenNorm::ChannelLayer,
-            false => HiddenNorm::None,
+        self.norm_with_batch_norm(self.restructor_batch_norm.unwrap_or(self.batch_norm))
+    }
+
+    fn norm_with_batch_norm(&self, batch_norm: bool) -> HiddenNorm {
+        match (batch_norm, self.layer_norm) {
+            (true, _) => HiddenNorm::Batch,
+            (false, true) => HiddenNorm::ChannelLayer,
+            (false, false) => HiddenNorm::None,
         }
     }
 
