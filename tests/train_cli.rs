@@ -143,7 +143,7 @@ fn ci_small_learns_exports_and_resumes() {
         .collect::<Vec<_>>()
         .join("\n");
     let budgeted_cfg = dir.path().join("ci-budget.yaml");
-    std::fs::write(&budgeted_cfg, budgeted).unwrap();
+    std::fs::write(&budgeted_cfg, &budgeted).unwrap();
     ok(Command::new(bin())
         .args(["train", "--config"])
         .arg(&budgeted_cfg)
@@ -154,6 +154,50 @@ fn ci_small_learns_exports_and_resumes() {
     let stopped: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("ci.train.json")).unwrap()).unwrap();
     assert_eq!(stopped["history"].as_array().unwrap().len(), 63, "stops after the first epoch past the budget");
     assert_eq!(load_metadata(&dir.path().join("ci.json")).unwrap().metrics["stopped_at_budget"], 63.0);
+
+    // A fine-tune from the exported model (`init_from`) with the Generator's BatchNorm frozen
+    // starts where that model is, not from scratch, and keeps its running statistics.
+    let fine_tune = |same_model: bool| {
+        let text: String = budgeted
+            .lines()
+            .filter(|l| !l.contains("max_train_seconds") && !l.contains("checkpoint_every") && !l.contains("eval_every"))
+            .filter(|l| same_model || !l.contains("imu_calibrations"))
+            .map(|l| l.replace("first_order: false", "first_order: true\n    batch_tasks: true"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let cfg = dir.path().join("ft.yaml");
+        std::fs::write(
+            &cfg,
+            format!("{text}\n  init_from: ci.json\n  frozen_batch_norm_from: 0\n  lr: 1.0e-4\n").replace("  lr: 0.01\n", ""),
+        )
+        .unwrap();
+        run(Command::new(bin()).args(["train", "--config"]).arg(&cfg).arg("--out-dir").arg(dir.path()).args([
+            "--name",
+            "ft",
+            "--no-progress",
+            "--epochs",
+            "3",
+        ]))
+    };
+    let out = fine_tune(true);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let ft: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("ft.train.json")).unwrap()).unwrap();
+    let first_ft = ft["history"][0]["loss"].as_f64().unwrap();
+    assert!(first_ft < 0.5 * first, "the fine-tune's first loss {first_ft} is not below the fresh run's {first}");
+    let vars = |name: &str| -> std::collections::BTreeMap<String, tch::Tensor> {
+        tch::Tensor::load_multi(dir.path().join(name)).unwrap().into_iter().collect()
+    };
+    let (start, end) = (vars("ci.ot"), vars("ft.ot"));
+    let stats: Vec<_> = start.keys().filter(|k| k.starts_with("generator.bn") && k.contains("running_")).collect();
+    assert!(!stats.is_empty());
+    for k in stats {
+        assert!(start[k].equal(&end[k]), "{k} moved under a frozen BatchNorm");
+    }
+    assert!(!start["generator.conv0.weight"].equal(&end["generator.conv0.weight"]), "the fine-tune did not train");
+    // A start whose config is not this one is refused, naming the file.
+    let out = fine_tune(false);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("init_from") && err.contains("ci.json"), "{err}");
 }
 
 /// `train.seeds`: one run per seed (two at once), the lowest validation score is exported as

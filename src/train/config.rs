@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::model::{Config as ModelConfig, LossConfig, Mode};
+use crate::model::{Config as ModelConfig, HiddenNorm, LossConfig, Mode};
 
 /// The whole file.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -360,6 +360,17 @@ pub struct TrainSettings {
     /// (`ModelMetadata::imu_correction_gains`); the test recordings are scored with their IMU's.
     #[serde(default)]
     pub correction_gains: bool,
+    /// Start from a trained model's weights (its `<name>.json`, relative to the config file),
+    /// normalisation included, instead of a fresh initialisation: a fine-tune. The model's
+    /// config must equal `model`. Adam starts afresh; `zero_init_correction` is not applied.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init_from: Option<PathBuf>,
+    /// From this epoch on, the Generator's BatchNorm uses its running statistics, held fixed,
+    /// in training as in deployment: the loss then scores the deployed network, whose output
+    /// constant otherwise hangs on statistics the loss never sees (docs/training.md). Absent:
+    /// batch statistics throughout. FSDA-F with batched tasks and BatchNorm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frozen_batch_norm_from: Option<usize>,
 }
 
 /// See [`TrainSettings::recording_drift`]. Each step, task i's query windows give their mean
@@ -463,6 +474,9 @@ impl TrainConfig {
         let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
         if cfg.dataset.root.is_relative() {
             cfg.dataset.root = base.join(&cfg.dataset.root);
+        }
+        if let Some(init) = cfg.train.init_from.as_mut().filter(|p| p.is_relative()) {
+            *init = base.join(&*init);
         }
         for src in cfg.dataset.sources_mut() {
             if let Some(sim) = src.simulate.as_mut().filter(|s| Path::new(s.as_str()).is_relative()) {
@@ -612,6 +626,14 @@ impl TrainConfig {
                 ));
             }
         }
+        if let Some(from) = t.frozen_batch_norm_from {
+            if self.model.mode != Mode::FsdaF || !t.maml.batch_tasks || self.model.generator_norm() != HiddenNorm::Batch {
+                return Err("train.frozen_batch_norm_from needs model.mode fsda_f with BatchNorm and train.maml.batch_tasks: true".into());
+            }
+            if from >= t.epochs {
+                return Err(format!("train.frozen_batch_norm_from = {from}: must be below train.epochs ({})", t.epochs));
+            }
+        }
         if !(0.0..1.0).contains(&t.ema_decay) {
             return Err(format!("train.ema_decay must be in [0, 1), got {}", t.ema_decay));
         }
@@ -758,6 +780,39 @@ mod tests {
         assert!(maml("{unadapted_query_weight: 1.0}").is_ok());
         assert!(maml("{unadapted_query_weight: -1.0}").unwrap_err().contains("unadapted_query_weight"));
         assert!(maml("{unadapted_support_weight: -1.0}").unwrap_err().contains("unadapted_support_weight"));
+    }
+
+    /// A fine-tune's start (`init_from`) is read against the config's folder; the frozen
+    /// BatchNorm needs the batched FSDA-F step, BatchNorm in the Generator, and an epoch to
+    /// start at within the run.
+    #[test]
+    fn fine_tune_settings_are_checked() {
+        let dir = std::env::temp_dir().join(format!("imu-fsda-init-from-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("c.yaml");
+        let with = |model: &str, train: &str| {
+            std::fs::write(&path, format!("model: {model}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 10, {train}}}\n"))
+                .unwrap();
+            TrainConfig::load(&path).map_err(|e| e.to_string())
+        };
+        let batched = "maml: {batch_tasks: true}";
+        let cfg = with("{mode: fsda_f}", &format!("init_from: ../m/fsda-f.json, frozen_batch_norm_from: 9, {batched}")).unwrap();
+        assert_eq!(cfg.train.init_from.as_deref(), Some(dir.join("../m/fsda-f.json").as_path()));
+        assert_eq!(cfg.train.frozen_batch_norm_from, Some(9));
+        let abs = with("{mode: fsda_f}", "init_from: /m/x.json").unwrap();
+        assert_eq!(abs.train.init_from.as_deref(), Some(Path::new("/m/x.json")));
+        assert!(with("{mode: fsda_f}", "frozen_batch_norm_from: 10, maml: {batch_tasks: true}")
+            .unwrap_err()
+            .contains("below train.epochs"));
+        for (model, train) in [
+            ("{mode: fsda_f}", "frozen_batch_norm_from: 0, maml: {batch_tasks: false}"),
+            ("{mode: digdl}", "frozen_batch_norm_from: 0"),
+            ("{mode: fsda_f, batch_norm: false}", "frozen_batch_norm_from: 0, maml: {batch_tasks: true}"),
+            ("{mode: fsda_f, batch_norm: false, layer_norm: true}", "frozen_batch_norm_from: 0, maml: {batch_tasks: true}"),
+        ] {
+            assert!(with(model, train).unwrap_err().contains("frozen_batch_norm_from needs"), "{model} {train}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -377,6 +377,30 @@ pub fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[Str
     Ok(())
 }
 
+/// Copies a trained model's variables (`TrainSettings::init_from`) into `vs`, normalisation
+/// included; its config must be `cfg.model`.
+fn init_from_model(vs: &VarStore, cfg: &TrainConfig, metadata_path: &std::path::Path) -> anyhow::Result<()> {
+    let loaded = crate::model::export::load_net(metadata_path, Device::Cpu)
+        .map_err(|e| anyhow::anyhow!("train.init_from {}: {e}", metadata_path.display()))?;
+    if loaded.metadata.config != cfg.model {
+        anyhow::bail!("train.init_from {}: the model's config differs from this config's `model`", metadata_path.display());
+    }
+    let src = loaded.vs.variables();
+    tch::no_grad(|| -> anyhow::Result<()> {
+        for (name, var) in vs.variables() {
+            let s = src.get(&name).ok_or_else(|| anyhow::anyhow!("train.init_from: no variable `{name}`"))?;
+            var.shallow_clone().f_copy_(s)?;
+        }
+        Ok(())
+    })?;
+    tracing::info!(
+        "weights and normalisation from {} (trained at {})",
+        metadata_path.display(),
+        loaded.metadata.code_revision.as_deref().unwrap_or("an unknown revision")
+    );
+    Ok(())
+}
+
 /// Takes Ĉ_ω out of training (the optimiser only steps variables that require grad).
 fn freeze_gyro_calibration(vs: &VarStore) -> anyhow::Result<()> {
     let vars = vs.variables();
@@ -416,6 +440,9 @@ struct Heads {
     dropout: f64,
     noise_std: f64,
     sigma: Tensor,
+    /// The Generator's BatchNorm on its running statistics, not updated (the deployed form;
+    /// `TrainSettings::frozen_batch_norm_from`).
+    generator_batch_norm_frozen: bool,
 }
 
 fn fn_layers(
@@ -465,10 +492,11 @@ impl Heads {
             dropout: c.dropout,
             noise_std: c.restructor_noise_std,
             sigma: vars.get("output_scale.sigma").map(Tensor::shallow_clone).ok_or_else(|| anyhow::anyhow!("no output_scale.sigma"))?,
+            generator_batch_norm_frozen: false,
         })
     }
 
-    fn cnn(&self, layers: &[FnLayer], pad: i64, x: &Tensor) -> Tensor {
+    fn cnn(&self, layers: &[FnLayer], pad: i64, x: &Tensor, batch_statistics: bool) -> Tensor {
         let mut h = x.transpose(1, 2).replication_pad1d([pad, 0]);
         for l in layers {
             h = h.conv1d(&l.weight, Some(&l.bias), [1], [0], [l.dilation], 1);
@@ -476,7 +504,7 @@ impl Heads {
                 match &l.norm {
                     None => {}
                     Some(FnNorm::Batch([g, b, rm, rv])) => {
-                        h = Tensor::batch_norm(&h, Some(g), Some(b), Some(rm), Some(rv), true, 0.1, 1e-5, false)
+                        h = Tensor::batch_norm(&h, Some(g), Some(b), Some(rm), Some(rv), batch_statistics, 0.1, 1e-5, false)
                     }
                     Some(FnNorm::ChannelLayer([g, b])) => h = channel_layer_norm(&h, g, b),
                 }
@@ -489,9 +517,9 @@ impl Heads {
     /// Training forward of a batch whose embedding `e` was computed per task.
     fn forward(&self, net: &Net, u: &Tensor, u_norm: Tensor, e: &Tensor, rows: Option<&Tensor>) -> crate::model::NetOutput {
         let noisy = if self.noise_std > 0.0 { e + e.randn_like() * self.noise_std } else { e.shallow_clone() };
-        let reconstruction = self.cnn(&self.restructor, self.rest_pad, &noisy);
+        let reconstruction = self.cnn(&self.restructor, self.rest_pad, &noisy, true);
         let generator_input = crate::model::net::generator_input(e, &u_norm, net.config().generator_sees_imu);
-        let correction = self.cnn(&self.generator, self.gen_pad, &generator_input);
+        let correction = self.cnn(&self.generator, self.gen_pad, &generator_input, !self.generator_batch_norm_frozen);
         let gyro = net.calibrate(&u.narrow(2, 0, 3), rows) + correction * &self.sigma;
         crate::model::NetOutput { gyro, reconstruction: Some(reconstruction), input_normalised: u_norm, embedding: None }
     }
@@ -783,13 +811,16 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     assign_calibration_rows(&net, &mut data, &cfg.train.calibrated_imus)?;
     let (mean, std) = data::normalization(&data.train);
     net.set_normalization(&mean, &std)?;
-    if cfg.train.zero_init_correction && resume.is_none() {
+    if cfg.train.zero_init_correction && resume.is_none() && cfg.train.init_from.is_none() {
         zero_init_correction(&vs, &net)?;
     }
     if cfg.train.freeze_gyro_calibration {
         freeze_gyro_calibration(&vs)?;
     }
-    let heads = if mode == Mode::FsdaF && cfg.train.maml.batch_tasks { Some(Heads::new(&vs, &net)?) } else { None };
+    if let Some(path) = &cfg.train.init_from {
+        init_from_model(&vs, &cfg, path)?;
+    }
+    let mut heads = if mode == Mode::FsdaF && cfg.train.maml.batch_tasks { Some(Heads::new(&vs, &net)?) } else { None };
     if mode == Mode::FsdaF {
         let w = task_weights(&data.train, cfg.train.task_weighting);
         tracing::info!("task weights ({:?}): {:?}", cfg.train.task_weighting, w);
@@ -907,6 +938,12 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         rng.set_stream(epoch as u64);
         let _: u32 = rng.gen();
         let lr = cfg.train.schedule.lr(cfg.train.lr, epoch);
+        if let (Some(h), Some(from)) = (heads.as_mut(), cfg.train.frozen_batch_norm_from) {
+            if epoch >= from && !h.generator_batch_norm_frozen {
+                tracing::info!("epoch {epoch}: the Generator's BatchNorm is frozen at its running statistics from here on");
+            }
+            h.generator_batch_norm_frozen = epoch >= from;
+        }
         adam.zero_grad();
         let l = match mode {
             Mode::FsdaF => match &heads {
@@ -1718,6 +1755,56 @@ mod tests {
             ];
             assert!(d[0] < 1e-6 && d[1] < 1e-5, "{model}: Generator {:e}, Restructor {:e}", d[0], d[1]);
         }
+    }
+
+    /// With the Generator's BatchNorm frozen the batched step's Generator is the deployed
+    /// network: its output equals the modules' inference forward on running statistics that
+    /// are far from the batch's, it leaves them as they were, and it still trains γ; the
+    /// Restructor keeps its batch statistics and updates its running ones.
+    #[test]
+    fn a_frozen_generator_batch_norm_is_the_deployed_network() {
+        let cfg = TrainConfig::parse(
+            "model: {mode: fsda_f, generator_sees_imu: true, dropout: 0.0, restructor_noise_std: 0.0}\ndataset: {train: [{sequence: a}]}\n\
+             train: {epochs: 1}\n",
+        )
+        .unwrap();
+        let vs = VarStore::new(Device::Cpu);
+        let net = Net::new(&cfg.model, &vs.root()).unwrap();
+        tch::no_grad(|| {
+            for (n, v) in vs.variables() {
+                if n.ends_with(".running_mean") {
+                    let _ = v.shallow_clone().copy_(&(v.randn_like() * 0.5));
+                } else if n.ends_with(".running_var") {
+                    let _ = v.shallow_clone().copy_(&(v.rand_like() * 3.0 + 0.2));
+                }
+            }
+        });
+        let stats = |prefix: &str| -> Vec<(String, Tensor)> {
+            vs.variables()
+                .into_iter()
+                .filter(|(n, _)| n.starts_with(prefix) && n.contains(".running_"))
+                .map(|(n, t)| (n, t.copy()))
+                .collect()
+        };
+        let mut heads = Heads::new(&vs, &net).unwrap();
+        heads.generator_batch_norm_frozen = true;
+        let u = Tensor::randn([2, 800, 6], (Kind::Float, Device::Cpu));
+        let deployed = tch::no_grad(|| net.forward_with(&u, &ForwardOptions { train: false, ..Default::default() }));
+        let (generator_before, restructor_before) = (stats("generator."), stats("restructor."));
+        let un = net.normalize(&u);
+        let e = net.embedding().unwrap().forward(&un);
+        let frozen = heads.forward(&net, &u, un, &e, None);
+        let d = (&deployed.gyro - &frozen.gyro).abs().max().double_value(&[]);
+        assert!(d < 1e-6, "frozen Generator against the deployed network: {d:e}");
+        for (n, t) in &generator_before {
+            assert!(t.equal(&vs.variables()[n]), "{n} moved");
+        }
+        assert!(restructor_before.iter().all(|(n, t)| !t.equal(&vs.variables()[n])), "the Restructor's statistics did not move");
+        frozen.gyro.square().sum(Kind::Float).backward();
+        assert!(vs.variables()["generator.bn0.weight"].grad().abs().sum(Kind::Double).double_value(&[]) > 0.0);
+        heads.generator_batch_norm_frozen = false;
+        let batch = heads.forward(&net, &u, net.normalize(&u), &e.detach(), None);
+        assert!((&deployed.gyro - &batch.gyro).abs().max().double_value(&[]) > 1e-3, "batch statistics gave the deployed output");
     }
 
     /// With `layer_norm`, one batched step gives every LayerNorm γ a gradient.
