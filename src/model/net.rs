@@ -72,6 +72,12 @@ pub struct ForwardOptions<'a> {
     /// Ĉ_ω per batch element: `[B]` int64 rows of [`Net::gyro_calibration_rows`] (see
     /// [`Net::calibration_row`]); `None` uses [`Net::gyro_calibration`] for all.
     pub calibration_rows: Option<&'a Tensor>,
+    /// The embedding `[B, T, E]`, computed elsewhere, in place of the Embedding's output (the
+    /// batched MAML step: each task's windows through that task's fast weights). FSDA modes.
+    pub embedding: Option<&'a Tensor>,
+    /// With `train`, the Generator's BatchNorm on its running statistics, not updated: the
+    /// deployed Generator, with dropout (`train.frozen_batch_norm_from`).
+    pub frozen_generator_batch_norm: bool,
 }
 
 /// Trainable scalars per module, as built.
@@ -262,13 +268,15 @@ impl Net {
         let (correction, embedding, reconstruction) = match &self.body {
             Body::Digdl(cnn) => (cnn.forward_t(&u_norm, opts.train), None, None),
             Body::Fsda { embedding, restructor, generator } => {
-                let e = match opts.embedding_params {
-                    Some(params) => embedding.forward_with(&u_norm, params),
-                    None => embedding.forward(&u_norm),
+                let e = match (opts.embedding, opts.embedding_params) {
+                    (Some(e), _) => e.shallow_clone(),
+                    (None, Some(params)) => embedding.forward_with(&u_norm, params),
+                    (None, None) => embedding.forward(&u_norm),
                 };
                 let reconstruction = opts.reconstruct.then(|| restructor.forward_t(&e, opts.train));
                 let generator_input = generator_input(&e, &u_norm, self.cfg.generator_sees_imu);
-                (generator.forward_t(&generator_input, opts.train), Some(e), reconstruction)
+                let batch_statistics = opts.train && !opts.frozen_generator_batch_norm;
+                (generator.forward_with(&generator_input, opts.train, batch_statistics), Some(e), reconstruction)
             }
         };
         let omega = u.narrow(2, 0, 3);

@@ -27,11 +27,10 @@ use super::drift::{self, DriftMemory};
 use super::optim::Adam;
 use super::report::{EpochRecord, SequenceEvals, TaskInfo, TestResult, TrainSummary};
 use crate::eval::{evaluate, EvalOptions, OrientationErrors};
-use crate::model::cnn::channel_layer_norm;
 use crate::model::export::{export_model, ExportInfo};
 use crate::model::loss::{mean_rate_error, total_loss};
 use crate::model::predict::{correct_with_net, with_correction_gain};
-use crate::model::{ForwardOptions, HiddenNorm, Mode, Net};
+use crate::model::{ForwardOptions, Mode, Net};
 
 /// How to run (the CLI's flags).
 #[derive(Debug, Clone)]
@@ -236,7 +235,8 @@ fn plain_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng
     let u = augment(&batch.imu, &t.augment);
     let reconstruct = cfg.model.mode.has_embedding();
     let calibration_rows = batch.calibration_rows.as_ref();
-    let out = net.forward_with(&u, &ForwardOptions { train: true, reconstruct, embedding_params: None, calibration_rows });
+    let out =
+        net.forward_with(&u, &ForwardOptions { train: true, reconstruct, embedding_params: None, calibration_rows, ..Default::default() });
     let terms = total_loss(&t.loss, &out, &batch.dt, &batch.gt, Some(&batch.valid));
     terms.total.backward();
     StepLosses {
@@ -265,8 +265,10 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
         let mut support_at_meta: Option<Tensor> = None;
         for k in 0..m.inner_steps {
             let calibration_rows = s.calibration_rows.as_ref();
-            let out =
-                net.forward_with(&su, &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast), calibration_rows });
+            let out = net.forward_with(
+                &su,
+                &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast), calibration_rows, ..Default::default() },
+            );
             let l = total_loss(&t.loss, &out, &s.dt, &s.gt, Some(&s.valid)).total;
             if k == 0 {
                 sup += scalar(&l) / n;
@@ -281,13 +283,18 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
         }
         let qu = augment(&q.imu, &t.augment);
         let calibration_rows = q.calibration_rows.as_ref();
-        let out =
-            net.forward_with(&qu, &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast), calibration_rows });
+        let out = net.forward_with(
+            &qu,
+            &ForwardOptions { train: true, reconstruct: true, embedding_params: Some(&fast), calibration_rows, ..Default::default() },
+        );
         let terms = total_loss(&t.loss, &out, &q.dt, &q.gt, Some(&q.valid));
         let mut parts = vec![&terms.total / n];
         if m.unadapted_query_weight > 0.0 {
             // The shipped model: the query through the meta weights θ_e.
-            let out0 = net.forward_with(&qu, &ForwardOptions { train: true, reconstruct: true, embedding_params: None, calibration_rows });
+            let out0 = net.forward_with(
+                &qu,
+                &ForwardOptions { train: true, reconstruct: true, embedding_params: None, calibration_rows, ..Default::default() },
+            );
             parts.push(total_loss(&t.loss, &out0, &q.dt, &q.gt, Some(&q.valid)).total * (m.unadapted_query_weight / n));
         }
         parts.extend(support_at_meta);
@@ -412,119 +419,6 @@ fn freeze_gyro_calibration(vs: &VarStore) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// One conv layer of a functional view of the model's dilated CNN (the VarStore's own
-/// tensors, so gradients and BatchNorm running statistics land in the model).
-struct FnLayer {
-    weight: Tensor,
-    bias: Tensor,
-    norm: Option<FnNorm>,
-    dilation: i64,
-    hidden: bool,
-}
-
-/// A hidden layer's normalisation in [`FnLayer`].
-enum FnNorm {
-    /// γ, β, running mean, running variance.
-    Batch([Tensor; 4]),
-    /// γ, β.
-    ChannelLayer([Tensor; 2]),
-}
-
-/// The Restructor's and Generator's CNNs, Ĉ_ω and σ as functions of an embedding batch:
-/// the same operations as `model::cnn::DilatedCausalCnn::forward_t` in training mode.
-struct Heads {
-    generator: Vec<FnLayer>,
-    restructor: Vec<FnLayer>,
-    gen_pad: i64,
-    rest_pad: i64,
-    dropout: f64,
-    noise_std: f64,
-    sigma: Tensor,
-    /// The Generator's BatchNorm on its running statistics, not updated (the deployed form;
-    /// `TrainSettings::frozen_batch_norm_from`).
-    generator_batch_norm_frozen: bool,
-}
-
-fn fn_layers(
-    vars: &std::collections::HashMap<String, Tensor>,
-    prefix: &str,
-    cnn: &crate::model::CnnConfig,
-    norm: HiddenNorm,
-) -> anyhow::Result<Vec<FnLayer>> {
-    let get = |n: String| vars.get(&n).map(Tensor::shallow_clone).ok_or_else(|| anyhow::anyhow!("no variable {n}"));
-    let n = cnn.kernel_sizes.len();
-    (0..n)
-        .map(|l| {
-            let hidden = l + 1 < n;
-            let norm = match norm {
-                _ if !hidden => None,
-                HiddenNorm::None => None,
-                HiddenNorm::Batch => Some(FnNorm::Batch([
-                    get(format!("{prefix}.bn{l}.weight"))?,
-                    get(format!("{prefix}.bn{l}.bias"))?,
-                    get(format!("{prefix}.bn{l}.running_mean"))?,
-                    get(format!("{prefix}.bn{l}.running_var"))?,
-                ])),
-                HiddenNorm::ChannelLayer => {
-                    Some(FnNorm::ChannelLayer([get(format!("{prefix}.ln{l}.weight"))?, get(format!("{prefix}.ln{l}.bias"))?]))
-                }
-            };
-            Ok(FnLayer {
-                weight: get(format!("{prefix}.conv{l}.weight"))?,
-                bias: get(format!("{prefix}.conv{l}.bias"))?,
-                norm,
-                dilation: cnn.dilations[l],
-                hidden,
-            })
-        })
-        .collect()
-}
-
-impl Heads {
-    fn new(vs: &VarStore, net: &Net) -> anyhow::Result<Self> {
-        let c = net.config();
-        let vars = vs.variables();
-        Ok(Self {
-            generator: fn_layers(&vars, "generator", &c.generator, c.generator_norm())?,
-            restructor: fn_layers(&vars, "restructor", &c.restructor, c.restructor_norm())?,
-            gen_pad: c.generator.receptive_field() - 1,
-            rest_pad: c.restructor.receptive_field() - 1,
-            dropout: c.dropout,
-            noise_std: c.restructor_noise_std,
-            sigma: vars.get("output_scale.sigma").map(Tensor::shallow_clone).ok_or_else(|| anyhow::anyhow!("no output_scale.sigma"))?,
-            generator_batch_norm_frozen: false,
-        })
-    }
-
-    fn cnn(&self, layers: &[FnLayer], pad: i64, x: &Tensor, batch_statistics: bool) -> Tensor {
-        let mut h = x.transpose(1, 2).replication_pad1d([pad, 0]);
-        for l in layers {
-            h = h.conv1d(&l.weight, Some(&l.bias), [1], [0], [l.dilation], 1);
-            if l.hidden {
-                match &l.norm {
-                    None => {}
-                    Some(FnNorm::Batch([g, b, rm, rv])) => {
-                        h = Tensor::batch_norm(&h, Some(g), Some(b), Some(rm), Some(rv), batch_statistics, 0.1, 1e-5, false)
-                    }
-                    Some(FnNorm::ChannelLayer([g, b])) => h = channel_layer_norm(&h, g, b),
-                }
-                h = h.gelu("none").dropout(self.dropout, true);
-            }
-        }
-        h.transpose(1, 2)
-    }
-
-    /// Training forward of a batch whose embedding `e` was computed per task.
-    fn forward(&self, net: &Net, u: &Tensor, u_norm: Tensor, e: &Tensor, rows: Option<&Tensor>) -> crate::model::NetOutput {
-        let noisy = if self.noise_std > 0.0 { e + e.randn_like() * self.noise_std } else { e.shallow_clone() };
-        let reconstruction = self.cnn(&self.restructor, self.rest_pad, &noisy, true);
-        let generator_input = crate::model::net::generator_input(e, &u_norm, net.config().generator_sees_imu);
-        let correction = self.cnn(&self.generator, self.gen_pad, &generator_input, !self.generator_batch_norm_frozen);
-        let gyro = net.calibrate(&u.narrow(2, 0, 3), rows) + correction * &self.sigma;
-        crate::model::NetOutput { gyro, reconstruction: Some(reconstruction), input_normalised: u_norm, embedding: None }
-    }
-}
-
 fn slice_out(out: &crate::model::NetOutput, start: i64, len: i64) -> crate::model::NetOutput {
     crate::model::NetOutput {
         gyro: out.gyro.narrow(0, start, len),
@@ -540,7 +434,7 @@ fn slice_out(out: &crate::model::NetOutput, start: i64, len: i64) -> crate::mode
 /// depend on them only through the shared BatchNorm statistics).
 fn maml_step_batched(
     net: &Net,
-    heads: &Heads,
+    frozen_generator_batch_norm: bool,
     cfg: &TrainConfig,
     tasks: &[Task],
     rng: &mut ChaCha8Rng,
@@ -571,7 +465,16 @@ fn maml_step_batched(
     let forward = |u: &Tensor, rows: Option<&Tensor>, per: i64, fast: &[Vec<Tensor>]| {
         let un = net.normalize(u);
         let e: Vec<Tensor> = (0..n).map(|i| emb.forward_with(&un.narrow(0, i as i64 * per, per), &fast[i])).collect();
-        heads.forward(net, u, un, &Tensor::cat(&e, 0), rows)
+        let e = Tensor::cat(&e, 0);
+        let opts = ForwardOptions {
+            train: true,
+            reconstruct: true,
+            embedding: Some(&e),
+            calibration_rows: rows,
+            frozen_generator_batch_norm,
+            ..Default::default()
+        };
+        net.forward_with(u, &opts)
     };
     let task_losses = |out: &crate::model::NetOutput, b: &Batch, per: i64| -> Vec<crate::model::loss::LossTerms> {
         (0..n)
@@ -681,9 +584,6 @@ pub fn recalibrate_batch_norm(vs: &VarStore, net: &Net, cfg: &TrainConfig, tasks
     if net.config().mode != Mode::FsdaF || !cfg.train.maml.batch_tasks {
         anyhow::bail!("BatchNorm re-estimation is implemented for fsda_f with maml.batch_tasks only");
     }
-    let heads = Heads::new(vs, net)?;
-    let emb = net.embedding().ok_or_else(|| anyhow::anyhow!("fsda_f has an Embedding"))?;
-    let theta = net.embedding_parameters();
     tch::no_grad(|| {
         for (n, v) in vs.variables() {
             if n.ends_with(".running_mean") {
@@ -703,9 +603,9 @@ pub fn recalibrate_batch_norm(vs: &VarStore, net: &Net, cfg: &TrainConfig, tasks
             let q = data::sample_windows(&refs, |x| (x.support_end, x.len()), m.query_windows, m.query_window_samples, &mut rng);
             for b in [s, q] {
                 let u = augment(&b.imu, &cfg.train.augment);
-                let un = net.normalize(&u);
-                let e = emb.forward_with(&un, &theta);
-                let _ = heads.forward(net, &u, un, &e, b.calibration_rows.as_ref());
+                let opts =
+                    ForwardOptions { train: true, reconstruct: true, calibration_rows: b.calibration_rows.as_ref(), ..Default::default() };
+                let _ = net.forward_with(&u, &opts);
             }
         }
     });
@@ -820,7 +720,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     if let Some(path) = &cfg.train.init_from {
         init_from_model(&vs, &cfg, path)?;
     }
-    let mut heads = if mode == Mode::FsdaF && cfg.train.maml.batch_tasks { Some(Heads::new(&vs, &net)?) } else { None };
+    let batched = mode == Mode::FsdaF && cfg.train.maml.batch_tasks;
     if mode == Mode::FsdaF {
         let w = task_weights(&data.train, cfg.train.task_weighting);
         tracing::info!("task weights ({:?}): {:?}", cfg.train.task_weighting, w);
@@ -938,18 +838,14 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         rng.set_stream(epoch as u64);
         let _: u32 = rng.gen();
         let lr = cfg.train.schedule.lr(cfg.train.lr, epoch);
-        if let (Some(h), Some(from)) = (heads.as_mut(), cfg.train.frozen_batch_norm_from) {
-            if epoch >= from && !h.generator_batch_norm_frozen {
-                tracing::info!("epoch {epoch}: the Generator's BatchNorm is frozen at its running statistics from here on");
-            }
-            h.generator_batch_norm_frozen = epoch >= from;
+        let frozen = cfg.train.frozen_batch_norm_from.is_some_and(|from| epoch >= from);
+        if frozen && (cfg.train.frozen_batch_norm_from == Some(epoch) || epoch == start_epoch) {
+            tracing::info!("epoch {epoch}: the Generator's BatchNorm is frozen at its running statistics from here on");
         }
         adam.zero_grad();
         let l = match mode {
-            Mode::FsdaF => match &heads {
-                Some(h) => maml_step_batched(&net, h, &cfg, &data.train, &mut rng, drift.as_mut(), lr),
-                None => maml_step(&net, &cfg, &data.train, &mut rng),
-            },
+            Mode::FsdaF if batched => maml_step_batched(&net, frozen, &cfg, &data.train, &mut rng, drift.as_mut(), lr),
+            Mode::FsdaF => maml_step(&net, &cfg, &data.train, &mut rng),
             Mode::Fsda | Mode::Digdl => plain_step(&net, &cfg, &data.train, &mut rng),
         };
         if !l.loss.is_finite() {
@@ -1440,9 +1336,8 @@ mod tests {
         let tasks = vec![turning_task(10.0)];
         let vs = VarStore::new(tch::Device::Cpu);
         let net = Net::new(&cfg.model, &vs.root()).unwrap();
-        let heads = Heads::new(&vs, &net).unwrap();
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng, None, 0.01);
+        maml_step_batched(&net, false, &cfg, &tasks, &mut rng, None, 0.01);
         (vs, cfg)
     }
 
@@ -1464,8 +1359,7 @@ mod tests {
         data.test[0].imu_name = "robot".into();
         assign_calibration_rows(&net, &mut data, &[]).unwrap();
         assert_eq!((data.train[0].calibration_row, data.test[0].calibration_row), (Some(1), Some(2)));
-        let heads = Heads::new(&vs, &net).unwrap();
-        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3), None, 0.01);
+        maml_step_batched(&net, false, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3), None, 0.01);
         let g = vs.variables()["gyro_calib.per_imu"].grad();
         let norm = |k: i64| g.get(k).abs().sum(Kind::Double).double_value(&[]);
         assert_eq!(norm(0), 0.0, "IMU a has no data");
@@ -1480,7 +1374,7 @@ mod tests {
         for mut t in vs.trainable_variables() {
             t.zero_grad();
         }
-        maml_step_batched(&net, &heads, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3), None, 0.01);
+        maml_step_batched(&net, false, &cfg, &data.train, &mut ChaCha8Rng::seed_from_u64(3), None, 0.01);
         let g = vs.variables()["gyro_calib.per_imu"].grad();
         assert_eq!(g.abs().sum(Kind::Double).double_value(&[]), 0.0, "a calibrated IMU's Ĉ_ω stays I");
     }
@@ -1504,8 +1398,7 @@ mod tests {
             let vs = VarStore::new(Device::Cpu);
             let net = Net::new(&cfg.model, &vs.root()).unwrap();
             zero_init_correction(&vs, &net).unwrap();
-            let heads = Heads::new(&vs, &net).unwrap();
-            maml_step_batched(&net, &heads, &cfg, &[task], &mut ChaCha8Rng::seed_from_u64(3), drift, 0.01);
+            maml_step_batched(&net, false, &cfg, &[task], &mut ChaCha8Rng::seed_from_u64(3), drift, 0.01);
             vs.variables()["gyro_calib.delta"].grad().to_kind(Kind::Double)
         };
         let mut memory = DriftMemory::new(1);
@@ -1709,7 +1602,7 @@ mod tests {
         assert!(skip_grad > 0.0);
     }
 
-    /// `restructor_batch_norm` reaches the batched step's own CNN code: the Restructor's
+    /// `restructor_batch_norm` reaches the batched step: the Restructor's
     /// BatchNorm is used (γ gets a gradient, the running mean moves) while the Generator has none.
     #[test]
     fn the_batched_step_uses_batch_norm_in_the_restructor_alone() {
@@ -1724,11 +1617,11 @@ mod tests {
         assert!(abs_sum(&vars["restructor.bn0.running_mean"]) > 0.0);
     }
 
-    /// The batched step's own CNN code (`Heads`) is the model's, whatever the normalisation:
-    /// with dropout and the Restructor's noise off, its Generator and Restructor outputs equal
-    /// the modules' training forward (batch statistics in both where there is BatchNorm).
+    /// An embedding given to `Net::forward_with` (the batched step's per-task embeddings) gives
+    /// the modules' own training forward, whatever the normalisation: with dropout and the
+    /// Restructor's noise off, the Generator's and the Restructor's outputs are equal.
     #[test]
-    fn the_batched_steps_cnn_code_equals_the_modules() {
+    fn a_given_embedding_gives_the_modules_forward() {
         for model in [
             "{mode: fsda_f}",
             "{mode: fsda_f, batch_norm: false}",
@@ -1742,18 +1635,17 @@ mod tests {
             let vs = VarStore::new(Device::Cpu);
             let net = Net::new(&cfg.model, &vs.root()).unwrap();
             crate::model::cnn::perturb_layer_norms(&vs);
-            let heads = Heads::new(&vs, &net).unwrap();
             let u = Tensor::randn([2, 800, 6], (Kind::Float, Device::Cpu));
             let module = net.forward_with(&u, &ForwardOptions { train: true, reconstruct: true, ..Default::default() });
-            let un = net.normalize(&u);
-            let e = net.embedding().unwrap().forward(&un);
-            let functional = heads.forward(&net, &u, un, &e, None);
+            let e = net.embedding().unwrap().forward(&net.normalize(&u));
+            let given = net.forward_with(&u, &ForwardOptions { train: true, reconstruct: true, embedding: Some(&e), ..Default::default() });
             let diff = |a: &Tensor, b: &Tensor| (a - b).abs().max().double_value(&[]);
-            let d = [
-                diff(&module.gyro, &functional.gyro),
-                diff(module.reconstruction.as_ref().unwrap(), functional.reconstruction.as_ref().unwrap()),
-            ];
+            let d =
+                [diff(&module.gyro, &given.gyro), diff(module.reconstruction.as_ref().unwrap(), given.reconstruction.as_ref().unwrap())];
             assert!(d[0] < 1e-6 && d[1] < 1e-5, "{model}: Generator {:e}, Restructor {:e}", d[0], d[1]);
+            let other =
+                net.forward_with(&u, &ForwardOptions { train: true, embedding: Some(&(&e + e.randn_like() * 0.5)), ..Default::default() });
+            assert!(diff(&module.gyro, &other.gyro) > 1e-4, "{model}: the given embedding was not used");
         }
     }
 
@@ -1773,9 +1665,9 @@ mod tests {
         tch::no_grad(|| {
             for (n, v) in vs.variables() {
                 if n.ends_with(".running_mean") {
-                    let _ = v.shallow_clone().copy_(&(v.randn_like() * 0.5));
+                    v.shallow_clone().copy_(&(v.randn_like() * 0.5));
                 } else if n.ends_with(".running_var") {
-                    let _ = v.shallow_clone().copy_(&(v.rand_like() * 3.0 + 0.2));
+                    v.shallow_clone().copy_(&(v.rand_like() * 3.0 + 0.2));
                 }
             }
         });
@@ -1786,14 +1678,16 @@ mod tests {
                 .map(|(n, t)| (n, t.copy()))
                 .collect()
         };
-        let mut heads = Heads::new(&vs, &net).unwrap();
-        heads.generator_batch_norm_frozen = true;
         let u = Tensor::randn([2, 800, 6], (Kind::Float, Device::Cpu));
         let deployed = tch::no_grad(|| net.forward_with(&u, &ForwardOptions { train: false, ..Default::default() }));
         let (generator_before, restructor_before) = (stats("generator."), stats("restructor."));
-        let un = net.normalize(&u);
-        let e = net.embedding().unwrap().forward(&un);
-        let frozen = heads.forward(&net, &u, un, &e, None);
+        let e = net.embedding().unwrap().forward(&net.normalize(&u));
+        let training = |frozen_generator_batch_norm: bool, e: &Tensor| {
+            let opts =
+                ForwardOptions { train: true, reconstruct: true, embedding: Some(e), frozen_generator_batch_norm, ..Default::default() };
+            net.forward_with(&u, &opts)
+        };
+        let frozen = training(true, &e);
         let d = (&deployed.gyro - &frozen.gyro).abs().max().double_value(&[]);
         assert!(d < 1e-6, "frozen Generator against the deployed network: {d:e}");
         for (n, t) in &generator_before {
@@ -1802,8 +1696,7 @@ mod tests {
         assert!(restructor_before.iter().all(|(n, t)| !t.equal(&vs.variables()[n])), "the Restructor's statistics did not move");
         frozen.gyro.square().sum(Kind::Float).backward();
         assert!(vs.variables()["generator.bn0.weight"].grad().abs().sum(Kind::Double).double_value(&[]) > 0.0);
-        heads.generator_batch_norm_frozen = false;
-        let batch = heads.forward(&net, &u, net.normalize(&u), &e.detach(), None);
+        let batch = training(false, &e.detach());
         assert!((&deployed.gyro - &batch.gyro).abs().max().double_value(&[]) > 1e-3, "batch statistics gave the deployed output");
     }
 
@@ -1841,7 +1734,6 @@ mod tests {
             if freeze {
                 freeze_gyro_calibration(&vs).unwrap();
             }
-            let heads = Heads::new(&vs, &net).unwrap();
             let mut adam = Adam::new(&vs);
             let generator = || -> f64 {
                 vs.variables()
@@ -1852,7 +1744,7 @@ mod tests {
             };
             let before = generator();
             let mut rng = ChaCha8Rng::seed_from_u64(3);
-            maml_step_batched(&net, &heads, &cfg, &tasks, &mut rng, None, 0.01);
+            maml_step_batched(&net, false, &cfg, &tasks, &mut rng, None, 0.01);
             adam.step(1e-3, 0.0);
             let eye = Tensor::eye(3, (tch::Kind::Float, tch::Device::Cpu));
             let moved = (net.gyro_calibration() - eye).abs().max().double_value(&[]);
