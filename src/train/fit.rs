@@ -386,20 +386,13 @@ pub fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[Str
 
 /// Copies a trained model's variables (`TrainSettings::init_from`) into `vs`, normalisation
 /// included; its config must be `cfg.model`.
-fn init_from_model(vs: &VarStore, cfg: &TrainConfig, metadata_path: &std::path::Path) -> anyhow::Result<()> {
+fn init_from_model(vs: &mut VarStore, cfg: &TrainConfig, metadata_path: &std::path::Path) -> anyhow::Result<()> {
     let loaded = crate::model::export::load_net(metadata_path, Device::Cpu)
         .map_err(|e| anyhow::anyhow!("train.init_from {}: {e}", metadata_path.display()))?;
     if loaded.metadata.config != cfg.model {
         anyhow::bail!("train.init_from {}: the model's config differs from this config's `model`", metadata_path.display());
     }
-    let src = loaded.vs.variables();
-    tch::no_grad(|| -> anyhow::Result<()> {
-        for (name, var) in vs.variables() {
-            let s = src.get(&name).ok_or_else(|| anyhow::anyhow!("train.init_from: no variable `{name}`"))?;
-            var.shallow_clone().f_copy_(s)?;
-        }
-        Ok(())
-    })?;
+    vs.copy(&loaded.vs).map_err(|e| anyhow::anyhow!("train.init_from {}: {e}", metadata_path.display()))?;
     tracing::info!(
         "weights and normalisation from {} (trained at {})",
         metadata_path.display(),
@@ -706,7 +699,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     let mut data = load_datasets(&cfg)?;
     let eopts = eval_opts(&cfg);
 
-    let vs = VarStore::new(Device::Cpu);
+    let mut vs = VarStore::new(Device::Cpu);
     let net = Net::new(&cfg.model, &vs.root())?;
     assign_calibration_rows(&net, &mut data, &cfg.train.calibrated_imus)?;
     let (mean, std) = data::normalization(&data.train);
@@ -718,7 +711,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         freeze_gyro_calibration(&vs)?;
     }
     if let Some(path) = &cfg.train.init_from {
-        init_from_model(&vs, &cfg, path)?;
+        init_from_model(&mut vs, &cfg, path)?;
     }
     let batched = mode == Mode::FsdaF && cfg.train.maml.batch_tasks;
     if mode == Mode::FsdaF {
