@@ -303,15 +303,16 @@ fn poses(n: usize, t0_ns: i64) -> Vec<PoseSample> {
         .collect()
 }
 
-/// Trains on one bag with a small FSDA config; returns stderr of the (expected) failure.
-fn train_fails_on(dir: &Path, rec: &Recording, tag: &str) -> String {
+/// Trains on one bag with a small FSDA config (`train` adds to its train section); returns
+/// stderr of the (expected) failure.
+fn train_fails_on(dir: &Path, rec: &Recording, tag: &str, train: &str) -> String {
     let bag = dir.join(format!("{tag}.mcap"));
     write_recording(&bag, rec).unwrap();
     let cfg = dir.join(format!("{tag}.yaml"));
     std::fs::write(
         &cfg,
         format!(
-            "model: {{mode: fsda}}\ndataset:\n  train: [{{bag: {}}}]\ntrain: {{epochs: 2, window_samples: 2000, threads: 1}}\n",
+            "model: {{mode: fsda}}\ndataset:\n  train: [{{bag: {}}}]\ntrain: {{epochs: 2, window_samples: 2000, threads: 1{train}}}\n",
             bag.display()
         ),
     )
@@ -329,21 +330,26 @@ fn bad_inputs_are_refused_before_training() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let no_gt = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: vec![], temperature: vec![] };
-    let err = train_fails_on(d, &no_gt, "no_gt");
+    let err = train_fails_on(d, &no_gt, "no_gt", "");
     assert!(err.contains("no ground truth"), "{err}");
 
     let short = Recording { name: "x".into(), imu: imu(1000, 0), ground_truth: poses(1000, 0), temperature: vec![] };
-    let err = train_fails_on(d, &short, "short");
+    let err = train_fails_on(d, &short, "short", "");
     assert!(err.contains("shorter than the training window (2000 samples)"), "{err}");
 
     let far = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 3_600_000_000_000), temperature: vec![] };
-    let err = train_fails_on(d, &far, "no_overlap");
+    let err = train_fails_on(d, &far, "no_overlap", "");
     assert!(err.contains("does not overlap the IMU"), "{err}");
 
     let mut nan = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 0), temperature: vec![] };
     nan.imu[100].gyro.y = f64::NAN;
-    let err = train_fails_on(d, &nan, "nan");
+    let err = train_fails_on(d, &nan, "nan", "");
     assert!(err.contains("non-finite"), "{err}");
+
+    // Noise sized for an IMU the training data does not have: a typo, not a silent no-op.
+    let fine = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 0), temperature: vec![] };
+    let err = train_fails_on(d, &fine, "augment_imu", ", augment_per_imu: {nosuch: {gyro_noise_std: 8.0e-4}}");
+    assert!(err.contains("augment_per_imu") && err.contains("\"nosuch\""), "{err}");
 
     // A sequence shorter than the FSDA-F support set (60 s) plus a query set.
     let bag = d.join("support.mcap");

@@ -3,6 +3,7 @@
 //! (where the recordings are and how they are split) and `train` (optimiser, schedule,
 //! windows, augmentation, loss, MAML). Unknown keys are errors.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -205,6 +206,13 @@ impl Default for Augment {
     }
 }
 
+impl TrainSettings {
+    /// The augmentation of `imu`'s recordings: its `augment_per_imu` entry, else `augment`.
+    pub fn augment_for(&self, imu: &str) -> &Augment {
+        self.augment_per_imu.get(imu).unwrap_or(&self.augment)
+    }
+}
+
 /// The few-shot (MAML) strategy of FSDA-F.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -297,6 +305,12 @@ pub struct TrainSettings {
     pub window_start_within: Option<usize>,
     #[serde(default)]
     pub augment: Augment,
+    /// An IMU's own augmentation in place of `augment`, keyed by `SourceConfig::imu_name`:
+    /// noise sized to one sensor need not suit another. Each entry is a whole `Augment` (a key
+    /// it leaves out takes DIGDL's default, not `augment`'s). Every key must name an IMU of
+    /// `dataset.train`.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub augment_per_imu: BTreeMap<String, Augment>,
     #[serde(default)]
     pub loss: LossConfig,
     #[serde(default)]
@@ -554,12 +568,12 @@ impl TrainConfig {
         if t.window_start_within.is_some() && self.model.mode == Mode::FsdaF {
             return Err("train.window_start_within applies to digdl and fsda (fsda_f draws support and query windows)".into());
         }
-        if !non_negative(t.augment.gyro_noise_std)
-            || !non_negative(t.augment.accel_noise_std)
-            || !non_negative(t.augment.gyro_offset)
-            || !non_negative(t.augment.accel_offset)
-        {
+        let augment_ok = |a: &Augment| [a.gyro_noise_std, a.accel_noise_std, a.gyro_offset, a.accel_offset].into_iter().all(non_negative);
+        if !augment_ok(&t.augment) {
             return Err("train.augment: every noise std and offset must be finite and ≥ 0".into());
+        }
+        if let Some(imu) = t.augment_per_imu.iter().find(|(_, a)| !augment_ok(a)).map(|(imu, _)| imu) {
+            return Err(format!("train.augment_per_imu.{imu}: every noise std and offset must be finite and ≥ 0"));
         }
         let loss = &self.train.loss;
         if loss.increments.is_empty()
@@ -723,6 +737,19 @@ mod tests {
         assert!(with("fsda_f", "window_start_within: 32").unwrap_err().contains("digdl and fsda"));
         assert!(with("digdl", "augment: {gyro_offset: -1.0e-3}").unwrap_err().contains("augment"));
         assert!(with("digdl", "augment: {accel_offset: .nan}").unwrap_err().contains("augment"));
+        assert!(with("digdl", "augment_per_imu: {euroc: {gyro_noise_std: -1.0}}").unwrap_err().contains("augment_per_imu.euroc"));
+        assert!(with("digdl", "augment_per_imu: {euroc: {gyro_noise_std: 8.0e-4}, tumvi: {}}").is_ok());
+    }
+
+    /// An IMU's own entry replaces `augment` whole; other IMUs keep `augment`.
+    #[test]
+    fn augment_per_imu_falls_back_to_augment() {
+        let text = "model: {mode: fsda_f}\ndataset: {train: [{sequence: a}]}\n\
+                    train: {epochs: 1, augment: {gyro_noise_std: 1.0e-4}, augment_per_imu: {euroc: {accel_noise_std: 2.0e-2}}}\n";
+        let t = TrainConfig::parse(text).unwrap().train;
+        assert_eq!(t.augment_for("tumvi").gyro_noise_std, 1.0e-4);
+        let euroc = t.augment_for("euroc");
+        assert_eq!((euroc.gyro_noise_std, euroc.accel_noise_std), (Augment::default().gyro_noise_std, 2.0e-2));
     }
 
     #[test]

@@ -87,6 +87,10 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
         );
         train.push(task);
     }
+    if let Some(imu) = t.augment_per_imu.keys().find(|imu| !train.iter().any(|task| &task.imu_name == *imu)) {
+        let imus: std::collections::BTreeSet<&str> = train.iter().map(|task| task.imu_name.as_str()).collect();
+        anyhow::bail!("train.augment_per_imu: no training recording is from IMU {imu:?} (the training IMUs: {imus:?})");
+    }
     let load_eval = |list: &[super::config::SourceConfig]| -> anyhow::Result<Vec<Task>> {
         list.iter().map(|src| Ok(data::load_task(&d.root, src, d, None)?)).collect()
     };
@@ -183,24 +187,30 @@ pub fn fit_correction_gains(net: &Net, tasks: &[Task], opts: &EvalOptions) -> an
     Ok(gains)
 }
 
-fn augment(u: &Tensor, a: &Augment) -> Tensor {
+/// Each task's augmentation ([`TrainSettings::augment_for`] its IMU).
+fn task_augments<'a, 'b>(t: &'a TrainSettings, tasks: impl IntoIterator<Item = &'b Task>) -> Vec<&'a Augment> {
+    tasks.into_iter().map(|task| t.augment_for(&task.imu_name)).collect()
+}
+
+/// DIGDL's noise and offsets on a batch of `windows_per_task` windows from each task in turn,
+/// each window with its task's sizes.
+fn augment(u: &Tensor, per_task: &[&Augment], windows_per_task: usize) -> Tensor {
     let (b, t) = (u.size()[0], u.size()[1]);
+    debug_assert_eq!(b as usize, per_task.len() * windows_per_task, "one augmentation per task");
     let opts = (Kind::Float, Device::Cpu);
-    let mut noise_std = Tensor::from_slice(&[
-        a.gyro_noise_std,
-        a.gyro_noise_std,
-        a.gyro_noise_std,
-        a.accel_noise_std,
-        a.accel_noise_std,
-        a.accel_noise_std,
-    ])
-    .to_kind(Kind::Float);
-    noise_std = noise_std.reshape([1, 1, 6]);
+    let per_window = |f: &dyn Fn(&Augment) -> [f64; 3]| -> Tensor {
+        let rows: Vec<f64> = per_task.iter().flat_map(|a| std::iter::repeat_n(f(a), windows_per_task)).flatten().collect();
+        Tensor::from_slice(&rows).to_kind(Kind::Float).reshape([b, 1, 3])
+    };
+    let noise_std = Tensor::cat(&[per_window(&|a| [a.gyro_noise_std; 3]), per_window(&|a| [a.accel_noise_std; 3])], 2);
     let noise = Tensor::randn([b, t, 6], opts) * noise_std;
-    let offset = (Tensor::rand([b, 1, 3], opts) * 2.0 - 1.0) * a.gyro_offset;
+    let offset = (Tensor::rand([b, 1, 3], opts) * 2.0 - 1.0) * per_window(&|a| [a.gyro_offset; 3]);
     // Drawn only when asked, so the random stream (and every recipe without it) is unchanged.
-    let accel =
-        if a.accel_offset > 0.0 { (Tensor::rand([b, 1, 3], opts) * 2.0 - 1.0) * a.accel_offset } else { Tensor::zeros([b, 1, 3], opts) };
+    let accel = if per_task.iter().any(|a| a.accel_offset > 0.0) {
+        (Tensor::rand([b, 1, 3], opts) * 2.0 - 1.0) * per_window(&|a| [a.accel_offset; 3])
+    } else {
+        Tensor::zeros([b, 1, 3], opts)
+    };
     u + noise + Tensor::cat(&[offset, accel], 2)
 }
 
@@ -232,7 +242,7 @@ fn plain_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng
     let t = &cfg.train;
     let refs: Vec<&Task> = tasks.iter().collect();
     let batch: Batch = data::sample_windows(&refs, |x| plain_window_range(t, x.len()), t.windows_per_sequence, t.window_samples, rng);
-    let u = augment(&batch.imu, &t.augment);
+    let u = augment(&batch.imu, &task_augments(t, refs.iter().copied()), t.windows_per_sequence);
     let reconstruct = cfg.model.mode.has_embedding();
     let calibration_rows = batch.calibration_rows.as_ref();
     let out =
@@ -261,7 +271,7 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
         let s = data::sample_windows(&[task], |x| (0, x.support_end), m.support_windows, m.support_window_samples, rng);
         let q = data::sample_windows(&[task], |x| (x.support_end, x.len()), m.query_windows, m.query_window_samples, rng);
         let mut fast: Vec<Tensor> = theta.iter().map(Tensor::shallow_clone).collect();
-        let su = augment(&s.imu, &t.augment);
+        let su = augment(&s.imu, &[t.augment_for(&task.imu_name)], m.support_windows);
         let mut support_at_meta: Option<Tensor> = None;
         for k in 0..m.inner_steps {
             let calibration_rows = s.calibration_rows.as_ref();
@@ -281,7 +291,7 @@ fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng)
             let grads = Tensor::run_backward(&[&l], &fast, keep, second);
             fast = inner_sgd_step(&fast, &grads, m.inner_lr, second);
         }
-        let qu = augment(&q.imu, &t.augment);
+        let qu = augment(&q.imu, &[t.augment_for(&task.imu_name)], m.query_windows);
         let calibration_rows = q.calibration_rows.as_ref();
         let out = net.forward_with(
             &qu,
@@ -483,13 +493,14 @@ fn maml_step_batched(
             })
             .collect()
     };
-    let su = augment(&s.imu, &t.augment);
+    let augments = task_augments(t, tasks);
+    let su = augment(&s.imu, &augments, m.support_windows);
     let sper = m.support_windows as i64;
     let support_losses = |fast: &[Vec<Tensor>]| {
         task_losses(&forward(&su, s.calibration_rows.as_ref(), sper, fast), &s, sper).into_iter().map(|l| l.total).collect()
     };
     let (fast, sup, support_at_meta) = inner_adapt_batched(&theta, &weights, m, support_losses);
-    let qu = augment(&q.imu, &t.augment);
+    let qu = augment(&q.imu, &augments, m.query_windows);
     let qper = m.query_windows as i64;
     let out = forward(&qu, q.calibration_rows.as_ref(), qper, &fast);
     let ls = task_losses(&out, &q, qper);
@@ -590,12 +601,13 @@ pub fn recalibrate_batch_norm(vs: &VarStore, net: &Net, cfg: &TrainConfig, tasks
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     tch::manual_seed(seed as i64);
     let refs: Vec<&Task> = tasks.iter().collect();
+    let augments = task_augments(&cfg.train, tasks);
     tch::no_grad(|| {
         for _ in 0..steps {
             let s = data::sample_windows(&refs, |x| (0, x.support_end), m.support_windows, m.support_window_samples, &mut rng);
             let q = data::sample_windows(&refs, |x| (x.support_end, x.len()), m.query_windows, m.query_window_samples, &mut rng);
-            for b in [s, q] {
-                let u = augment(&b.imu, &cfg.train.augment);
+            for (b, per) in [(s, m.support_windows), (q, m.query_windows)] {
+                let u = augment(&b.imu, &augments, per);
                 let opts =
                     ForwardOptions { train: true, reconstruct: true, calibration_rows: b.calibration_rows.as_ref(), ..Default::default() };
                 let _ = net.forward_with(&u, &opts);
@@ -1235,6 +1247,31 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let starts: Vec<usize> = (0..500).map(|_| rng.gen_range(a..=b - t.window_samples)).collect();
         assert!(starts.iter().all(|&s| s < 32) && starts.contains(&0) && starts.contains(&31));
+    }
+
+    /// One augmentation for every task draws what the single global one drew (the same random
+    /// stream, bit for bit: recipes without `augment_per_imu` train as before); with one per
+    /// task, each task's windows get its own sizes.
+    #[test]
+    fn augmentation_is_sized_per_task() {
+        let u = Tensor::zeros([4, 50, 6], (Kind::Float, Device::Cpu));
+        let a = Augment { gyro_noise_std: 8e-4, accel_noise_std: 1e-2, gyro_offset: 1e-3, accel_offset: 0.0 };
+        tch::manual_seed(7);
+        let got = augment(&u, &[&a, &a], 2);
+        tch::manual_seed(7);
+        let std = Tensor::from_slice(&[8e-4, 8e-4, 8e-4, 1e-2, 1e-2, 1e-2]).to_kind(Kind::Float).reshape([1, 1, 6]);
+        let noise = Tensor::randn([4, 50, 6], (Kind::Float, Device::Cpu)) * std;
+        let offset = (Tensor::rand([4, 1, 3], (Kind::Float, Device::Cpu)) * 2.0 - 1.0) * 1e-3;
+        let want = &u + noise + Tensor::cat(&[offset, Tensor::zeros([4, 1, 3], (Kind::Float, Device::Cpu))], 2);
+        assert!(got.equal(&want), "the global augmentation's draw, bit for bit");
+
+        let none = Augment { gyro_noise_std: 0.0, accel_noise_std: 0.0, gyro_offset: 0.0, accel_offset: 0.0 };
+        let big = Augment { gyro_noise_std: 1.0, accel_noise_std: 10.0, gyro_offset: 0.0, accel_offset: 0.0 };
+        let u = Tensor::zeros([6, 4000, 6], (Kind::Float, Device::Cpu));
+        let got = augment(&u, &[&none, &big], 3);
+        assert_eq!(got.narrow(0, 0, 3).abs().max().double_value(&[]), 0.0, "the first task's windows are untouched");
+        let std_of = |c: i64| got.narrow(0, 3, 3).narrow(2, c, 1).std(true).double_value(&[]);
+        assert!((std_of(0) - 1.0).abs() < 0.02 && (std_of(5) - 10.0).abs() < 0.2, "{} {}", std_of(0), std_of(5));
     }
 
     #[test]
