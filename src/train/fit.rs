@@ -242,7 +242,7 @@ fn plain_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng
     let t = &cfg.train;
     let refs: Vec<&Task> = tasks.iter().collect();
     let batch: Batch = data::sample_windows(&refs, |x| plain_window_range(t, x.len()), t.windows_per_sequence, t.window_samples, rng);
-    let u = augment(&batch.imu, &task_augments(t, refs.iter().copied()), t.windows_per_sequence);
+    let u = augment(&batch.imu, &task_augments(t, tasks), t.windows_per_sequence);
     let reconstruct = cfg.model.mode.has_embedding();
     let calibration_rows = batch.calibration_rows.as_ref();
     let out =
