@@ -3,7 +3,7 @@
 //! (where the recordings are and how they are split) and `train` (optimiser, schedule,
 //! windows, augmentation, loss, MAML). Unknown keys are errors.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -575,6 +575,11 @@ impl TrainConfig {
         if let Some(imu) = t.augment_per_imu.iter().find(|(_, a)| !augment_ok(a)).map(|(imu, _)| imu) {
             return Err(format!("train.augment_per_imu.{imu}: every noise std and offset must be finite and ≥ 0"));
         }
+        // Checked here, from the sources' names, so a misspelt IMU costs no data loading.
+        let train_imus: BTreeSet<String> = self.dataset.train.iter().map(SourceConfig::imu_name).collect();
+        if let Some(imu) = t.augment_per_imu.keys().find(|imu| !train_imus.contains(*imu)) {
+            return Err(format!("train.augment_per_imu: no training recording is from IMU {imu:?} (the training IMUs: {train_imus:?})"));
+        }
         let loss = &self.train.loss;
         if loss.increments.is_empty()
             || loss.increments.iter().any(|i| i.samples < 1 || !non_negative(i.weight) || i.huber_delta_rad.is_some_and(|d| !positive(d)))
@@ -737,8 +742,11 @@ mod tests {
         assert!(with("fsda_f", "window_start_within: 32").unwrap_err().contains("digdl and fsda"));
         assert!(with("digdl", "augment: {gyro_offset: -1.0e-3}").unwrap_err().contains("augment"));
         assert!(with("digdl", "augment: {accel_offset: .nan}").unwrap_err().contains("augment"));
-        assert!(with("digdl", "augment_per_imu: {euroc: {gyro_noise_std: -1.0}}").unwrap_err().contains("augment_per_imu.euroc"));
-        assert!(with("digdl", "augment_per_imu: {euroc: {gyro_noise_std: 8.0e-4}, tumvi: {}}").is_ok());
+        assert!(with("digdl", "augment_per_imu: {a: {gyro_noise_std: -1.0}}").unwrap_err().contains("augment_per_imu.a"));
+        assert!(with("digdl", "augment_per_imu: {a: {gyro_noise_std: 8.0e-4}}").is_ok());
+        // The training source `a` is IMU "a": a key naming any other IMU is refused.
+        let e = with("digdl", "augment_per_imu: {a: {}, euroc: {gyro_noise_std: 8.0e-4}}").unwrap_err();
+        assert!(e.contains("augment_per_imu") && e.contains("\"euroc\"") && e.contains("\"a\""), "{e}");
     }
 
     /// An IMU's own entry replaces `augment` whole; other IMUs keep `augment`.
