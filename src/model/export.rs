@@ -326,7 +326,7 @@ pub fn load_net(metadata_path: &Path, device: Device) -> Result<LoadedNet, Model
     let weights_path = sibling(metadata_path, &metadata.files.weights);
     require_file(&weights_path)?;
     let loaded = Tensor::load_multi_with_device(&weights_path, device)
-        .map_err(|e| ModelError::CorruptFile { path: weights_path.clone(), reason: e.to_string() })?;
+        .map_err(|e| ModelError::CorruptFile { path: weights_path.clone(), reason: super::torch_message(&e) })?;
     let loaded: BTreeMap<String, Tensor> = loaded.into_iter().collect();
     let vs = VarStore::new(device);
     let net = Net::new(&metadata.config, &vs.root())?;
@@ -457,7 +457,7 @@ pub fn load_torchscript(metadata_path: &Path) -> Result<TorchScriptModel, ModelE
     let metadata = load_metadata(metadata_path)?;
     let path = sibling(metadata_path, &metadata.files.torchscript);
     require_file(&path)?;
-    let module = CModule::load(&path).map_err(|e| ModelError::CorruptFile { path: path.clone(), reason: e.to_string() })?;
+    let module = CModule::load(&path).map_err(|e| ModelError::CorruptFile { path: path.clone(), reason: super::torch_message(&e) })?;
     let model = TorchScriptModel { module, metadata, calibration_change: None, correction_gain: 1.0 };
     let probe = Tensor::zeros([1, 8, INPUT_CHANNELS], (Kind::Float, Device::Cpu));
     let out =

@@ -355,6 +355,25 @@ pub enum ModelError {
     #[error("IMU calibration {name:?}: {detail}")]
     UnknownImu { name: String, detail: String },
     /// Any other libtorch error.
-    #[error("libtorch: {0}")]
-    Torch(#[from] tch::TchError),
+    #[error("libtorch: {}", torch_message(.0))]
+    Torch(tch::TchError),
+}
+
+// By hand, not `#[from]`: that would also make the error a source, and printers that walk the
+// chain would print libtorch's backtrace after all.
+impl From<tch::TchError> for ModelError {
+    fn from(e: tch::TchError) -> Self {
+        Self::Torch(e)
+    }
+}
+
+/// libtorch's message without the C++ backtrace it appends ("Exception raised from …", then a
+/// line per stack frame): the first lines say what went wrong, the frames are addresses.
+pub fn torch_message(e: &tch::TchError) -> String {
+    without_torch_backtrace(&e.to_string()).to_string()
+}
+
+/// `text` up to libtorch's backtrace, if it has one (see [`torch_message`]).
+pub fn without_torch_backtrace(text: &str) -> &str {
+    text.find("Exception raised from").map_or(text, |end| text[..end].trim_end())
 }

@@ -93,7 +93,10 @@ pub fn load(path: &Path) -> anyhow::Result<Loaded> {
     if meta.format_version != 1 {
         anyhow::bail!("{}: checkpoint format {} (expected 1)", json.display(), meta.format_version);
     }
-    let tensors = Tensor::load_multi(&ot).map_err(|e| anyhow::anyhow!("{}: {e}", ot.display()))?.into_iter().collect();
+    let tensors = Tensor::load_multi(&ot)
+        .map_err(|e| anyhow::anyhow!("{}: {}", ot.display(), crate::model::torch_message(&e)))?
+        .into_iter()
+        .collect();
     Ok(Loaded { meta, tensors })
 }
 
