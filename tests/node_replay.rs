@@ -1,6 +1,6 @@
 //! The node's pipeline on a real bag (`imu-fsda replay`) against the offline full-sequence
 //! evaluation of the same model: online = offline. Also: bad model files are clear errors
-//! at start, never panics.
+//! at start, never panics; so are missing and damaged input bags.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -196,4 +196,29 @@ fn bad_model_files_are_clear_errors_at_start() {
     std::fs::write(&meta_path, serde_json::to_string(&meta).unwrap()).unwrap();
     let err = run(&model);
     assert!(err.contains("loading model"), "{err}");
+}
+
+/// A missing or damaged input bag is named as such (not as a bag without an IMU topic), and
+/// each cause of the error is said once.
+#[test]
+fn missing_and_damaged_bags_are_said_so_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let damaged = dir.path().join("damaged.mcap");
+    std::fs::write(&damaged, b"not an mcap file at all").unwrap();
+    for cmd in ["replay", "eval"] {
+        for (bag, says) in [(dir.path().join("missing.mcap"), "No such file"), (damaged.clone(), "not a readable MCAP bag")] {
+            let mut c = Command::new(bin());
+            c.arg(cmd).arg(&bag);
+            if cmd == "replay" {
+                c.arg("-o").arg(dir.path().join("o.mcap"));
+            }
+            let out = c.output().unwrap();
+            assert_eq!(out.status.code(), Some(1), "{cmd} {}: an error exit, not a crash", bag.display());
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert!(err.contains(&*bag.to_string_lossy()) && err.contains(says), "{cmd}: {err}");
+            assert!(!err.contains("neither"), "{cmd}: blamed the topics: {err}");
+            let last = err.lines().last().unwrap_or_default();
+            assert_eq!(last.matches(says).count(), 1, "{cmd}: said once: {last}");
+        }
+    }
 }

@@ -81,7 +81,7 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
         Err(e) => {
             // Partial results: say what failed where the report would be.
             std::fs::create_dir_all(&args.out).ok();
-            let j = serde_json::json!({"error": format!("{e:#}"), "findings": [], "located": [], "residual_before": null, "residual_after": null});
+            let j = serde_json::json!({"error": super::error_text(&e), "findings": [], "located": [], "residual_before": null, "residual_after": null});
             std::fs::write(args.out.join("report.json"), serde_json::to_string_pretty(&j)?).ok();
             Err(e)
         }

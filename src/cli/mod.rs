@@ -56,6 +56,25 @@ pub enum Command {
     Bench(bench::BenchArgs),
 }
 
+/// An error and its causes on one line, as `{e:#}` prints them, but without repeating a cause
+/// whose text its parent already ends with (our errors name their source in their own message,
+/// so the chain would say it twice: "x.mcap: No such file …: No such file …") and without the
+/// C++ backtrace libtorch appends to its messages.
+pub fn error_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let cause = cause.to_string();
+        let cause = imu_fsda::model::without_torch_backtrace(&cause);
+        if text.is_empty() {
+            text.push_str(cause);
+        } else if !text.ends_with(cause) {
+            text.push_str(": ");
+            text.push_str(cause);
+        }
+    }
+    text
+}
+
 pub fn init_tracing(verbose: u8) {
     // rustdds logs routine network chatter (and shutdown races) at warn/error: keep it quiet
     // unless asked for.
@@ -82,5 +101,32 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Replay(a) => replay::run(a),
         Command::Play(a) => play::run(a),
         Command::Bench(a) => bench::run(a),
+    }
+}
+
+#[cfg(test)]
+mod error_text_tests {
+    use super::error_text;
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("{path}: {source}")]
+    struct Named {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    }
+
+    #[test]
+    fn each_cause_is_said_once() {
+        let io = || std::io::Error::new(std::io::ErrorKind::NotFound, "No such file");
+        let named = anyhow::Error::new(Named { path: "x.mcap".into(), source: io() });
+        assert_eq!(error_text(&named), "x.mcap: No such file");
+        // Context that does not repeat its cause keeps the whole chain, as `{:#}` does.
+        let ctx = anyhow::Error::new(io()).context("reading x.mcap");
+        assert_eq!(error_text(&ctx), format!("{ctx:#}"));
+        assert_eq!(error_text(&named.context("replaying")), "replaying: x.mcap: No such file");
+        let torch = anyhow::Error::msg("PytorchStreamReader failed\nException raised from valid at x.cc:242:\nframe #0: 0x1")
+            .context("loading m.pt");
+        assert_eq!(error_text(&torch), "loading m.pt: PytorchStreamReader failed");
     }
 }

@@ -34,12 +34,15 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let input_topic = match &args.input_topic {
         Some(t) => t.clone(),
         None => {
-            let (topics, _) = imu_fsda::bag::bag_info(&args.input);
+            let (topics, read_error) = imu_fsda::bag::bag_info(&args.input);
             let has = |t: &str| topics.iter().any(|i| i.topic == t && i.type_name == Imu::TYPE_NAME);
             if has(&params.input_topic) {
                 params.input_topic.clone()
             } else if has(imu_fsda::bag::IMU_TOPIC) {
                 imu_fsda::bag::IMU_TOPIC.to_string()
+            } else if let Some(e) = read_error {
+                // A missing or unreadable bag, not a bag without the topic.
+                return Err(e.into());
             } else {
                 anyhow::bail!(
                     "{}: neither {} nor {} holds sensor_msgs/msg/Imu (topics: {}); pass --input-topic",
