@@ -182,6 +182,33 @@ impl Default for PipelineConfig {
     }
 }
 
+impl PipelineConfig {
+    /// Refuses settings the pipeline cannot run with, naming the key: a NaN or a negative
+    /// variance would reach every published covariance, and a gap of at most one period would
+    /// make every sample a gap.
+    pub fn validate(&self) -> Result<(), String> {
+        for (key, value) in [
+            ("nominal_rate_hz", self.nominal_rate_hz),
+            ("angular_velocity_stddev", self.angular_velocity_stddev),
+            ("gravity_init_seconds", self.gravity_init_seconds),
+            ("initial_tilt_variance", self.initial_tilt_variance),
+            ("initial_yaw_variance", self.initial_yaw_variance),
+            ("gap_variance_per_second", self.gap_variance_per_second),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("pipeline.{key} must be finite and ≥ 0, not {value}"));
+            }
+        }
+        if !(self.gap_periods.is_finite() && self.gap_periods > 1.0) {
+            return Err(format!("pipeline.gap_periods must be finite and > 1 (nominal periods), not {}", self.gap_periods));
+        }
+        if !(self.rate_tolerance.is_finite() && self.rate_tolerance > 0.0) {
+            return Err(format!("pipeline.rate_tolerance must be finite and > 0, not {}", self.rate_tolerance));
+        }
+        Ok(())
+    }
+}
+
 /// Why an input sample was not used. Every drop is counted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Dropped {

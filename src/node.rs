@@ -156,7 +156,31 @@ impl NodeParams {
             });
         };
         let params = doc[key].get("ros__parameters").cloned().unwrap_or(serde_yaml::Value::Null);
-        serde_yaml::from_value(params).map_err(|e| NodeError::Params { path: "<yaml>".into(), source: Box::new(e) })
+        let params: Self = serde_yaml::from_value(params).map_err(|e| NodeError::Params { path: "<yaml>".into(), source: Box::new(e) })?;
+        params.validate().map_err(|msg| NodeError::Params { path: "<yaml>".into(), source: msg.into() })?;
+        Ok(params)
+    }
+
+    /// Refuses values the node cannot run with, naming the key (typos are refused by serde).
+    pub fn validate(&self) -> Result<(), String> {
+        self.pipeline.validate()?;
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        for (key, value) in [
+            ("diagnostics_period", self.diagnostics_period),
+            ("adapt_buffer_seconds", self.adapt_buffer_seconds),
+            ("adapt_support_seconds", self.adapt_support_seconds),
+        ] {
+            if !positive(value) {
+                return Err(format!("{key} must be finite and > 0, not {value}"));
+            }
+        }
+        if self.adapt_support_seconds >= self.adapt_buffer_seconds {
+            return Err(format!(
+                "adapt_support_seconds ({}) must be below adapt_buffer_seconds ({}): the rest of the buffer judges the adapted model",
+                self.adapt_support_seconds, self.adapt_buffer_seconds
+            ));
+        }
+        Ok(())
     }
 
     /// Apply `from:=to` topic remappings (as `--ros-args -r`).
@@ -984,6 +1008,26 @@ mod tests {
         assert!(any.use_sim_time);
         assert!(matches!(NodeParams::from_yaml_str("other:\n  ros__parameters: {}\n", "imu_fsda"), Err(NodeError::NoSection { .. })));
         assert!(NodeParams::from_yaml_str("imu_fsda:\n  ros__parameters:\n    input_topik: /x\n", "imu_fsda").is_err(), "typos are errors");
+    }
+
+    /// Values the node cannot run with are refused at start, naming the key.
+    #[test]
+    fn params_out_of_range_are_refused() {
+        let with = |body: &str| NodeParams::from_yaml_str(&format!("imu_fsda:\n  ros__parameters:\n{body}"), "imu_fsda");
+        for (body, key) in [
+            ("    pipeline:\n      gap_periods: -5.0\n", "gap_periods"),
+            ("    pipeline:\n      gap_periods: 1.0\n", "gap_periods"),
+            ("    pipeline:\n      nominal_rate_hz: .nan\n", "nominal_rate_hz"),
+            ("    pipeline:\n      initial_tilt_variance: -1.0e-4\n", "initial_tilt_variance"),
+            ("    pipeline:\n      rate_tolerance: 0.0\n", "rate_tolerance"),
+            ("    diagnostics_period: .inf\n", "diagnostics_period"),
+            ("    adapt_support_seconds: 120.0\n", "adapt_support_seconds"),
+        ] {
+            let err = with(body).unwrap_err().to_string();
+            assert!(err.contains(key), "{body}: {err}");
+        }
+        assert!(with("    pipeline:\n      gap_periods: 1.5\n      gravity_init_seconds: 0.0\n").is_ok());
+        NodeParams::default().validate().unwrap();
     }
 
     #[test]
