@@ -141,6 +141,101 @@ pub fn mean_rate_error(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOption
     Ok(sum / n as f64)
 }
 
+/// How far the ground truth's clock is from the IMU's, from the rotation rates.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct GroundTruthLag {
+    /// Seconds the ground truth lags the IMU (negative: it leads): a motion the IMU stamps at
+    /// t, the ground truth stamps at t + lag.
+    pub lag_s: f64,
+    /// Correlation of the two rate norms at that lag (1: the same shape).
+    pub correlation: f64,
+}
+
+/// Largest lag of the ground truth behind the IMU (or lead) that training and adaptation
+/// accept, s. The 17 EuRoC and TUM-VI recordings measure within ±1.2 ms. An IMU's own low-pass
+/// filter delays its gyro too (a first-order 40 Hz filter: 4 ms; a 10 Hz one: 16 ms): that is
+/// the sensor, and stays below this. Beyond it the stamps are off, and at 1 rad/s every 20 ms
+/// is 1.1° of orientation error that training would learn as gyro error.
+pub const GROUND_TRUTH_LAG_TOLERANCE_S: f64 = 0.020;
+/// A lag estimate is trusted from this correlation on; below it there is too little motion,
+/// or too different a motion, to tell.
+pub const GROUND_TRUTH_LAG_MIN_CORRELATION: f64 = 0.5;
+/// Lags searched either way, s.
+pub const GROUND_TRUTH_LAG_SEARCH_S: f64 = 1.0;
+
+/// The ground truth's lag when it is measurably beyond [`GROUND_TRUTH_LAG_TOLERANCE_S`].
+pub fn misaligned_ground_truth(rec: &Recording, opts: &EvalOptions) -> Option<GroundTruthLag> {
+    ground_truth_lag(rec, opts, GROUND_TRUTH_LAG_SEARCH_S)
+        .filter(|l| l.correlation >= GROUND_TRUTH_LAG_MIN_CORRELATION && l.lag_s.abs() > GROUND_TRUTH_LAG_TOLERANCE_S)
+}
+
+/// Sample pairs a lag is judged on at least: fewer say nothing.
+const MIN_LAG_PAIRS: usize = 200;
+
+/// The ground truth's lag behind the IMU, from the cross-correlation of the gyro's norm with the
+/// ground truth's rotation-rate norm, both at the IMU stamps and averaged over 5 samples, for
+/// lags up to `max_lag_s` either way (the peak refined by a parabola). Norms need no
+/// IMU-to-body rotation, and a gyro bias shifts them far less than the motion does. `None`
+/// without enough covered samples or motion. A clock offset between the IMU and the ground
+/// truth reads as drift to every metric and as a wrong correction to training and adaptation.
+pub fn ground_truth_lag(rec: &Recording, opts: &EvalOptions, max_lag_s: f64) -> Option<GroundTruthLag> {
+    const HALF: usize = 2;
+    let n = rec.imu.len();
+    if n < 2 * HALF + 2 || max_lag_s.is_nan() || max_lag_s <= 0.0 {
+        return None;
+    }
+    let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), opts.max_gap_ns);
+    let mut gyro_norm = vec![f64::NAN; n];
+    let mut gt_rate = vec![f64::NAN; n];
+    for k in HALF..n - HALF {
+        // Centred on t_k like the ground truth's rate: a sample is the rate at its stamp (the
+        // datasets' and the simulator's gyros measure 0.0 ± 1.2 ms late so, −2.5 ms against
+        // the 4 samples of a forward integration).
+        let span = &rec.imu[k - HALF..=k + HALF];
+        gyro_norm[k] = span.iter().map(|s| s.gyro.norm()).sum::<f64>() / span.len() as f64;
+        if let (Some(a), Some(b)) = (gt[k - HALF], gt[k + HALF]) {
+            let dt = (rec.imu[k + HALF].stamp_ns - rec.imu[k - HALF].stamp_ns) as f64 * 1e-9;
+            if dt > 0.0 {
+                gt_rate[k] = log(&(a.inverse() * b)).norm() / dt;
+            }
+        }
+    }
+    let period = rec.imu_seconds() / (n - 1) as f64;
+    let max_lag = ((max_lag_s / period).round() as usize).min(n / 2);
+    let correlation_at = |lag: i64| -> Option<f64> {
+        let (mut m, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0.0, 0.0, 0.0, 0.0, 0.0);
+        // Pairs (gyro at k, ground truth at k + lag) inside both series.
+        let skip = lag.unsigned_abs() as usize;
+        let pairs: Box<dyn Iterator<Item = (&f64, &f64)>> =
+            if lag >= 0 { Box::new(gyro_norm.iter().zip(&gt_rate[skip..])) } else { Box::new(gyro_norm[skip..].iter().zip(&gt_rate)) };
+        for (&a, &b) in pairs {
+            if a.is_finite() && b.is_finite() {
+                m += 1;
+                sa += a;
+                sb += b;
+                saa += a * a;
+                sbb += b * b;
+                sab += a * b;
+            }
+        }
+        if m < MIN_LAG_PAIRS {
+            return None;
+        }
+        let m = m as f64;
+        let (va, vb) = (saa - sa * sa / m, sbb - sb * sb / m);
+        (va > 0.0 && vb > 0.0).then(|| (sab - sa * sb / m) / (va * vb).sqrt())
+    };
+    let lags: Vec<i64> = (-(max_lag as i64)..=max_lag as i64).collect();
+    let corr: Vec<Option<f64>> = lags.iter().map(|&l| correlation_at(l)).collect();
+    let (best, c) = corr.iter().enumerate().filter_map(|(i, c)| c.map(|c| (i, c))).max_by(|a, b| a.1.total_cmp(&b.1))?;
+    // Sub-sample peak: the parabola through the best lag and its neighbours.
+    let shift = match (best.checked_sub(1).and_then(|i| corr[i]), corr.get(best + 1).copied().flatten()) {
+        (Some(l), Some(r)) if l - 2.0 * c + r < 0.0 => (0.5 * (l - r) / (l - 2.0 * c + r)).clamp(-0.5, 0.5),
+        _ => 0.0,
+    };
+    Some(GroundTruthLag { lag_s: (lags[best] as f64 + shift) * period, correlation: c })
+}
+
 #[derive(Default)]
 struct ErrorAccumulator {
     n: usize,
@@ -321,6 +416,48 @@ mod tests {
     use super::*;
     use crate::core::PoseSample;
     use crate::so3::exp;
+
+    /// 60 s at 200 Hz of a varying rotation, with exact ground truth at 100 Hz whose stamps
+    /// are `lag_ns` late.
+    fn swaying(lag_ns: i64) -> Recording {
+        let dt = 5_000_000i64;
+        let rate = |t: f64| {
+            Vector3::new(
+                0.8 * (1.3 * t).sin(),
+                0.5 * (0.7 * t + 1.0).sin() * (0.21 * t).cos(),
+                0.6 * (0.37 * t).sin() + 0.3 * (2.9 * t).sin(),
+            )
+        };
+        let imu: Vec<ImuSample> = (0..12_000)
+            .map(|k| ImuSample {
+                stamp_ns: 1_000_000_000 + k as i64 * dt,
+                gyro: rate(k as f64 * 5e-3),
+                accel: Vector3::new(0.0, 0.0, 9.81),
+            })
+            .collect();
+        // Each sample the rate at its stamp: integrated by the midpoint rule.
+        let truth = integrate_gyro(&imu, UnitQuaternion::identity(), |n| (imu[n].gyro + imu[(n + 1).min(imu.len() - 1)].gyro) / 2.0);
+        let ground_truth = (0..imu.len())
+            .step_by(2)
+            .map(|k| PoseSample { stamp_ns: imu[k].stamp_ns + lag_ns, position_in_world: Vector3::zeros(), world_from_body: truth[k] })
+            .collect();
+        Recording { name: "sway".into(), imu, ground_truth, temperature: vec![] }
+    }
+
+    /// The clock check finds a lag either way to a fraction of a sample, passes an aligned
+    /// recording, and says nothing where the motion cannot tell (a constant rate).
+    #[test]
+    fn ground_truth_lag_is_measured_from_the_rates() {
+        let opts = EvalOptions::default();
+        for lag_ms in [0.0, 3.0, 37.0, -23.0, 300.0] {
+            let got = ground_truth_lag(&swaying((lag_ms * 1e6) as i64), &opts, GROUND_TRUTH_LAG_SEARCH_S).unwrap();
+            assert!((got.lag_s * 1e3 - lag_ms).abs() < 1.0, "{lag_ms} ms: {got:?}");
+            assert!(got.correlation > 0.9, "{got:?}");
+            let flagged = misaligned_ground_truth(&swaying((lag_ms * 1e6) as i64), &opts).is_some();
+            assert_eq!(flagged, lag_ms.abs() > GROUND_TRUTH_LAG_TOLERANCE_S * 1e3, "{lag_ms} ms");
+        }
+        assert!(ground_truth_lag(&spinning(2000, 200.0, Vector3::new(0.0, 0.0, 0.5)), &opts, 1.0).is_none());
+    }
 
     /// A recording rotating at a constant rate about a tilted axis, with exact ground truth.
     fn spinning(n: usize, rate_hz: f64, w: Vector3<f64>) -> Recording {

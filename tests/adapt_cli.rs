@@ -102,6 +102,13 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     write_recording(&b, &shifted).unwrap();
     expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "does not overlap");
 
+    // Ground truth stamped 60 ms late: a clock error, refused before any step.
+    let mut late = rec.clone();
+    late.ground_truth.iter_mut().for_each(|p| p.stamp_ns += 60_000_000);
+    let b = d.join("late.mcap");
+    write_recording(&b, &late).unwrap();
+    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "lags the IMU by 60.");
+
     // Ground truth of another body frame (rotated 30° about x): detected and reported …
     let rx = UnitQuaternion::from_euler_angles(0.5, 0.0, 0.0);
     let mut rotated = rec.clone();

@@ -337,6 +337,13 @@ fn bad_inputs_are_refused_before_training() {
     let err = train_fails_on(d, &short, "short", "");
     assert!(err.contains("shorter than the training window (2000 samples)"), "{err}");
 
+    // A simulated flight whose ground truth is stamped 80 ms late: a clock error, refused.
+    let sim = imu_fsda::sim::SimConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("params/sim/aerial_adis16448.yaml")).unwrap();
+    let mut late = imu_fsda::sim::simulate(&sim).unwrap().recording;
+    late.ground_truth.iter_mut().for_each(|p| p.stamp_ns += 80_000_000);
+    let err = train_fails_on(d, &late, "late", "");
+    assert!(err.contains("lags the IMU by 80.") && err.contains("correct the stamps"), "{err}");
+
     let far = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 3_600_000_000_000), temperature: vec![] };
     let err = train_fails_on(d, &far, "no_overlap", "");
     assert!(err.contains("does not overlap the IMU"), "{err}");

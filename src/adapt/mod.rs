@@ -340,6 +340,8 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
             ),
         });
     }
+    crate::train::data::check_clock(&support)?;
+    crate::train::data::check_clock(&query)?;
     let mut frame = None;
     let mut frame_applied = false;
     if cfg.frame_policy != FramePolicy::Ignore {

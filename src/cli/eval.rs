@@ -113,6 +113,16 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         } else {
             rec
         };
+        if let Some(l) = imu_fsda::eval::ground_truth_lag(&rec, &opts, imu_fsda::eval::GROUND_TRUTH_LAG_SEARCH_S) {
+            tracing::info!("{name}: ground truth lags the IMU by {:.1} ms (rate correlation {:.3})", l.lag_s * 1e3, l.correlation);
+        }
+        // A clock offset is scored as recorded (it is part of what the user has), and said.
+        let lag_note = imu_fsda::eval::misaligned_ground_truth(&rec, &opts).map(|l| {
+            let note =
+                format!("ground truth lags the IMU by {:.1} ms (rate correlation {:.2}): scored as recorded", l.lag_s * 1e3, l.correlation);
+            tracing::warn!("{}: {note}; check the clocks", bag.display());
+            note
+        });
         // Integrated paths of the methods that evaluated, for the figures.
         let mut paths: Vec<(String, OrientationPath)> = Vec::new();
         let mut keep = |name: &str, path: OrientationPath| {
@@ -152,6 +162,10 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 format!("{note}{}skipped {} input samples", if note.is_empty() { "" } else { "; " }, report.skipped())
             } else {
                 note
+            };
+            let note = match &lag_note {
+                Some(lag) => format!("{note}{}{lag}", if note.is_empty() { "" } else { "; " }),
+                None => note,
             };
             match evaluate_with_path(&rec, &gyro, &opts) {
                 Ok((e, path)) => {

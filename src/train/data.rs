@@ -40,6 +40,12 @@ pub enum DataError {
     TooShort { name: String, samples: usize, seconds: f64, needed: String },
     #[error("{name}: crop start_s {start} s is past the end of the ground-truth-covered data ({seconds:.1} s)")]
     EmptyCrop { name: String, start: f64, seconds: f64 },
+    #[error(
+        "{name}: the ground truth lags the IMU by {:.1} ms (where the gyro's and the ground truth's rotation rates \
+         correlate best, r = {correlation:.2}); beyond {:.0} ms it would be learnt as gyro error: correct the stamps first",
+        lag_s * 1e3, crate::eval::GROUND_TRUTH_LAG_TOLERANCE_S * 1e3
+    )]
+    Misaligned { name: String, lag_s: f64, correlation: f64 },
 }
 
 /// One recording ready for training or evaluation.
@@ -137,7 +143,17 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
     if rec.ground_truth.is_empty() {
         return Err(DataError::NoGroundTruth(name));
     }
+    check_clock(&rec)?;
     Ok(rec)
+}
+
+/// Refuses a recording whose ground truth is measurably off the IMU's clock
+/// ([`crate::eval::misaligned_ground_truth`]).
+pub fn check_clock(rec: &Recording) -> Result<(), DataError> {
+    match crate::eval::misaligned_ground_truth(rec, &crate::eval::EvalOptions::default()) {
+        Some(l) => Err(DataError::Misaligned { name: rec.name.clone(), lag_s: l.lag_s, correlation: l.correlation }),
+        None => Ok(()),
+    }
 }
 
 /// A `simulate` source: the simulator's recording (IMU and ground-truth pose), never a bag.
