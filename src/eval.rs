@@ -188,9 +188,9 @@ pub fn ground_truth_lag(rec: &Recording, opts: &EvalOptions, max_lag_s: f64) -> 
     let mut gyro_norm = vec![f64::NAN; n];
     let mut gt_rate = vec![f64::NAN; n];
     for k in HALF..n - HALF {
-        // Centred on t_k like the ground truth's rate: a sample is the rate at its stamp (the
-        // datasets' and the simulator's gyros measure 0.0 ± 1.2 ms late so, −2.5 ms against
-        // the 4 samples of a forward integration).
+        // Centred on t_k like the ground truth's rate, each sample taken as the rate at its
+        // stamp: so EuRoC, TUM-VI and the simulator measure within ±1.2 ms. (The 4 samples a
+        // forward integration uses, ω_n over [t_n, t_n+1], would put all of them at −2.5 ms.)
         let span = &rec.imu[k - HALF..=k + HALF];
         gyro_norm[k] = span.iter().map(|s| s.gyro.norm()).sum::<f64>() / span.len() as f64;
         if let (Some(a), Some(b)) = (gt[k - HALF], gt[k + HALF]) {
