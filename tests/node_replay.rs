@@ -222,3 +222,26 @@ fn missing_and_damaged_bags_are_said_so_once() {
         }
     }
 }
+
+/// An output that is also an input, by another spelling too, is refused before anything is
+/// written: the recording and the model being read stay whole.
+#[test]
+fn outputs_never_overwrite_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("car.mcap");
+    std::fs::copy(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap"), &bag).unwrap();
+    let model = export_random_model(dir.path(), Mode::FsdaF, 12, false);
+    let same_bag = dir.path().join(".").join("car.mcap");
+    let before = [std::fs::read(&bag).unwrap(), std::fs::read(&model).unwrap()];
+    for args in [
+        vec!["replay".into(), bag.clone(), "-o".into(), same_bag.clone()],
+        vec!["eval".into(), bag.clone(), "--json".into(), same_bag.clone()],
+        vec!["adapt".into(), "--model".into(), model.clone(), "--bag".into(), bag.clone(), "-o".into(), model.clone()],
+    ] {
+        let out = Command::new(bin()).args(&args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains("is also an input"), "{args:?}: {err}");
+    }
+    assert!(before == [std::fs::read(&bag).unwrap(), std::fs::read(&model).unwrap()], "an input was changed");
+}

@@ -92,6 +92,10 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.support_seconds > 0.0, "--support-seconds must be positive");
     let (dir, name) = output_name(&args.output)?;
     let meta = metadata_path(&args.model);
+    let inputs = [args.model.as_path(), &meta, &args.model.with_extension("ot"), &args.bag];
+    for ext in ["pt", "ot", "json", "adapt.json"] {
+        super::refuse_overwriting_input(&dir.join(format!("{name}.{ext}")), &inputs)?;
+    }
     let loaded = load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading model {}", args.model.display()))?;
     loaded.select_imu(args.imu.as_deref())?;
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };

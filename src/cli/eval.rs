@@ -83,6 +83,11 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     } else {
         args.methods.clone()
     };
+    let model_files: Vec<PathBuf> = args.models.iter().flat_map(|m| [m.clone(), metadata_path(m), m.with_extension("ot")]).collect();
+    let inputs: Vec<&std::path::Path> = args.bags.iter().chain(&model_files).map(PathBuf::as_path).collect();
+    for out in args.json.iter().chain(&args.markdown) {
+        super::refuse_overwriting_input(out, &inputs)?;
+    }
     let opts = EvalOptions { max_gap_ns: (args.max_gap_ms * 1e6) as i64 };
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let detector = RestDetector::default();

@@ -75,6 +75,21 @@ pub fn error_text(e: &anyhow::Error) -> String {
     text
 }
 
+/// Refuses to write `output` over one of `inputs` (the same file by another spelling too): the
+/// command would truncate what it reads, and that recording or model would be lost. An output
+/// that does not exist yet cannot be one.
+pub fn refuse_overwriting_input(output: &std::path::Path, inputs: &[&std::path::Path]) -> anyhow::Result<()> {
+    let Ok(out) = std::fs::canonicalize(output) else { return Ok(()) };
+    if let Some(input) = inputs.iter().find(|i| std::fs::canonicalize(i).is_ok_and(|i| i == out)) {
+        anyhow::bail!(
+            "{} is also an input ({}): writing it would destroy what is being read; choose another output",
+            output.display(),
+            input.display()
+        );
+    }
+    Ok(())
+}
+
 pub fn init_tracing(verbose: u8) {
     // rustdds logs routine network chatter (and shutdown races) at warn/error: keep it quiet
     // unless asked for.

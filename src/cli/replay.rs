@@ -54,6 +54,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             }
         }
     };
+    super::refuse_overwriting_input(&args.output, &[&args.input])?;
     let mut writer = BagWriter::create(&args.output)?;
     let out_ch = writer.channel::<Imu>(&params.output_topic)?;
     let corr_ch = writer.channel::<Vector3Stamped>(&params.correction_topic)?;
