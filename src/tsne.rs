@@ -129,6 +129,28 @@ pub struct Embedding2d {
 }
 
 /// Embed `x` (n points of equal dimension) in 2-D.
+impl TsneOptions {
+    /// Names each option out of range (NaN included), so a caller can check before the work
+    /// that produces the points.
+    pub fn validate(&self) -> Result<(), TsneError> {
+        let mut bad = Vec::new();
+        if self.perplexity.is_nan() || self.perplexity <= 1.0 {
+            bad.push(format!("perplexity {} must be > 1", self.perplexity));
+        }
+        if self.early_exaggeration.is_nan() || self.early_exaggeration < 1.0 {
+            bad.push(format!("early_exaggeration {} must be ≥ 1", self.early_exaggeration));
+        }
+        if let Some(l) = self.learning_rate.filter(|l| l.is_nan() || *l <= 0.0) {
+            bad.push(format!("learning_rate {l} must be > 0"));
+        }
+        if bad.is_empty() {
+            Ok(())
+        } else {
+            Err(TsneError::Option(bad.join("; ")))
+        }
+    }
+}
+
 pub fn tsne(x: &[Vec<f64>], opts: &TsneOptions) -> Result<Embedding2d, TsneError> {
     let n = x.len();
     if n < 4 {
@@ -143,14 +165,7 @@ pub fn tsne(x: &[Vec<f64>], opts: &TsneOptions) -> Result<Embedding2d, TsneError
             return Err(TsneError::NonFinite(i));
         }
     }
-    // Written so that NaN options fail too.
-    let valid = opts.perplexity > 1.0 && opts.early_exaggeration >= 1.0 && opts.learning_rate.is_none_or(|l| l > 0.0);
-    if !valid {
-        return Err(TsneError::Option(format!(
-            "perplexity {} must be > 1, early_exaggeration {} ≥ 1, learning_rate {:?} > 0",
-            opts.perplexity, opts.early_exaggeration, opts.learning_rate
-        )));
-    }
+    opts.validate()?;
     let perplexity = opts.perplexity.min((n - 1) as f64 / 3.0).max(1.5);
     if perplexity < opts.perplexity {
         tracing::warn!("t-SNE: perplexity {} clamped to {perplexity:.1} for {n} points", opts.perplexity);
@@ -329,6 +344,11 @@ mod tests {
         assert!(matches!(tsne(&x, &TsneOptions::default()), Err(TsneError::Dimension { index: 2, .. })));
         x[2] = vec![f64::NAN, 0.0];
         assert!(matches!(tsne(&x, &TsneOptions::default()), Err(TsneError::NonFinite(2))));
+        // Only the option out of range is named.
+        let e = TsneOptions { perplexity: 0.0, ..Default::default() }.validate().unwrap_err().to_string();
+        assert!(e.contains("perplexity 0") && !e.contains("early_exaggeration") && !e.contains("learning_rate"), "{e}");
+        let e = TsneOptions { learning_rate: Some(f64::NAN), ..Default::default() }.validate().unwrap_err().to_string();
+        assert!(e.contains("learning_rate NaN") && !e.contains("perplexity"), "{e}");
         // Identical points: no NaN in the map.
         let e = tsne(&vec![vec![1.0, 1.0]; 6], &TsneOptions { iterations: 50, ..Default::default() }).unwrap();
         assert!(e.points.iter().all(|p| p[0].is_finite() && p[1].is_finite()));

@@ -74,6 +74,8 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
             args.points_per_sequence
         );
     }
+    let opts = TsneOptions { perplexity: args.perplexity, iterations: args.iterations, seed: args.seed, ..Default::default() };
+    opts.validate()?; // before any embedding is computed
     let model = EmbeddingModel::load(&args.model).with_context(|| format!("model {}", args.model.display()))?;
     let mut labels: Vec<(String, &'static str, usize, i64)> = Vec::new();
     let mut x: Vec<Vec<f64>> = Vec::new();
@@ -91,7 +93,6 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
             x.push(v);
         }
     }
-    let opts = TsneOptions { perplexity: args.perplexity, iterations: args.iterations, seed: args.seed, ..Default::default() };
     let start = std::time::Instant::now();
     let map = tsne(&x, &opts)?;
     tracing::info!("t-SNE of {} points in {:.1} s, KL {:.3}", x.len(), start.elapsed().as_secs_f64(), map.kl_divergence);
