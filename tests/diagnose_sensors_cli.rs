@@ -84,3 +84,17 @@ fn sensors_gyro_leaves_the_accelerometer_out() {
     assert!(chi2.keys().all(|k| k.starts_with("gyro")), "accelerometer χ² reported: {chi2:?}");
     assert!(gyro["located"].as_array().unwrap().iter().all(|l| l["channel"].as_str().unwrap().starts_with("gyro")));
 }
+
+/// `-o` naming an existing file (not a directory) is refused before anything is read or
+/// written, and the file is left as it was.
+#[test]
+fn an_output_that_is_a_file_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let file = d.path().join("notes.txt");
+    std::fs::write(&file, "keep me").unwrap();
+    let out = Command::new(bin()).args(["diagnose", "--real", "missing.mcap", "--sim", "missing.mcap", "-o"]).arg(&file).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("exists and is not a directory"), "{err}");
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
+}

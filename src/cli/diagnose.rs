@@ -72,6 +72,11 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
     let mut opts = DiagnoseOptions::default();
     opts.select.threshold = args.threshold;
     opts.sensors = args.sensors;
+    anyhow::ensure!(
+        !args.out.exists() || args.out.is_dir(),
+        "--out {}: exists and is not a directory (the report is a directory of files)",
+        args.out.display()
+    );
     if let Some(n) = args.score_generated {
         return score::run(n, args.seed, &args.out, &opts, &args.score_only, (args.score_seconds, args.score_rate), &args.score_cases);
     }

@@ -57,7 +57,7 @@ fn load(path: &Path) -> anyhow::Result<Source> {
         Ok(Source { name: short_name(&seq.name), dataset, imu: rec.imu })
     } else {
         let topics = RecordingTopics { ground_truth: None, ..RecordingTopics::default() };
-        let (rec, _) = read_recording(path, &topics).with_context(|| format!("reading {}", path.display()))?;
+        let (rec, _) = read_recording(path, &topics)?; // its errors name the bag
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         Ok(Source { name, dataset: "bag", imu: rec.imu })
     }
