@@ -163,10 +163,16 @@ pub const GROUND_TRUTH_LAG_MIN_CORRELATION: f64 = 0.5;
 /// Lags searched either way, s.
 pub const GROUND_TRUTH_LAG_SEARCH_S: f64 = 1.0;
 
+impl GroundTruthLag {
+    /// Measurably beyond [`GROUND_TRUTH_LAG_TOLERANCE_S`].
+    pub fn is_misaligned(&self) -> bool {
+        self.correlation >= GROUND_TRUTH_LAG_MIN_CORRELATION && self.lag_s.abs() > GROUND_TRUTH_LAG_TOLERANCE_S
+    }
+}
+
 /// The ground truth's lag when it is measurably beyond [`GROUND_TRUTH_LAG_TOLERANCE_S`].
 pub fn misaligned_ground_truth(rec: &Recording, opts: &EvalOptions) -> Option<GroundTruthLag> {
-    ground_truth_lag(rec, opts, GROUND_TRUTH_LAG_SEARCH_S)
-        .filter(|l| l.correlation >= GROUND_TRUTH_LAG_MIN_CORRELATION && l.lag_s.abs() > GROUND_TRUTH_LAG_TOLERANCE_S)
+    ground_truth_lag(rec, opts, GROUND_TRUTH_LAG_SEARCH_S).filter(GroundTruthLag::is_misaligned)
 }
 
 /// Sample pairs a lag is judged on at least: fewer say nothing.

@@ -128,7 +128,6 @@ pub struct Embedding2d {
     pub perplexity: f64,
 }
 
-/// Embed `x` (n points of equal dimension) in 2-D.
 impl TsneOptions {
     /// Names each option out of range (NaN included), so a caller can check before the work
     /// that produces the points.
@@ -151,6 +150,7 @@ impl TsneOptions {
     }
 }
 
+/// Embed `x` (n points of equal dimension) in 2-D.
 pub fn tsne(x: &[Vec<f64>], opts: &TsneOptions) -> Result<Embedding2d, TsneError> {
     let n = x.len();
     if n < 4 {

@@ -118,11 +118,12 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         } else {
             rec
         };
-        if let Some(l) = imu_fsda::eval::ground_truth_lag(&rec, &opts, imu_fsda::eval::GROUND_TRUTH_LAG_SEARCH_S) {
+        let lag = imu_fsda::eval::ground_truth_lag(&rec, &opts, imu_fsda::eval::GROUND_TRUTH_LAG_SEARCH_S);
+        if let Some(l) = lag {
             tracing::info!("{name}: ground truth lags the IMU by {:.1} ms (rate correlation {:.3})", l.lag_s * 1e3, l.correlation);
         }
         // A clock offset is scored as recorded (it is part of what the user has), and said.
-        let lag_note = imu_fsda::eval::misaligned_ground_truth(&rec, &opts).map(|l| {
+        let lag_note = lag.filter(imu_fsda::eval::GroundTruthLag::is_misaligned).map(|l| {
             let note =
                 format!("ground truth lags the IMU by {:.1} ms (rate correlation {:.2}): scored as recorded", l.lag_s * 1e3, l.correlation);
             tracing::warn!("{}: {note}; check the clocks", bag.display());
