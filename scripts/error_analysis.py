@@ -36,6 +36,15 @@ Run with the project's venv (scripts/env.sh: $PYTHON has numpy, torch and mcap):
                                        only) and removed; AOE over the whole recording and over the query
                                        (after S, from the ground truth at S) before and after, and a
                                        two-fold check on the support alone (fit on one half, score the other)
+  error_analysis.py transfer --train BAG... --test BAG...
+                                       how far a constant learned from other recordings goes: each
+                                       bag's constant fitted as in `floors`, and each --test bag
+                                       scored after the mean constant of the --train bags of its
+                                       session (the file name before its first '_', or without its
+                                       trailing digits: MH_02_easy -> MH, room2 -> room) and after
+                                       its own constant (give one IMU's bags per run). The
+                                       session mean is the most a model could know that identifies
+                                       the session from the data but not the recording
   error_analysis.py probe --positive PATTERN --train BAG... --test BAG...
                                        whether a window of raw IMU tells which recordings it
                                        comes from: a logistic regression on the log band powers
@@ -208,6 +217,41 @@ def floors(args):
             f"| [{b[0]:.5f}, {b[1]:.5f}, {b[2]:.5f}] |",
             flush=True,
         )
+
+
+def session_of(name):
+    return name.split("_")[0] if "_" in name else name.rstrip("0123456789")
+
+
+def transfer(args):
+    def constants(paths):
+        out = {}
+        for path in paths:
+            d = read_bag(path, ("/imu/data", "/ground_truth/pose"))
+            imu, gt = d["/imu/data"], d["/ground_truth/pose"]
+            name = os.path.splitext(os.path.basename(path))[0]
+            out[name] = (imu[:, 0], imu[:, 1:4], gt, fit_calibration(Increments(imu[:, 0], imu[:, 1:4], gt, args.increment), False)[1])
+        return out
+
+    train, test = constants(args.train), constants(args.test)
+    print("| bag | session | raw | − its session's training mean | − its own constant | session mean − own, mrad/s |")
+    print("|---|---|---|---|---|---|")
+    rows = []
+    for name, (t, w, gt, own) in test.items():
+        mates = [c[3] for n, c in train.items() if session_of(n) == session_of(name)]
+        if not mates:
+            print(f"| {name} | {session_of(name)} | no training recording of this session | | | |")
+            continue
+        session = np.mean(mates, 0)
+        row = [aoe_deg(t, w, gt), aoe_deg(t, w + session, gt), aoe_deg(t, w + own, gt)]
+        rows.append(row)
+        print(
+            f"| {name} | {session_of(name)} ({len(mates)}) | " + " | ".join(f"{x:.2f}" for x in row)
+            + f" | {np.round((session - own) * 1e3, 2).tolist()} |",
+            flush=True,
+        )
+    if rows:
+        print("| mean | | " + " | ".join(f"{x:.2f}" for x in np.mean(rows, 0)) + " | |")
 
 
 def read_replayed(path):
@@ -509,6 +553,11 @@ def main():
     b.add_argument("--support-seconds", type=float, default=60.0)
     b.add_argument("--increment", type=int, default=200, help="J, samples (1 s at 200 Hz)")
     b.set_defaults(run=supportbias)
+    t = sub.add_parser("transfer")
+    t.add_argument("--train", nargs="+", required=True)
+    t.add_argument("--test", nargs="+", required=True)
+    t.add_argument("--increment", type=int, default=1024, help="J, samples")
+    t.set_defaults(run=transfer)
     q = sub.add_parser("probe")
     q.add_argument("--positive", required=True, help="a file-name substring, e.g. V2_")
     q.add_argument("--train", nargs="+", required=True)
