@@ -65,6 +65,15 @@ fn check_sequence(rel: &str, expect_aoe: (f64, f64)) {
         assert!((a - b).abs() <= 1e-3 * b.max(1.0), "{rel} {key}: ours {a} independent {b}");
     }
     assert_eq!(ours["evaluated_samples"], theirs["evaluated_samples"], "{rel}");
+    // The row says how much of the span the ground truth's gaps left unscored.
+    let (gaps, scored) = (ours["samples_in_gaps"].as_u64().unwrap(), ours["evaluated_samples"].as_u64().unwrap());
+    let note = ours["note"].as_str().unwrap();
+    if gaps > 0 {
+        let share = format!("{:.1} % of the span in ground-truth gaps", 100.0 * gaps as f64 / (gaps + scored) as f64);
+        assert!(note.contains(&share), "{rel}: note {note:?} lacks {share:?}");
+    } else {
+        assert!(!note.contains("gaps"), "{rel}: note {note:?}");
+    }
     let aoe = ours["aoe_deg"].as_f64().unwrap();
     assert!(aoe > expect_aoe.0 && aoe < expect_aoe.1, "{rel}: raw AOE {aoe} outside the measured range {expect_aoe:?}");
 }

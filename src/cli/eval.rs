@@ -164,18 +164,21 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                     continue;
                 }
             };
-            let note = if report.skipped() > 0 {
-                format!("{note}{}skipped {} input samples", if note.is_empty() { "" } else { "; " }, report.skipped())
-            } else {
-                note
-            };
-            let note = match &lag_note {
-                Some(lag) => format!("{note}{}{lag}", if note.is_empty() { "" } else { "; " }),
-                None => note,
-            };
+            let mut note = note;
+            if report.skipped() > 0 {
+                add_note(&mut note, &format!("skipped {} input samples", report.skipped()));
+            }
+            if let Some(lag) = &lag_note {
+                add_note(&mut note, lag);
+            }
             match evaluate_with_path(&rec, &gyro, &opts) {
                 Ok((e, path)) => {
                     keep(&method, path);
+                    if e.samples_in_gaps > 0 {
+                        // A recording with mocap at its ends only (outdoors) is scored on a fraction.
+                        let share = 100.0 * e.samples_in_gaps as f64 / (e.samples_in_gaps + e.evaluated_samples) as f64;
+                        add_note(&mut note, &format!("{share:.1} % of the span in ground-truth gaps, not scored"));
+                    }
                     rows.push(Row { bag: name.clone(), method: method.clone(), errors: Some(e), note });
                 }
                 Err(e) => rows.push(Row { bag: name.clone(), method: method.clone(), errors: None, note: e.to_string() }),
@@ -213,6 +216,14 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         std::fs::write(p, &table).with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
+}
+
+/// Append `more` to a row's note, "; "-separated.
+fn add_note(note: &mut String, more: &str) {
+    if !note.is_empty() {
+        note.push_str("; ");
+    }
+    note.push_str(more);
 }
 
 pub fn markdown_table(rows: &[Row]) -> String {
