@@ -74,7 +74,7 @@ impl Recording {
     /// The IMU samples between `start_s` and `end_s` seconds after the first IMU sample at or
     /// after the first ground-truth pose (the trainer's and `adapt`'s clock: "the first 60 s"
     /// means the same span everywhere), with all the ground truth and temperature kept. `None`
-    /// when there is no ground truth, no IMU sample after it, or nothing in the span.
+    /// when there is no ground truth, no IMU sample after it, or fewer than 2 samples in the span.
     pub fn crop_after_ground_truth_start(&self, start_s: Option<f64>, end_s: Option<f64>) -> Option<Recording> {
         let g0 = self.ground_truth.first()?.stamp_ns;
         let t0 = self.imu.iter().find(|s| s.stamp_ns >= g0)?.stamp_ns;
@@ -87,7 +87,8 @@ impl Recording {
             })
             .copied()
             .collect();
-        (!imu.is_empty()).then(|| Recording {
+        // One sample is no path to integrate.
+        (imu.len() >= 2).then(|| Recording {
             name: self.name.clone(),
             imu,
             ground_truth: self.ground_truth.clone(),
@@ -131,6 +132,7 @@ mod tests {
         assert_eq!(c.imu.last().unwrap().stamp_ns, 4_010_000_000);
         assert_eq!(c.ground_truth.len(), 100);
         assert!(r.crop_after_ground_truth_start(Some(50.0), None).is_none());
+        assert!(r.crop_after_ground_truth_start(None, Some(0.0)).is_none(), "one sample");
         assert!(Recording { ground_truth: vec![], ..r }.crop_after_ground_truth_start(None, None).is_none());
     }
 }

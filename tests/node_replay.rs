@@ -245,3 +245,40 @@ fn outputs_never_overwrite_inputs() {
     }
     assert!(before == [std::fs::read(&bag).unwrap(), std::fs::read(&model).unwrap()], "an input was changed");
 }
+
+/// Numeric options that are NaN, infinite, negative or too large for a clock are refused when
+/// the command line is read, naming the option, with a usage error (exit 2): before, an
+/// infinite or huge `--idle-exit-s` / `--wait-for-subscribers-s` or a tiny `--rate` panicked
+/// converting to a `Duration`, and a NaN `--rate` or `--max-gap-ms` ran silently.
+#[test]
+fn numeric_options_out_of_range_are_refused_by_name() {
+    let bag = Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap");
+    let bag = bag.to_str().unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (&["node", "--idle-exit-s", "inf"], "--idle-exit-s"),
+        (&["node", "--idle-exit-s", "nan"], "--idle-exit-s"),
+        (&["node", "--idle-exit-s=-1"], "--idle-exit-s"),
+        (&["play", bag, "--wait-for-subscribers-s", "1e30"], "--wait-for-subscribers-s"),
+        (&["play", bag, "--rate", "nan"], "--rate"),
+        (&["play", bag, "--rate", "1e-300"], "--rate"),
+        (&["play", bag, "--rate=-2"], "--rate"),
+        (&["play", bag, "--queue-depth", "0"], "--queue-depth"),
+        (&["eval", bag, "--max-gap-ms", "nan"], "--max-gap-ms"),
+        (&["eval", bag, "--max-gap-ms", "0"], "--max-gap-ms"),
+        (&["eval", bag, "--end-s", "inf"], "--end-s"),
+        (&["diagnose", "--real", bag, "-o", "unused", "--threshold", "nan"], "--threshold"),
+        (&["diagnose", "--real", bag, "-o", "unused", "--gt-smoothing=-1"], "--gt-smoothing"),
+        (&["bench", "--memory-hours", "inf"], "--memory-hours"),
+    ];
+    for (args, option) in cases {
+        let out = Command::new(bin()).args(*args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: a usage error, not a run or a crash: {err}");
+        assert!(err.contains(option) && err.contains("invalid value"), "{args:?}: {err}");
+    }
+    // A span with one sample in it is no path to score.
+    let out = Command::new(bin()).args(["eval", bag, "--method", "raw", "--end-s", "0"]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("fewer than 2 IMU samples"), "{err}");
+}

@@ -29,7 +29,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 400)]
     pub naive_samples: usize,
     /// Hours of simulated 200 Hz input for the memory run (0 = skip).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = super::non_negative)]
     pub memory_hours: f64,
     /// Write the figures as JSON here too.
     #[arg(long)]

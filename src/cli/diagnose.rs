@@ -36,7 +36,7 @@ pub struct DiagnoseArgs {
     /// differentiated (a measured ground truth's noise would otherwise be amplified by 1/dt
     /// and 1/dt²). Default: 0.05 with --noise-model, none with --sim (a simulator's ground
     /// truth is noise-free); 0 turns it off.
-    #[arg(long)]
+    #[arg(long, value_parser = super::non_negative)]
     pub gt_smoothing: Option<f64>,
     /// Estimate the real sensor's white-noise level from the residual (third differences)
     /// instead of taking the simulator's: for a real sensor whose in-use noise is not the
@@ -47,7 +47,7 @@ pub struct DiagnoseArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Held-out log-likelihood gain a term needs (plus 0.5 per parameter).
-    #[arg(long, default_value_t = 12.0)]
+    #[arg(long, default_value_t = 12.0, value_parser = super::non_negative)]
     pub threshold: f64,
     /// Score the diagnosis on this many generated cases (the project's simulator, random
     /// profiles, rates, grades, durations, terms near the detection limit); prints recall,
@@ -58,9 +58,9 @@ pub struct DiagnoseArgs {
     #[arg(long, hide = true, value_delimiter = ',')]
     pub score_only: Vec<String>,
     /// With --score-generated: fixed duration (s) and rate (Hz) instead of random ones.
-    #[arg(long, hide = true)]
+    #[arg(long, hide = true, value_parser = super::positive)]
     pub score_seconds: Option<f64>,
-    #[arg(long, hide = true)]
+    #[arg(long, hide = true, value_parser = super::positive)]
     pub score_rate: Option<f64>,
     /// With --score-generated: diagnose only these case indices (the others are still drawn,
     /// so every case is the same as in the full run; for development).

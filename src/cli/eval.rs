@@ -35,15 +35,15 @@ pub struct EvalArgs {
     #[arg(long, default_value = imu_fsda::bag::GROUND_TRUTH_TOPIC)]
     pub ground_truth_topic: String,
     /// Longest ground-truth gap interpolated over, ms; samples in longer gaps are not scored.
-    #[arg(long, default_value_t = 50.0)]
+    #[arg(long, default_value_t = 50.0, value_parser = super::positive)]
     pub max_gap_ms: f64,
     /// Score only from this many seconds after the first IMU sample covered by ground truth
     /// (the trainer's and `adapt`'s clock: `--start-s 60` is the query set after a 60 s
     /// support set). Integration starts there, from the ground-truth attitude.
-    #[arg(long)]
+    #[arg(long, value_parser = super::finite)]
     pub start_s: Option<f64>,
     /// Score only up to this many seconds after the first IMU sample covered by ground truth.
-    #[arg(long)]
+    #[arg(long, value_parser = super::finite)]
     pub end_s: Option<f64>,
     /// Also score every method and model with its own constant error removed (`M − oracle
     /// bias`): the mean of its rate error against the ground truth's rate over the scored
@@ -108,7 +108,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         let rec = if args.start_s.is_some() || args.end_s.is_some() {
             rec.crop_after_ground_truth_start(args.start_s, args.end_s).with_context(|| {
                 format!(
-                    "{}: no IMU sample between --start-s {} and --end-s {} after the ground truth starts ({:.1} s recorded)",
+                    "{}: fewer than 2 IMU samples between --start-s {} and --end-s {} after the ground truth starts ({:.1} s recorded)",
                     bag.display(),
                     args.start_s.unwrap_or(0.0),
                     args.end_s.map_or("(end)".to_string(), |e| e.to_string()),

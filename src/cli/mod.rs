@@ -56,6 +56,38 @@ pub enum Command {
     Bench(bench::BenchArgs),
 }
 
+// clap value parsers for numeric options: NaN, infinities and values outside an option's
+// range are refused when the command line is read, naming the rule, never run with.
+
+fn number(s: &str) -> Result<f64, String> {
+    let x: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
+    if x.is_finite() {
+        Ok(x)
+    } else {
+        Err(format!("{s} is not a finite number"))
+    }
+}
+
+/// A finite number.
+pub fn finite(s: &str) -> Result<f64, String> {
+    number(s)
+}
+
+/// A finite number ≥ 0.
+pub fn non_negative(s: &str) -> Result<f64, String> {
+    number(s).and_then(|x| if x >= 0.0 { Ok(x) } else { Err(format!("{s} is below 0")) })
+}
+
+/// A finite number > 0.
+pub fn positive(s: &str) -> Result<f64, String> {
+    number(s).and_then(|x| if x > 0.0 { Ok(x) } else { Err(format!("{s} is not above 0")) })
+}
+
+/// Seconds, as a duration: finite, ≥ 0 and within what a `Duration` holds.
+pub fn seconds(s: &str) -> Result<std::time::Duration, String> {
+    non_negative(s).and_then(|x| std::time::Duration::try_from_secs_f64(x).map_err(|_| format!("{s} s is too long")))
+}
+
 /// An error and its causes on one line, as `{e:#}` prints them, but without repeating a cause
 /// whose text its parent already ends with (our errors name their source in their own message,
 /// so the chain would say it twice: "x.mcap: No such file …: No such file …") and without the

@@ -18,8 +18,8 @@ pub struct NodeArgs {
     #[arg(long)]
     pub max_messages: Option<u64>,
     /// Exit when no input arrives for this many seconds after the first (tests, benchmarks).
-    #[arg(long)]
-    pub idle_exit_s: Option<f64>,
+    #[arg(long, value_parser = super::seconds)]
+    pub idle_exit_s: Option<Duration>,
     /// Print the final statistics as JSON on exit.
     #[arg(long)]
     pub stats_json: bool,
@@ -99,7 +99,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         (corrector, None)
     };
     let pipeline = Pipeline::new(corrector, params.pipeline.clone());
-    let limits = RunLimits { max_messages: args.max_messages, idle_exit: args.idle_exit_s.map(Duration::from_secs_f64) };
+    let limits = RunLimits { max_messages: args.max_messages, idle_exit: args.idle_exit_s };
     // Inference beside an async runtime: one intra-op thread (toolchain.md: sporadic 10–20×
     // slowdowns with two OpenMP threads next to other work).
     tch::set_num_threads(1);

@@ -17,7 +17,7 @@ pub struct PlayArgs {
     /// The bag to publish.
     pub input: PathBuf,
     /// Playback speed factor (2 = twice as fast). 0 = as fast as possible.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = playback_rate)]
     pub rate: f64,
     /// Only these topics (repeatable; default: all known message types).
     #[arg(long = "topic")]
@@ -29,16 +29,35 @@ pub struct PlayArgs {
     #[arg(long)]
     pub clock: bool,
     /// Before starting, wait up to this many seconds for a subscriber on every played topic.
-    #[arg(long, default_value_t = 0.0)]
-    pub wait_for_subscribers_s: f64,
+    #[arg(long, default_value = "0", value_parser = super::seconds)]
+    pub wait_for_subscribers_s: Duration,
     /// DDS history depth of the publishers (reliable).
-    #[arg(long, default_value_t = 1000)]
+    #[arg(long, default_value_t = 1000, value_parser = queue_depth)]
     pub queue_depth: usize,
     /// Measure end-to-end latency: subscribe to this sensor_msgs/Imu topic (e.g. the node's
     /// /imu/denoised) and time each output from the moment its input was published,
     /// matched by header stamp. Prints p50/p99 at the end.
     #[arg(long)]
     pub latency_topic: Option<String>,
+}
+
+/// 0 (as fast as possible) or a finite factor of at least 1e-3: slower than that, the
+/// recorded stamps would be due after longer than a clock can count.
+fn playback_rate(s: &str) -> Result<f64, String> {
+    let x = super::non_negative(s)?;
+    if x == 0.0 || x >= 1e-3 {
+        Ok(x)
+    } else {
+        Err(format!("{s} is neither 0 (as fast as possible) nor at least 0.001"))
+    }
+}
+
+fn queue_depth(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(0) => Err("a history of 0 messages holds nothing: at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(format!("{s:?}: {e}")),
+    }
 }
 
 enum AnyPublisher {
@@ -95,12 +114,23 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     let mut node = context
         .new_node(NodeName::new("/", "imu_fsda_player").map_err(|e| anyhow::anyhow!("{e:?}"))?, NodeOptions::new().enable_rosout(false))
         .map_err(|e| anyhow::anyhow!("node: {e:?}"))?;
-    let qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: args.queue_depth.max(1) });
+    let qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: args.queue_depth });
 
     // One pass to find the topics and their types (streaming, cheap next to playback).
-    let (topics, err) = imu_fsda::bag::bag_info(&args.input);
-    if let Some(e) = err {
-        return Err(e).context("reading the bag");
+    let (topics, damage) = imu_fsda::bag::bag_info(&args.input);
+    if topics.is_empty() {
+        if let Some(e) = damage {
+            return Err(e).context("reading the bag");
+        }
+    }
+    if let Some(e) = &damage {
+        // What a crashed recorder left is still a recording: play it, then report the damage.
+        let n: u64 = topics.iter().map(|t| t.count).sum();
+        tracing::warn!("{e}: playing what the {n} messages before it hold of the played topics, then exiting with this error");
+    }
+    if let Some(t) = args.topics.iter().find(|t| !topics.iter().any(|b| &b.topic == *t)) {
+        let present: Vec<&str> = topics.iter().map(|b| b.topic.as_str()).collect();
+        anyhow::bail!("--topic {t}: not in {} (its topics: {})", args.input.display(), present.join(", "));
     }
     let mut pubs: HashMap<String, AnyPublisher> = HashMap::new();
     for t in &topics {
@@ -156,8 +186,8 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     let spin = tokio::spawn(async move {
         let _ = spinner.spin().await;
     });
-    if args.wait_for_subscribers_s > 0.0 {
-        let deadline = Instant::now() + Duration::from_secs_f64(args.wait_for_subscribers_s);
+    if !args.wait_for_subscribers_s.is_zero() {
+        let deadline = Instant::now() + args.wait_for_subscribers_s;
         for (topic, p) in &pubs {
             let wait = async {
                 match p {
@@ -170,7 +200,7 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
                 }
             };
             if tokio::time::timeout(deadline.saturating_duration_since(Instant::now()), wait).await.is_err() {
-                tracing::warn!("no subscriber on {topic} after {} s; playing anyway", args.wait_for_subscribers_s);
+                tracing::warn!("no subscriber on {topic} after {:?}; playing anyway", args.wait_for_subscribers_s);
             }
         }
         // Matching is not the end of discovery on the other side: give it a moment.
@@ -196,8 +226,15 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     let start = Instant::now();
     let mut first_log: Option<u64> = None;
     let mut sent = 0u64;
+    let mut read_error = None;
     for m in BagReader::open(&args.input)? {
-        let m = m?;
+        let m = match m {
+            Ok(m) => m,
+            Err(e) => {
+                read_error = Some(e);
+                break;
+            }
+        };
         let Some(p) = pubs.get(&*m.topic) else { continue };
         let t0 = *first_log.get_or_insert(m.log_time_ns);
         if args.rate > 0.0 {
@@ -227,6 +264,9 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     node.stop_spinner();
     spin.abort();
     println!("played {sent} messages from {} in {elapsed:.2} s", args.input.display());
+    if let Some(e) = read_error {
+        return Err(e).context(format!("the bag is damaged ({sent} messages played before it)"));
+    }
     if let Some(t) = &args.latency_topic {
         let l = latency.lock().expect("lock");
         let missing = sent_at.lock().expect("lock").len();
