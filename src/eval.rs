@@ -19,6 +19,8 @@ pub enum EvalError {
     NoGroundTruth(String),
     #[error("{name}: ground truth ({gt_start:.3}–{gt_end:.3} s) does not overlap the IMU stream ({imu_start:.3}–{imu_end:.3} s)")]
     NoOverlap { name: String, imu_start: f64, imu_end: f64, gt_start: f64, gt_end: f64 },
+    #[error("{name}: the ground truth covers {covered} IMU sample(s): nothing to score (an orientation error needs at least 2)")]
+    TooShort { name: String, covered: usize },
     #[error("{name}: method gave {got} gyro samples for {expected} IMU samples")]
     Length { name: String, got: usize, expected: usize },
     #[error("{name}: {method}: {why}")]
@@ -106,6 +108,9 @@ pub fn evaluate_with_path(
             acc.add(r_hat, r_gt);
             last_eval = n;
         }
+    }
+    if acc.n < 2 {
+        return Err(EvalError::TooShort { name: rec.name.clone(), covered: acc.n });
     }
     let mut errors = acc.finish();
     errors.samples_in_gaps = gt.iter().take(last_eval + 1).filter(|g| g.is_none()).count();
@@ -539,6 +544,10 @@ mod tests {
         rec.ground_truth.clear();
         assert!(matches!(evaluate(&rec, &vec![w; 100], &EvalOptions::default()), Err(EvalError::NoGroundTruth(_))));
         assert!(matches!(evaluate(&spinning(100, 200.0, w), &vec![w; 99], &EvalOptions::default()), Err(EvalError::Length { .. })));
+        // One pose covers one IMU sample: an error, not a 0° row.
+        let mut rec = spinning(100, 200.0, w);
+        rec.ground_truth.truncate(1);
+        assert!(matches!(evaluate(&rec, &vec![w; 100], &EvalOptions::default()), Err(EvalError::TooShort { covered: 1, .. })));
     }
 
     #[test]

@@ -4,7 +4,8 @@
 //!
 //! The pipeline, one module per concern:
 //! 1. [`align`]: load both bags, put the real stream on the sim stamps, read the sim's
-//!    white-noise variance from its covariance fields;
+//!    white-noise variance from its covariance fields; [`frame`]: a gross rotation between
+//!    the two frames taken out first (a mirror image refused);
 //! 2. [`residual`]: r = real − sim, its noise model (white + an estimated bias walk) and the
 //!    Kalman whitening that makes generalised least squares of any regressor cheap;
 //! 3. [`locate`]: per axis, time segment and frequency band, χ² and band-power statistics;
@@ -27,6 +28,7 @@ pub mod allan;
 pub mod catalogue;
 pub mod figures;
 pub mod fit;
+pub mod frame;
 pub mod kinematics;
 pub mod locate;
 pub mod psd;
@@ -36,7 +38,7 @@ pub mod select;
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::DVector;
+use nalgebra::{DVector, UnitQuaternion};
 use serde::Serialize;
 
 use crate::physics::{ImuSignals, PhysicsError, Term};
@@ -194,9 +196,46 @@ pub fn diagnose_bags(sim: &Path, real: &Path, opts: &DiagnoseOptions) -> Result<
 /// Diagnose aligned recordings.
 pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
     let start = std::time::Instant::now();
+    // A rotation too large for the linear `mount_rotation` is taken out before the fit, and
+    // the fit runs in the real sensor's frame.
+    let gross = frame::gross_rotation(a, opts.sensors)?;
+    let (mut d, fine) = diagnose_in_frame(a, opts, gross)?;
+    // The fit's rotation is linear in its rotation vector: a few degrees leave second-order
+    // effects (cos θ − 1 reads as a scale), so a sizeable one is taken out exactly and the
+    // fit run again on top of it.
+    if fine.norm() > frame::REFIT_ANGLE_RAD {
+        let total = gross.map_or(UnitQuaternion::identity(), |g| g.body_from_imu) * crate::so3::exp(&fine);
+        d = diagnose_in_frame(a, opts, Some(frame::rotation(a, total, opts.sensors)))?.0;
+    }
+    d.seconds = start.elapsed().as_secs_f64();
+    Ok(d)
+}
+
+/// The diagnosis with the sim first put in the frame `gross` names (none: the sim's own), and
+/// the rotation vector of the linear `mount_rotation` the fit added on top (zero if none).
+fn diagnose_in_frame(
+    a: &Aligned,
+    opts: &DiagnoseOptions,
+    gross: Option<frame::GrossRotation>,
+) -> Result<(Diagnosis, nalgebra::Vector3<f64>), DiagnoseError> {
+    let in_real_frame;
+    let a = match &gross {
+        Some(g) => {
+            in_real_frame = frame::into_real_frame(a, g);
+            &in_real_frame
+        }
+        None => a,
+    };
     let n = a.len();
     let dt = a.dt();
     let mut notes = a.notes.clone();
+    if let Some(g) = &gross {
+        notes.push(format!(
+            "the real sensor's frame is rotated {:.1}° from the sim's (a mount_rotation too large for the linear fit, taken out exactly before it; the rotation maps the sim's gyro and accelerometer onto the real's with misfit × {:.3}); the residuals and every other term are in the real sensor's frame, after it",
+            g.angle_deg(),
+            g.misfit_ratio
+        ));
+    }
     let base = base_signals(a, opts.half_window_s, opts.max_smoothing_s, opts.gt_smoothing_s);
     let y_all: [Vec<f64>; 6] = std::array::from_fn(|c| a.real[c].iter().zip(&a.sim[c]).map(|(r, s)| r - s).collect());
     // A sensor that is not judged leaves the fit: its residual channels are set to zero (a
@@ -267,11 +306,36 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
     };
     let sel = select::select(problem)?;
 
-    // Findings.
-    let fitted = select::terms_of(&sel);
+    // Findings. A gross rotation is composed with the fitted one (real = R_fitᵀ R_grossᵀ sim).
+    let mut fitted = select::terms_of(&sel);
+    let fine = fitted.iter().position(|(t, _)| matches!(t, Term::MountRotation(_)));
+    let fine_rotvec = fine.map_or(nalgebra::Vector3::zeros(), |i| match &fitted[i].0 {
+        Term::MountRotation(m) => nalgebra::Vector3::from(m.rotvec),
+        _ => unreachable!("found as a mount rotation"),
+    });
+    if let Some(g) = &gross {
+        let total = crate::so3::log(&(g.body_from_imu * crate::so3::exp(&fine_rotvec)));
+        let term = Term::MountRotation(crate::physics::MountRotation { rotvec: total.into() });
+        match fine {
+            Some(i) => fitted[i].0 = term,
+            None => direct.push((
+                term,
+                serde_json::json!({"rule": "a rotation too large for the linear fit: the one that best maps the sim's gyro and accelerometer onto the real's", "angle_deg": g.angle_deg(), "misfit_ratio": g.misfit_ratio}),
+            )),
+        }
+    }
     let mut findings = Vec::new();
     let mut terms = Vec::new();
     for (term, sd) in &fitted {
+        // A linear fit can land where no sensor can be (a gain 1 + s below 0): that is not a
+        // finding, and the patch could not be applied.
+        if let Err(e) = term.validate() {
+            notes.push(format!(
+                "{} was fitted to a value no sensor has ({e}) and is left out: the recordings may not show the same motion, or their frames differ",
+                term.name()
+            ));
+            continue;
+        }
         let step = sel.steps.iter().rev().find(|s| s.action == "add" && s.term == term.name());
         let uncertainty = uncertainty_json(term, sd);
         let evidence = serde_json::json!({
@@ -345,20 +409,23 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
         curves.residual_after[c] = block_means(&after[c], &mask, block);
     }
 
-    Ok(Diagnosis {
-        notes,
-        findings,
-        terms,
-        located,
-        residual_before,
-        residual_after,
-        steps: sel.steps.clone(),
-        excluded,
-        curves,
-        base,
-        noise: sel.noise,
-        seconds: start.elapsed().as_secs_f64(),
-    })
+    Ok((
+        Diagnosis {
+            notes,
+            findings,
+            terms,
+            located,
+            residual_before,
+            residual_after,
+            steps: sel.steps.clone(),
+            excluded,
+            curves,
+            base,
+            noise: sel.noise,
+            seconds: 0.0,
+        },
+        fine_rotvec,
+    ))
 }
 
 /// Means of consecutive blocks of `block` samples, masked samples left out (NaN if none).
