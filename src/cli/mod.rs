@@ -59,7 +59,8 @@ pub enum Command {
 // clap value parsers for numeric options: NaN, infinities and values outside an option's
 // range are refused when the command line is read, naming the rule, never run with.
 
-fn number(s: &str) -> Result<f64, String> {
+/// A finite number.
+pub fn finite(s: &str) -> Result<f64, String> {
     let x: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number"))?;
     if x.is_finite() {
         Ok(x)
@@ -68,19 +69,14 @@ fn number(s: &str) -> Result<f64, String> {
     }
 }
 
-/// A finite number.
-pub fn finite(s: &str) -> Result<f64, String> {
-    number(s)
-}
-
 /// A finite number ≥ 0.
 pub fn non_negative(s: &str) -> Result<f64, String> {
-    number(s).and_then(|x| if x >= 0.0 { Ok(x) } else { Err(format!("{s} is below 0")) })
+    finite(s).and_then(|x| if x >= 0.0 { Ok(x) } else { Err(format!("{s} is below 0")) })
 }
 
 /// A finite number > 0.
 pub fn positive(s: &str) -> Result<f64, String> {
-    number(s).and_then(|x| if x > 0.0 { Ok(x) } else { Err(format!("{s} is not above 0")) })
+    finite(s).and_then(|x| if x > 0.0 { Ok(x) } else { Err(format!("{s} is not above 0")) })
 }
 
 /// Seconds, as a duration: finite, ≥ 0 and within what a `Duration` holds.

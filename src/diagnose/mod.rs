@@ -231,7 +231,7 @@ fn diagnose_in_frame(
     let mut notes = a.notes.clone();
     if let Some(g) = &gross {
         notes.push(format!(
-            "the real sensor's frame is rotated {:.1}° from the sim's (a mount_rotation too large for the linear fit, taken out exactly before it; the rotation maps the sim's gyro and accelerometer onto the real's with misfit × {:.3}); the residuals and every other term are in the real sensor's frame, after it",
+            "the real sensor's frame is rotated {:.1}° from the sim's (a mount_rotation too large for the linear fit, taken out exactly before it; it maps the sim's gyro and accelerometer onto the real's with misfit × {:.3}); the residuals and every other term are in the real sensor's frame, after it",
             g.angle_deg(),
             g.misfit_ratio
         ));
@@ -320,7 +320,7 @@ fn diagnose_in_frame(
             Some(i) => fitted[i].0 = term,
             None => direct.push((
                 term,
-                serde_json::json!({"rule": "a rotation too large for the linear fit: the one that best maps the sim's gyro and accelerometer onto the real's", "angle_deg": g.angle_deg(), "misfit_ratio": g.misfit_ratio}),
+                serde_json::json!({"rule": "a rotation too large for the catalogue's linear term, taken out exactly before the fit (found by mapping the sim's gyro and accelerometer onto the real's, or by a first fit)", "angle_deg": g.angle_deg(), "misfit_ratio": g.misfit_ratio}),
             )),
         }
     }
