@@ -653,6 +653,16 @@ impl TrainConfig {
                 return Err(format!("train.frozen_batch_norm_from = {from}: must be below train.epochs ({})", t.epochs));
             }
         }
+        if let Schedule::CosineWarmRestarts { t0, t_mult, eta_min } = t.schedule {
+            if t0 < 1 || t_mult < 1 || !non_negative(eta_min) || eta_min > t.lr {
+                return Err(format!(
+                    "train.schedule: cosine_warm_restarts needs t0 ≥ 1, t_mult ≥ 1 and 0 ≤ eta_min ≤ train.lr, got t0 {t0}, t_mult {t_mult}, eta_min {eta_min}"
+                ));
+            }
+        }
+        if !non_negative(t.max_train_seconds) {
+            return Err(format!("train.max_train_seconds must be finite and ≥ 0 (0: no budget), got {}", t.max_train_seconds));
+        }
         if !(0.0..1.0).contains(&t.ema_decay) {
             return Err(format!("train.ema_decay must be in [0, 1), got {}", t.ema_decay));
         }
@@ -729,6 +739,29 @@ mod tests {
 
     /// DIGDL's sampling (windows from a recording's first samples) and its all-channel offset
     /// parse; nonsense is refused before any data is read.
+    #[test]
+    fn schedule_and_budget_out_of_range_are_refused() {
+        let with = |train: &str| {
+            TrainConfig::parse(&format!(
+                "model: {{mode: fsda_f}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 3, lr: 0.01, {train}}}\n"
+            ))
+            .unwrap()
+            .validate()
+        };
+        assert!(with("schedule: {kind: cosine_warm_restarts, t0: 600, t_mult: 2, eta_min: 1.0e-3}").is_ok());
+        for bad in [
+            "schedule: {kind: cosine_warm_restarts, t0: 0, t_mult: 2}",
+            "schedule: {kind: cosine_warm_restarts, t0: 600, t_mult: 0}",
+            "schedule: {kind: cosine_warm_restarts, t0: 600, t_mult: 2, eta_min: .nan}",
+            "schedule: {kind: cosine_warm_restarts, t0: 600, t_mult: 2, eta_min: 0.1}",
+        ] {
+            assert!(with(bad).unwrap_err().contains("train.schedule"), "{bad}");
+        }
+        for bad in ["max_train_seconds: -1", "max_train_seconds: .nan", "max_train_seconds: .inf"] {
+            assert!(with(bad).unwrap_err().contains("train.max_train_seconds"), "{bad}");
+        }
+    }
+
     #[test]
     fn window_start_and_offsets_are_checked() {
         let with = |model: &str, train: &str| {
