@@ -115,7 +115,7 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     corrupt.imu.iter_mut().take(10_000).step_by(400).for_each(|s| s.gyro.x = 1e30);
     let b = d.join("corrupt.mcap");
     write_recording(&b, &corrupt).unwrap();
-    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "which no IMU measures");
+    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "beyond what any IMU measures");
 
     // Ground truth of another body frame (rotated 30° about x): detected and reported …
     let rx = UnitQuaternion::from_euler_angles(0.5, 0.0, 0.0);

@@ -46,7 +46,19 @@ pub enum DataError {
         lag_s * 1e3, crate::eval::GROUND_TRUTH_LAG_TOLERANCE_S * 1e3
     )]
     Misaligned { name: String, lag_s: f64, correlation: f64 },
+    #[error(
+        "{name}: {count} IMU samples beyond what any IMU measures (|ω| > {IMPLAUSIBLE_RATE_RAD_S:e} rad/s or |a| > \
+         {IMPLAUSIBLE_ACCEL_M_S2:e} m/s²; largest |ω| {largest_rate:.3e} rad/s, |a| {largest_accel:.3e} m/s²): corrupt values; \
+         fix or drop them first"
+    )]
+    Implausible { name: String, count: usize, largest_rate: f64, largest_accel: f64 },
 }
+
+/// Rates and specific forces no IMU measures (MEMS gyros top out near 70 rad/s, accelerometers
+/// short of shock sensors near 16 g): a sample beyond them is a corrupt value, not motion, and
+/// would swamp the normalisation or the loss.
+pub const IMPLAUSIBLE_RATE_RAD_S: f64 = 1e3;
+pub const IMPLAUSIBLE_ACCEL_M_S2: f64 = 1e4;
 
 /// One recording ready for training or evaluation.
 #[derive(Debug)]
@@ -144,6 +156,7 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
         return Err(DataError::NoGroundTruth(name));
     }
     check_clock(&rec)?;
+    check_plausible(&rec)?;
     Ok(rec)
 }
 
@@ -154,6 +167,23 @@ pub fn check_clock(rec: &Recording) -> Result<(), DataError> {
         Some(l) => Err(DataError::Misaligned { name: rec.name.clone(), lag_s: l.lag_s, correlation: l.correlation }),
         None => Ok(()),
     }
+}
+
+/// Refuses a recording with IMU samples no IMU measures ([`IMPLAUSIBLE_RATE_RAD_S`],
+/// [`IMPLAUSIBLE_ACCEL_M_S2`]).
+pub fn check_plausible(rec: &Recording) -> Result<(), DataError> {
+    let bad = |s: &&crate::core::ImuSample| s.gyro.norm() > IMPLAUSIBLE_RATE_RAD_S || s.accel.norm() > IMPLAUSIBLE_ACCEL_M_S2;
+    let count = rec.imu.iter().filter(bad).count();
+    if count == 0 {
+        return Ok(());
+    }
+    let largest = |f: fn(&crate::core::ImuSample) -> f64| rec.imu.iter().map(f).fold(0.0, f64::max);
+    Err(DataError::Implausible {
+        name: rec.name.clone(),
+        count,
+        largest_rate: largest(|s| s.gyro.norm()),
+        largest_accel: largest(|s| s.accel.norm()),
+    })
 }
 
 /// A `simulate` source: the simulator's recording (IMU and ground-truth pose), never a bag.
@@ -333,6 +363,18 @@ mod tests {
     use super::*;
     use crate::core::{ImuSample, PoseSample};
     use nalgebra::{UnitQuaternion, Vector3};
+
+    #[test]
+    fn samples_no_imu_measures_are_refused() {
+        let sample =
+            |gyro: f64, accel: f64| ImuSample { stamp_ns: 0, gyro: Vector3::new(gyro, 0.0, 0.0), accel: Vector3::new(0.0, 0.0, accel) };
+        let rec = |imu: Vec<ImuSample>| Recording { name: "r".into(), imu, ground_truth: vec![], temperature: vec![] };
+        // A 35 rad/s spin and a 16 g impact are motion.
+        assert!(check_plausible(&rec(vec![sample(35.0, 9.81), sample(0.1, 157.0)])).is_ok());
+        let e = check_plausible(&rec(vec![sample(1e30, 9.81), sample(0.1, 9.81), sample(0.0, 2e4)])).unwrap_err();
+        assert!(matches!(e, DataError::Implausible { count: 2, .. }), "{e}");
+        assert!(e.to_string().contains("1.000e30 rad/s") && e.to_string().contains("2.000e4 m/s²"), "{e}");
+    }
 
     fn dcfg() -> DatasetConfig {
         DatasetConfig {
