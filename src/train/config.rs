@@ -737,8 +737,7 @@ mod tests {
         assert!((s.lr(0.01, 600) - 0.01).abs() < 1e-15); // restart
     }
 
-    /// DIGDL's sampling (windows from a recording's first samples) and its all-channel offset
-    /// parse; nonsense is refused before any data is read.
+    /// A cosine schedule that cannot run, and a wall-time budget that is not one, are refused.
     #[test]
     fn schedule_and_budget_out_of_range_are_refused() {
         let with = |train: &str| {
@@ -762,6 +761,8 @@ mod tests {
         }
     }
 
+    /// DIGDL's sampling (windows from a recording's first samples) and its all-channel offset
+    /// parse; nonsense is refused before any data is read.
     #[test]
     fn window_start_and_offsets_are_checked() {
         let with = |model: &str, train: &str| {
