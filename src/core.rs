@@ -17,10 +17,21 @@ pub struct ImuSample {
     pub accel: Vector3<f64>,
 }
 
+/// Rates and specific forces no IMU measures (MEMS gyros top out near 70 rad/s, accelerometers
+/// short of shock sensors near 16 g): a sample beyond them is a corrupt value, not motion.
+pub const IMPLAUSIBLE_RATE_RAD_S: f64 = 1e3;
+pub const IMPLAUSIBLE_ACCEL_M_S2: f64 = 1e4;
+
 impl ImuSample {
     /// True when every component is finite.
     pub fn is_finite(&self) -> bool {
         self.gyro.iter().chain(self.accel.iter()).all(|v| v.is_finite())
+    }
+
+    /// True when the sample is within what an IMU measures ([`IMPLAUSIBLE_RATE_RAD_S`],
+    /// [`IMPLAUSIBLE_ACCEL_M_S2`]); false for non-finite samples too.
+    pub fn is_plausible(&self) -> bool {
+        self.gyro.norm() <= IMPLAUSIBLE_RATE_RAD_S && self.accel.norm() <= IMPLAUSIBLE_ACCEL_M_S2
     }
 }
 

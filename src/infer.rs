@@ -213,6 +213,9 @@ impl PipelineConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Dropped {
     NonFinite,
+    /// Beyond what an IMU measures ([`ImuSample::is_plausible`]): a corrupt value, which would
+    /// poison the model's window and jump the integrated attitude.
+    Implausible,
     DuplicateStamp,
     BackwardsStamp,
 }
@@ -223,12 +226,20 @@ pub struct Counters {
     pub received: u64,
     pub processed: u64,
     pub dropped_non_finite: u64,
+    pub dropped_implausible: u64,
     pub dropped_duplicate_stamp: u64,
     pub dropped_backwards_stamp: u64,
     pub gaps: u64,
     pub rate_changes: u64,
     pub resets: u64,
     pub warmup_samples: u64,
+}
+
+impl Counters {
+    /// Every input dropped, whatever the reason.
+    pub fn dropped(&self) -> u64 {
+        self.dropped_non_finite + self.dropped_implausible + self.dropped_duplicate_stamp + self.dropped_backwards_stamp
+    }
 }
 
 /// One corrected sample: what `/imu/denoised` and `/imu/gyro_correction` carry.
@@ -357,6 +368,10 @@ impl Pipeline {
         if !s.is_finite() {
             self.counters.dropped_non_finite += 1;
             return Err(Dropped::NonFinite);
+        }
+        if !s.is_plausible() {
+            self.counters.dropped_implausible += 1;
+            return Err(Dropped::Implausible);
         }
         let mut after_gap = false;
         if let Some((t_last, w_last)) = self.last {
@@ -503,16 +518,19 @@ mod tests {
         imu[10].gyro.y = f64::NAN;
         imu[20].stamp_ns = imu[19].stamp_ns;
         imu[30].stamp_ns = imu[29].stamp_ns - 1;
+        imu[40].gyro.z = 1e30;
         let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
         let results: Vec<_> = imu.iter().map(|s| p.push(s)).collect();
         assert_eq!(results[10], Err(Dropped::NonFinite));
+        assert_eq!(results[40], Err(Dropped::Implausible));
         assert_eq!(results[20], Err(Dropped::DuplicateStamp));
         assert_eq!(results[30], Err(Dropped::BackwardsStamp));
         let c = p.counters();
         assert_eq!(
-            (c.received, c.processed, c.dropped_non_finite, c.dropped_duplicate_stamp, c.dropped_backwards_stamp),
-            (100, 97, 1, 1, 1)
+            (c.received, c.processed, c.dropped_non_finite, c.dropped_implausible, c.dropped_duplicate_stamp, c.dropped_backwards_stamp),
+            (100, 96, 1, 1, 1, 1)
         );
+        assert_eq!(c.dropped(), 4);
     }
 
     #[test]

@@ -374,7 +374,7 @@ pub struct NodeStats {
 /// Build the /diagnostics message from the stats.
 pub fn diagnostics_message(stats: &NodeStats, node_name: &str, stamp: Time) -> DiagnosticArray {
     let c = &stats.counters;
-    let dropped = c.dropped_non_finite + c.dropped_duplicate_stamp + c.dropped_backwards_stamp;
+    let dropped = c.dropped();
     let (level, message) = if stats.model_status != "ok" {
         (DiagnosticStatus::WARN, stats.model_status.clone())
     } else if c.received == 0 {
@@ -398,6 +398,7 @@ pub fn diagnostics_message(stats: &NodeStats, node_name: &str, stamp: Time) -> D
         kv("received", c.received.to_string()),
         kv("published", c.processed.to_string()),
         kv("dropped_non_finite", c.dropped_non_finite.to_string()),
+        kv("dropped_implausible", c.dropped_implausible.to_string()),
         kv("dropped_duplicate_stamp", c.dropped_duplicate_stamp.to_string()),
         kv("dropped_backwards_stamp", c.dropped_backwards_stamp.to_string()),
         kv("decode_errors", stats.decode_errors.to_string()),

@@ -185,6 +185,7 @@ struct Expect {
     received: u64,
     published: u64,
     non_finite: u64,
+    implausible: u64,
     duplicate: u64,
     backwards: u64,
 }
@@ -260,6 +261,7 @@ fn check_run(run: &Run, reference: &Reference, expect: &Expect) {
         ("received", expect.received),
         ("processed", expect.published),
         ("dropped_non_finite", expect.non_finite),
+        ("dropped_implausible", expect.implausible),
         ("dropped_duplicate_stamp", expect.duplicate),
         ("dropped_backwards_stamp", expect.backwards),
         ("gaps", 0),
@@ -279,6 +281,7 @@ fn check_run(run: &Run, reference: &Reference, expect: &Expect) {
         ("received", expect.received),
         ("published", expect.published),
         ("dropped_non_finite", expect.non_finite),
+        ("dropped_implausible", expect.implausible),
         ("dropped_duplicate_stamp", expect.duplicate),
         ("dropped_backwards_stamp", expect.backwards),
         ("decode_errors", 0),
@@ -342,7 +345,11 @@ fn node_over_dds_matches_replay() {
     const COUNT: usize = 3000;
     let Some((pre, dir, slice, reference)) = prepare("MH_04_difficult", 0, COUNT) else { return };
     let run = run_in_namespace(&pre, dir.path(), &slice, &["--count", &COUNT.to_string(), "--rate", "1000"]);
-    check_run(&run, &reference, &Expect { received: COUNT as u64, published: COUNT as u64, non_finite: 0, duplicate: 0, backwards: 0 });
+    check_run(
+        &run,
+        &reference,
+        &Expect { received: COUNT as u64, published: COUNT as u64, non_finite: 0, implausible: 0, duplicate: 0, backwards: 0 },
+    );
     eprintln!("dds_interop: node_over_dds_matches_replay took {:.1} s", t0.elapsed().as_secs_f64());
 }
 
@@ -358,8 +365,16 @@ fn node_over_dds_drops_bad_input_by_reason() {
     let run = run_in_namespace(&pre, dir.path(), &slice, &["--count", &COUNT.to_string(), "--rate", "1000", "--inject-bad"]);
     let kinds: Vec<&str> = run.peer["sent"].as_array().unwrap().iter().map(|s| s["kind"].as_str().unwrap()).collect();
     let n = |k: &str| kinds.iter().filter(|x| **x == k).count() as u64;
-    assert_eq!((n("non_finite"), n("duplicate_stamp"), n("backwards_stamp")), (3, 1, 1), "the peer's bad samples: {kinds:?}");
-    check_run(&run, &reference, &Expect { received: COUNT as u64 + 5, published: COUNT as u64, non_finite: 3, duplicate: 1, backwards: 1 });
+    assert_eq!(
+        (n("non_finite"), n("implausible"), n("duplicate_stamp"), n("backwards_stamp")),
+        (3, 1, 1, 1),
+        "the peer's bad samples: {kinds:?}"
+    );
+    check_run(
+        &run,
+        &reference,
+        &Expect { received: COUNT as u64 + 6, published: COUNT as u64, non_finite: 3, implausible: 1, duplicate: 1, backwards: 1 },
+    );
     // No published message carries a bad sample's values.
     for m in run.peer["denoised"].as_array().unwrap() {
         for k in ["angular_velocity", "linear_acceleration"] {

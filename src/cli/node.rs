@@ -107,11 +107,12 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     let stats = rt.block_on(run_node_with_adaptation(&args.config.node_name, params, env, pipeline, status, limits, adapt))?;
     let c = &stats.counters;
     eprintln!(
-        "imu-fsda node: received {}, published {}, dropped {} (non-finite {}, duplicate {}, backwards {}), gaps {}, latency p50 {:.0} µs p99 {:.0} µs",
+        "imu-fsda node: received {}, published {}, dropped {} (non-finite {}, implausible {}, duplicate {}, backwards {}), gaps {}, latency p50 {:.0} µs p99 {:.0} µs",
         c.received,
         c.processed,
-        c.dropped_non_finite + c.dropped_duplicate_stamp + c.dropped_backwards_stamp,
+        c.dropped(),
         c.dropped_non_finite,
+        c.dropped_implausible,
         c.dropped_duplicate_stamp,
         c.dropped_backwards_stamp,
         c.gaps,

@@ -124,7 +124,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     writer.finish().with_context(|| format!("finishing {}", args.output.display()))?;
     let c = &stats.counters;
     println!(
-        "replayed {} {} messages through {} → {} ({} published on {}, dropped: {} non-finite, {} duplicate, {} backwards stamps; {} gaps; {} decode errors)",
+        "replayed {} {} messages through {} → {} ({} published on {}, dropped: {} non-finite, {} implausible, {} duplicate, {} backwards stamps; {} gaps; {} decode errors)",
         c.received,
         input_topic,
         stats.model,
@@ -132,6 +132,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         c.processed,
         params.output_topic,
         c.dropped_non_finite,
+        c.dropped_implausible,
         c.dropped_duplicate_stamp,
         c.dropped_backwards_stamp,
         c.gaps,

@@ -47,18 +47,14 @@ pub enum DataError {
     )]
     Misaligned { name: String, lag_s: f64, correlation: f64 },
     #[error(
-        "{name}: {count} IMU samples beyond what any IMU measures (|ω| > {IMPLAUSIBLE_RATE_RAD_S:e} rad/s or |a| > \
-         {IMPLAUSIBLE_ACCEL_M_S2:e} m/s²; largest |ω| {largest_rate:.3e} rad/s, |a| {largest_accel:.3e} m/s²): corrupt values; \
-         fix or drop them first"
+        "{name}: {count} IMU samples beyond what any IMU measures (|ω| > {:e} rad/s or |a| > \
+         {:e} m/s²; largest |ω| {largest_rate:.3e} rad/s, |a| {largest_accel:.3e} m/s²): corrupt values; \
+         fix or drop them first",
+        crate::core::IMPLAUSIBLE_RATE_RAD_S,
+        crate::core::IMPLAUSIBLE_ACCEL_M_S2
     )]
     Implausible { name: String, count: usize, largest_rate: f64, largest_accel: f64 },
 }
-
-/// Rates and specific forces no IMU measures (MEMS gyros top out near 70 rad/s, accelerometers
-/// short of shock sensors near 16 g): a sample beyond them is a corrupt value, not motion, and
-/// would swamp the normalisation or the loss.
-pub const IMPLAUSIBLE_RATE_RAD_S: f64 = 1e3;
-pub const IMPLAUSIBLE_ACCEL_M_S2: f64 = 1e4;
 
 /// One recording ready for training or evaluation.
 #[derive(Debug)]
@@ -169,11 +165,10 @@ pub fn check_clock(rec: &Recording) -> Result<(), DataError> {
     }
 }
 
-/// Refuses a recording with IMU samples no IMU measures ([`IMPLAUSIBLE_RATE_RAD_S`],
-/// [`IMPLAUSIBLE_ACCEL_M_S2`]).
+/// Refuses a recording with IMU samples no IMU measures ([`crate::core::ImuSample::is_plausible`]):
+/// they would swamp the normalisation or the loss.
 pub fn check_plausible(rec: &Recording) -> Result<(), DataError> {
-    let bad = |s: &&crate::core::ImuSample| s.gyro.norm() > IMPLAUSIBLE_RATE_RAD_S || s.accel.norm() > IMPLAUSIBLE_ACCEL_M_S2;
-    let count = rec.imu.iter().filter(bad).count();
+    let count = rec.imu.iter().filter(|s| !s.is_plausible()).count();
     if count == 0 {
         return Ok(());
     }

@@ -170,7 +170,8 @@ def read_euroc_csv(path: str, start: int, count: int) -> list[tuple[int, list[fl
 
 def build_inputs(rows, inject_bad: bool) -> list[dict]:
     """The sequence to publish: every CSV row ("valid"), plus, with `inject_bad`, bad samples
-    mixed in: two NaN and one +inf sample, a duplicate stamp and a backwards stamp."""
+    mixed in: two NaN and one +inf sample, a 1e30 rad/s sample (finite, but no IMU measures
+    it), a duplicate stamp and a backwards stamp."""
     out = [{"kind": "valid", "stamp_ns": t, "gyro": g, "accel": a} for t, g, a in rows]
     if not inject_bad:
         return out
@@ -189,6 +190,9 @@ def build_inputs(rows, inject_bad: bool) -> list[dict]:
                       "gyro": rows[n * 3 // 10][1], "accel": [0.0, 0.0, math.nan]},
         n * 5 // 10: {"kind": "non_finite", "stamp_ns": between(n * 5 // 10),
                       "gyro": [0.0, math.inf, 0.0], "accel": rows[n * 5 // 10][2]},
+        # Finite but beyond any IMU's range: a corrupt driver value.
+        n * 6 // 10: {"kind": "implausible", "stamp_ns": between(n * 6 // 10),
+                      "gyro": [1e30, rows[n * 6 // 10][1][1], rows[n * 6 // 10][1][2]], "accel": rows[n * 6 // 10][2]},
         # Same stamp as the row before it, different values: must not be published.
         n * 7 // 10: {"kind": "duplicate_stamp", "stamp_ns": rows[n * 7 // 10][0],
                       "gyro": [v + 0.5 for v in rows[n * 7 // 10][1]], "accel": rows[n * 7 // 10][2]},
