@@ -61,22 +61,22 @@ pub fn gross_rotation(a: &Aligned, sensors: Sensors) -> Result<Option<GrossRotat
         return Ok(None);
     }
     // Misfit of R: energy − 2 tr(R H); the identity's, the best rotation's, the best mirror's.
-    let misfit = |r: &Matrix3<f64>| (energy - 2.0 * (r * h).trace()).max(0.0);
+    let cost = |r: &Matrix3<f64>| misfit(&h, energy, r);
     let free = v_t.transpose() * u.transpose(); // the best orthogonal matrix, either sign
     let mirrored = free.determinant() < 0.0;
     let smallest = order[2];
     let mut d = Matrix3::identity();
     d[(smallest, smallest)] = if mirrored { -1.0 } else { 1.0 };
     let rotation = v_t.transpose() * d * u.transpose();
-    let none = misfit(&Matrix3::identity());
-    if mirrored && misfit(&free) < MISFIT_KEPT * misfit(&rotation).min(none) {
+    let none = cost(&Matrix3::identity());
+    if mirrored && cost(&free) < MISFIT_KEPT * cost(&rotation).min(none) {
         return Err(DiagnoseError::Input(format!(
             "the real sensor's axes are a mirror image of the sim's ({}): an axis sign or the order of two axes is wrong in a driver or a frame convention, not physics the simulation left out; fix the frame and diagnose again",
             describe_mapping(&free)
         )));
     }
     let body_from_imu = UnitQuaternion::from_matrix(&rotation);
-    let misfit_ratio = misfit(&rotation) / none.max(f64::MIN_POSITIVE);
+    let misfit_ratio = cost(&rotation) / none.max(f64::MIN_POSITIVE);
     if body_from_imu.angle() < GROSS_ANGLE_RAD || misfit_ratio > MISFIT_KEPT {
         return Ok(None);
     }
@@ -86,9 +86,9 @@ pub fn gross_rotation(a: &Aligned, sensors: Sensors) -> Result<Option<GrossRotat
 /// `body_from_imu` as a [`GrossRotation`] of `a`, with its misfit ratio.
 pub fn rotation(a: &Aligned, body_from_imu: UnitQuaternion<f64>, sensors: Sensors) -> GrossRotation {
     let (h, energy) = correlation(a, sensors);
-    let misfit = |r: &Matrix3<f64>| (energy - 2.0 * (r * h).trace()).max(0.0);
+    let cost = |r: &Matrix3<f64>| misfit(&h, energy, r);
     let r = body_from_imu.to_rotation_matrix().into_inner();
-    GrossRotation { body_from_imu, misfit_ratio: misfit(&r) / misfit(&Matrix3::identity()).max(f64::MIN_POSITIVE) }
+    GrossRotation { body_from_imu, misfit_ratio: cost(&r) / cost(&Matrix3::identity()).max(f64::MIN_POSITIVE) }
 }
 
 /// H = Σ w real simᵀ over both sensors, each weighted by 1 / its mean square, and the energy
@@ -111,6 +111,11 @@ fn correlation(a: &Aligned, sensors: Sensors) -> (Matrix3<f64>, f64) {
         }
     }
     (h, energy)
+}
+
+/// Σ w ‖sim − R real‖² from the correlation: energy − 2 tr(R H).
+fn misfit(h: &Matrix3<f64>, energy: f64, r: &Matrix3<f64>) -> f64 {
+    (energy - 2.0 * (r * h).trace()).max(0.0)
 }
 
 /// "real x = sim y, real y = −sim x, …" when `m` (sim ≈ m real) is close to a signed

@@ -309,10 +309,10 @@ fn diagnose_in_frame(
     // Findings. A gross rotation is composed with the fitted one (real = R_fitᵀ R_grossᵀ sim).
     let mut fitted = select::terms_of(&sel);
     let fine = fitted.iter().position(|(t, _)| matches!(t, Term::MountRotation(_)));
-    let fine_rotvec = fine.map_or(nalgebra::Vector3::zeros(), |i| match &fitted[i].0 {
-        Term::MountRotation(m) => nalgebra::Vector3::from(m.rotvec),
-        _ => unreachable!("found as a mount rotation"),
-    });
+    let fine_rotvec = fitted
+        .iter()
+        .find_map(|(t, _)| if let Term::MountRotation(m) = t { Some(nalgebra::Vector3::from(m.rotvec)) } else { None })
+        .unwrap_or_else(nalgebra::Vector3::zeros);
     if let Some(g) = &gross {
         let total = crate::so3::log(&(g.body_from_imu * crate::so3::exp(&fine_rotvec)));
         let term = Term::MountRotation(crate::physics::MountRotation { rotvec: total.into() });
