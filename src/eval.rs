@@ -19,6 +19,11 @@ pub enum EvalError {
     NoGroundTruth(String),
     #[error("{name}: ground truth ({gt_start:.3}–{gt_end:.3} s) does not overlap the IMU stream ({imu_start:.3}–{imu_end:.3} s)")]
     NoOverlap { name: String, imu_start: f64, imu_end: f64, gt_start: f64, gt_end: f64 },
+    #[error(
+        "{name}: the ground truth's {poses} pose(s) ({gt_start:.3}–{gt_end:.3} s) lie within the IMU stream but cover no \
+         IMU sample: interpolation needs two poses at most {max_gap_ms} ms apart around a sample"
+    )]
+    NotCovered { name: String, poses: usize, gt_start: f64, gt_end: f64, max_gap_ms: f64 },
     #[error("{name}: the ground truth covers {covered} IMU sample(s): nothing to score (an orientation error needs at least 2)")]
     TooShort { name: String, covered: usize },
     #[error("{name}: method gave {got} gyro samples for {expected} IMU samples")]
@@ -88,6 +93,15 @@ pub fn evaluate_with_path(
     let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), opts.max_gap_ns);
     let Some(start) = gt.iter().position(Option::is_some) else {
         let (i0, i1) = (rec.imu.first().map_or(0, |s| s.stamp_ns), rec.imu.last().map_or(0, |s| s.stamp_ns));
+        if g0.stamp_ns <= i1 && g1.stamp_ns >= i0 {
+            return Err(EvalError::NotCovered {
+                name: rec.name.clone(),
+                poses: rec.ground_truth.len(),
+                gt_start: g0.stamp_ns as f64 * 1e-9,
+                gt_end: g1.stamp_ns as f64 * 1e-9,
+                max_gap_ms: opts.max_gap_ns as f64 * 1e-6,
+            });
+        }
         return Err(EvalError::NoOverlap {
             name: rec.name.clone(),
             imu_start: i0 as f64 * 1e-9,
@@ -548,6 +562,14 @@ mod tests {
         let mut rec = spinning(100, 200.0, w);
         rec.ground_truth.truncate(1);
         assert!(matches!(evaluate(&rec, &vec![w; 100], &EvalOptions::default()), Err(EvalError::TooShort { covered: 1, .. })));
+        // Poses inside the IMU's span but 100 ms apart (over the 50-ms gap): in time, yet covering nothing.
+        let mut rec = spinning(100, 200.0, w);
+        rec.ground_truth.retain(|p| p.stamp_ns % 100_000_000 == 5_000);
+        rec.ground_truth.iter_mut().for_each(|p| p.stamp_ns += 1_000_000); // off the IMU's stamps
+        assert!(rec.ground_truth.len() >= 2, "{}", rec.ground_truth.len());
+        let e = evaluate(&rec, &vec![w; 100], &EvalOptions::default()).unwrap_err();
+        assert!(matches!(e, EvalError::NotCovered { .. }), "{e}");
+        assert!(e.to_string().contains("at most 50 ms apart"), "{e}");
     }
 
     #[test]

@@ -101,6 +101,15 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     let b = d.join("shifted.mcap");
     write_recording(&b, &shifted).unwrap();
     expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "does not overlap");
+    // One pose inside the support's span (between two samples) overlaps it in time but covers no sample.
+    let mut one_pose = rec.clone();
+    let t30 = one_pose.imu[0].stamp_ns + 30_000_000_000;
+    one_pose.ground_truth.retain(|p| p.stamp_ns >= t30);
+    one_pose.ground_truth.truncate(1);
+    one_pose.ground_truth[0].stamp_ns += 1_000_000; // off the IMU's stamps
+    let b = d.join("one_pose.mcap");
+    write_recording(&b, &one_pose).unwrap();
+    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "1 pose(s)");
 
     // Ground truth stamped 60 ms late: a clock error, refused before any step.
     let mut late = rec.clone();

@@ -282,3 +282,29 @@ fn numeric_options_out_of_range_are_refused_by_name() {
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("fewer than 2 IMU samples"), "{err}");
 }
+
+/// eval drops a value no IMU measures, as the node does, and says so in the row: one 1e30
+/// rad/s sample would otherwise decide the score.
+#[test]
+fn eval_drops_implausible_samples_and_says_so() {
+    let d = tempfile::tempdir().unwrap();
+    let clean = Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap");
+    let topics = RecordingTopics::default();
+    let (mut rec, _) = read_recording(&clean, &topics).unwrap();
+    let k = rec.imu.len() / 2;
+    rec.imu[k].gyro = nalgebra::Vector3::new(1e30, 0.0, 0.0);
+    let bad = d.path().join("implausible.mcap");
+    imu_fsda::bag::write_recording(&bad, &rec).unwrap();
+    let row = |bag: &Path, tag: &str| {
+        let json = d.path().join(format!("{tag}.json"));
+        let out = Command::new(bin()).args(["eval", "--method", "raw", "--json"]).arg(&json).arg(bag).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+        v["rows"][0].clone()
+    };
+    let (clean_row, bad_row) = (row(&clean, "clean"), row(&bad, "bad"));
+    let aoe = |r: &serde_json::Value| r["aoe_deg"].as_f64().unwrap();
+    assert!(bad_row["note"].as_str().unwrap().contains("dropped 1 implausible IMU samples"), "{bad_row}");
+    // One 5-ms sample less: the same score to a small fraction of it.
+    assert!((aoe(&bad_row) - aoe(&clean_row)).abs() < 0.01 * aoe(&clean_row) + 1e-3, "{clean_row} vs {bad_row}");
+}

@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
+use imu_fsda::core::ImuSample;
 use imu_fsda::eval::{evaluate_with_path, mean_rate_error, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector};
 use imu_fsda::model::export::load_metadata;
 use imu_fsda::model::predict::{correct_with_torchscript, metadata_path};
@@ -100,8 +101,16 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         .collect::<anyhow::Result<_>>()?;
     let mut rows = Vec::new();
     for bag in &args.bags {
-        let (rec, report) = read_recording(bag, &topics)?;
+        let (mut rec, report) = read_recording(bag, &topics)?;
         let name = bag.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        // Values no IMU measures are dropped, as the node drops them, and said in every row:
+        // one 1e30 rad/s sample would otherwise decide every method's score.
+        let before = rec.imu.len();
+        rec.imu.retain(ImuSample::is_plausible);
+        let implausible = before - rec.imu.len();
+        if implausible > 0 {
+            tracing::warn!("{}: dropped {implausible} IMU samples beyond what any IMU measures", bag.display());
+        }
         if rec.ground_truth.is_empty() {
             anyhow::bail!("{}: no ground truth on {}", bag.display(), args.ground_truth_topic);
         }
@@ -167,6 +176,16 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             let mut note = note;
             if report.skipped() > 0 {
                 add_note(&mut note, &format!("skipped {} input samples", report.skipped()));
+            }
+            if implausible > 0 {
+                add_note(
+                    &mut note,
+                    &format!(
+                        "dropped {implausible} implausible IMU samples (|ω| > {:e} rad/s or |a| > {:e} m/s²)",
+                        imu_fsda::core::IMPLAUSIBLE_RATE_RAD_S,
+                        imu_fsda::core::IMPLAUSIBLE_ACCEL_M_S2
+                    ),
+                );
             }
             if let Some(lag) = &lag_note {
                 add_note(&mut note, lag);

@@ -34,6 +34,11 @@ pub enum DataError {
     NoGroundTruth(String),
     #[error("{name}: ground truth ({gt_start:.3}–{gt_end:.3} s) does not overlap the IMU ({imu_start:.3}–{imu_end:.3} s) in time")]
     NoOverlap { name: String, imu_start: f64, imu_end: f64, gt_start: f64, gt_end: f64 },
+    #[error(
+        "{name}: the ground truth's {poses} pose(s) ({gt_start:.3}–{gt_end:.3} s) lie within the IMU's time but cover no \
+         IMU sample: interpolation needs two poses at most {max_gap_ms} ms apart around a sample"
+    )]
+    NotCovered { name: String, poses: usize, gt_start: f64, gt_end: f64, max_gap_ms: f64 },
     #[error("{name}: {count} non-finite (NaN/inf) {what} in the data; fix or drop them before training")]
     NonFinite { name: String, what: &'static str, count: u64 },
     #[error("{name}: {samples} IMU samples ({seconds:.1} s) with ground truth, shorter than {needed}")]
@@ -294,6 +299,15 @@ pub fn task_from_recording(
     let (Some(first), Some(last)) = (first, last) else {
         let (i0, i1) = (rec.imu[0].stamp_ns, rec.imu[rec.imu.len() - 1].stamp_ns);
         let (g0, g1) = (rec.ground_truth[0].stamp_ns, rec.ground_truth[rec.ground_truth.len() - 1].stamp_ns);
+        if g0 <= i1 && g1 >= i0 {
+            return Err(DataError::NotCovered {
+                name: rec.name.clone(),
+                poses: rec.ground_truth.len(),
+                gt_start: g0 as f64 * 1e-9,
+                gt_end: g1 as f64 * 1e-9,
+                max_gap_ms: cfg.max_interpolation_gap_ms,
+            });
+        }
         return Err(DataError::NoOverlap {
             name: rec.name.clone(),
             imu_start: i0 as f64 * 1e-9,
