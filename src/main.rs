@@ -9,6 +9,7 @@ fn main() -> std::process::ExitCode {
     cli::init_tracing(args.verbose);
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) if cli::is_broken_pipe(&e) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", cli::error_text(&e));
             std::process::ExitCode::FAILURE

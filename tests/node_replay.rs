@@ -308,3 +308,19 @@ fn eval_drops_implausible_samples_and_says_so() {
     // One 5-ms sample less: the same score to a small fraction of it.
     assert!((aoe(&bad_row) - aoe(&clean_row)).abs() < 0.01 * aoe(&clean_row) + 1e-3, "{clean_row} vs {bad_row}");
 }
+
+/// A reader that closes the pipe early (`| head`) ends a command quietly: exit 0, no panic.
+#[test]
+fn a_closed_stdout_ends_the_command_quietly() {
+    let bag = Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap");
+    let bag = bag.to_str().unwrap();
+    // echo writes far more than a pipe holds; info writes after reading the whole bag.
+    for args in [&["bag", "echo", "--topic", "/imu/data", bag][..], &["bag", "info", "--json", bag][..]] {
+        let mut child =
+            Command::new(bin()).args(args).stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::piped()).spawn().unwrap();
+        drop(child.stdout.take());
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success() && !err.contains("panicked"), "{args:?}: {:?} {err}", out.status);
+    }
+}

@@ -124,7 +124,7 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     let outcome = adapt(&loaded, &support, &query, &cfg)?;
     let r = &outcome.report;
     if args.json {
-        println!("{}", serde_json::to_string_pretty(r)?);
+        out!("{}", serde_json::to_string_pretty(r)?)?;
     }
     if let Some(f) = &r.frame {
         eprintln!(

@@ -51,23 +51,23 @@ fn info(file: PathBuf, json: bool) -> anyhow::Result<()> {
             "topics": topics.iter().map(|t| serde_json::json!({"topic": t.topic, "type": t.type_name, "count": t.count, "rate_hz": t.rate_hz(), "first_ns": t.first_ns, "last_ns": t.last_ns})).collect::<Vec<_>>(),
             "complete": err.is_none(),
         });
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        out!("{}", serde_json::to_string_pretty(&v)?)?;
     } else {
-        println!("Files:     {}", file.display());
-        println!("Duration:  {:.3} s", (last.saturating_sub(first)) as f64 * 1e-9);
-        println!("Start:     {:.9} s", first as f64 * 1e-9);
-        println!("End:       {:.9} s", last as f64 * 1e-9);
-        println!("Messages:  {total}");
-        println!("Topics:");
+        out!("Files:     {}", file.display())?;
+        out!("Duration:  {:.3} s", (last.saturating_sub(first)) as f64 * 1e-9)?;
+        out!("Start:     {:.9} s", first as f64 * 1e-9)?;
+        out!("End:       {:.9} s", last as f64 * 1e-9)?;
+        out!("Messages:  {total}")?;
+        out!("Topics:")?;
         for t in &topics {
-            println!(
+            out!(
                 "  {:<28} {:<38} {:>9} msgs  {:>9.3} Hz  span {:.3} s",
                 t.topic,
                 t.type_name,
                 t.count,
                 t.rate_hz(),
                 (t.last_ns - t.first_ns) as f64 * 1e-9
-            );
+            )?;
         }
     }
     match err {

@@ -106,12 +106,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     throughput(&mut naive, &naive_in[..naive_in.len().min(20)])?;
     let nai = throughput(&mut naive, naive_in)?;
 
-    println!("model: {} ({:?}), window N = {n}", loaded.metadata.name, loaded.metadata.mode);
-    println!("decode → correct → integrate → encode, one thread:");
-    println!("  incremental (streaming) : {inc:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / inc, input.len());
-    println!("  naive full-window (tch) : {nai:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / nai, naive_in.len());
-    println!("  speed-up                : {:>12.1}×", inc / nai);
-    println!("  target ≥ 20,000 samples/s: {}", if inc >= 20_000.0 { "met" } else { "NOT met" });
+    out!("model: {} ({:?}), window N = {n}", loaded.metadata.name, loaded.metadata.mode)?;
+    out!("decode → correct → integrate → encode, one thread:")?;
+    out!("  incremental (streaming) : {inc:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / inc, input.len())?;
+    out!("  naive full-window (tch) : {nai:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / nai, naive_in.len())?;
+    out!("  speed-up                : {:>12.1}×", inc / nai)?;
+    out!("  target ≥ 20,000 samples/s: {}", if inc >= 20_000.0 { "met" } else { "NOT met" })?;
 
     let mut memory = Vec::new();
     if args.memory_hours > 0.0 {
@@ -136,9 +136,9 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 memory.push((done as f64 / 200.0 / 3600.0, rss_kib()));
             }
         }
-        println!("resident memory over {:.2} h of simulated 200 Hz input ({} samples):", args.memory_hours, total);
+        out!("resident memory over {:.2} h of simulated 200 Hz input ({} samples):", args.memory_hours, total)?;
         for (h, kib) in &memory {
-            println!("  after {h:>5.2} h: {:>8.1} MiB", *kib as f64 / 1024.0);
+            out!("  after {h:>5.2} h: {:>8.1} MiB", *kib as f64 / 1024.0)?;
         }
     }
     if let Some(path) = &args.json {

@@ -131,12 +131,12 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
     let d = diagnose(&aligned, opts)?;
     report::write_all(&args.out, &aligned, &d)?;
     if d.findings.is_empty() {
-        println!("nothing left out");
+        out!("nothing left out")?;
     }
     for f in &d.findings {
-        println!("{}: {}", f.term, f.params);
+        out!("{}: {}", f.term, f.params)?;
     }
-    println!("report: {} ({:.2} s)", args.out.join("report.md").display(), d.seconds);
+    out!("report: {} ({:.2} s)", args.out.join("report.md").display(), d.seconds)?;
     Ok(())
 }
 
@@ -409,13 +409,13 @@ mod score {
                 d.seconds
             );
             tracing::info!("truth {truth:?}; found {:?}; steps {:?}", d.terms, d.steps);
-            println!(
+            out!(
                 "case {case:3} {profile:9} {:10} {rate:6} Hz {seconds:5.0} s  truth [{}]  found [{}]  {}",
                 grade.name(),
                 tn.join(", "),
                 fnm.join(", "),
                 errs.join(", ")
-            );
+            )?;
         }
         errors.sort_by(|a, b| a.total_cmp(b));
         let median = errors.get(errors.len() / 2).copied().unwrap_or(f64::NAN);
@@ -428,7 +428,7 @@ mod score {
             "parameters_within_20pct": within as f64 / found.max(1) as f64,
             "median_effect_error": median,
         });
-        println!("{}", serde_json::to_string_pretty(&summary)?);
+        out!("{}", serde_json::to_string_pretty(&summary)?)?;
         std::fs::write(out.join("score.json"), serde_json::to_string_pretty(&summary)?)?;
         std::fs::write(out.join("cases.csv"), csv)?;
         Ok(())

@@ -153,13 +153,13 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
         "points_csv": csv_path.file_name().map(|f| f.to_string_lossy().into_owned()),
     });
     std::fs::write(&json_path, serde_json::to_string_pretty(&summary)?).with_context(|| format!("writing {}", json_path.display()))?;
-    println!(
+    out!(
         "wrote {}, {} and {} ({} points, KL {:.3})",
         args.out.display(),
         csv_path.display(),
         json_path.display(),
         x.len(),
         map.kl_divergence
-    );
+    )?;
     Ok(())
 }

@@ -18,7 +18,7 @@ pub struct ImportArgs {
 pub fn run(args: ImportArgs) -> anyhow::Result<()> {
     let (seq, rec, report) = load_sequence(&args.dir).with_context(|| format!("importing {}", args.dir.display()))?;
     write_recording(&args.output, &rec).with_context(|| format!("writing {}", args.output.display()))?;
-    println!(
+    out!(
         "{} ({:?}): {} IMU samples at {:.2} Hz over {:.1} s, {} ground-truth poses → {} ({IMU_TOPIC}, {GROUND_TRUTH_TOPIC})",
         seq.name,
         seq.kind,
@@ -27,9 +27,9 @@ pub fn run(args: ImportArgs) -> anyhow::Result<()> {
         rec.imu_seconds(),
         rec.ground_truth.len(),
         args.output.display()
-    );
+    )?;
     if report.skipped() > 0 {
-        println!("skipped: {report}");
+        out!("skipped: {report}")?;
     }
     Ok(())
 }

@@ -1,5 +1,14 @@
 //! Subcommands of `imu-fsda`, one file each.
 
+/// `println!` that returns the write's error instead of panicking on it: a reader that
+/// closes the pipe early (`imu-fsda bag info x.mcap | head -1`) ends the command quietly.
+macro_rules! out {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout(), $($arg)*)
+    }};
+}
+
 mod adapt;
 mod bag;
 mod bench;
@@ -88,6 +97,12 @@ pub fn seconds(s: &str) -> Result<std::time::Duration, String> {
 /// whose text its parent already ends with (our errors name their source in their own message,
 /// so the chain would say it twice: "x.mcap: No such file …: No such file …") and without the
 /// C++ backtrace libtorch appends to its messages.
+/// Whether the command ended because its standard output was closed (a pager or `head`
+/// quit): the reader wanted no more, which is not a failure.
+pub fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| c.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe))
+}
+
 pub fn error_text(e: &anyhow::Error) -> String {
     let mut text = String::new();
     for cause in e.chain() {

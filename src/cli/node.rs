@@ -120,7 +120,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         stats.latency.quantile_us(0.99)
     );
     if args.stats_json {
-        println!(
+        out!(
             "{}",
             serde_json::json!({
                 "counters": c, "latency_p50_us": stats.latency.quantile_us(0.5), "latency_p99_us": stats.latency.quantile_us(0.99),
@@ -128,7 +128,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
                 "model": stats.model, "adaptation": stats.adapt_status, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
                 "latency_by_adaptation_state": stats.split_latency.summary_json(),
             })
-        );
+        )?;
     }
     Ok(())
 }

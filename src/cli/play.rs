@@ -263,19 +263,19 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     }
     node.stop_spinner();
     spin.abort();
-    println!("played {sent} messages from {} in {elapsed:.2} s", args.input.display());
+    out!("played {sent} messages from {} in {elapsed:.2} s", args.input.display())?;
     if let Some(e) = read_error {
         return Err(e).context(format!("the bag is damaged ({sent} messages played before it)"));
     }
     if let Some(t) = &args.latency_topic {
         let l = latency.lock().expect("lock");
         let missing = sent_at.lock().expect("lock").len();
-        println!(
+        out!(
             "latency publish → {t}: {} outputs matched, {missing} inputs without output; p50 {:.0} µs, p99 {:.0} µs",
             l.1,
             l.0.quantile_us(0.5),
             l.0.quantile_us(0.99)
-        );
+        )?;
     }
     Ok(())
 }

@@ -123,7 +123,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     writer.write(diag_ch, last_log as i64, &diagnostics_message(&stats, &args.config.node_name, Time::from_ns(last_log as i64)))?;
     writer.finish().with_context(|| format!("finishing {}", args.output.display()))?;
     let c = &stats.counters;
-    println!(
+    out!(
         "replayed {} {} messages through {} → {} ({} published on {}, dropped: {} non-finite, {} implausible, {} duplicate, {} backwards stamps; {} gaps; {} decode errors)",
         c.received,
         input_topic,
@@ -137,6 +137,6 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         c.dropped_backwards_stamp,
         c.gaps,
         decode_errors
-    );
+    )?;
     Ok(())
 }

@@ -102,7 +102,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         std::fs::write(path, yaml).with_context(|| format!("writing {}", path.display()))?;
     }
     let terms: Vec<&str> = out.applied.iter().map(|t| t.name()).collect();
-    println!(
+    out!(
         "wrote {}: {} / {}, {} Hz, {} s, seed {}: {} IMU, {} pose, {} temperature messages; terms: {}",
         args.output.display(),
         cfg.profile,
@@ -114,6 +114,6 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         rec.ground_truth.len(),
         rec.temperature.len(),
         terms.join(", ")
-    );
+    )?;
     Ok(())
 }

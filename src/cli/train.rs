@@ -61,12 +61,20 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         progress: !args.no_progress && std::io::stderr().is_terminal(),
     };
     let s = fit::train(&cfg, &opts)?;
-    println!(
+    out!(
         "trained {} ({:?}, seed {}): {} epochs in {:.1} s ({:.3} s/epoch, {} threads); loss {:.4} → {:.4}",
-        s.name, s.mode, s.seed, s.epochs, s.train_seconds, s.seconds_per_epoch, s.threads, s.loss_first, s.loss_last
-    );
+        s.name,
+        s.mode,
+        s.seed,
+        s.epochs,
+        s.train_seconds,
+        s.seconds_per_epoch,
+        s.threads,
+        s.loss_first,
+        s.loss_last
+    )?;
     if s.exported_epoch != s.epochs {
-        println!("exported epoch {} (lowest validation score; train.select_best)", s.exported_epoch);
+        out!("exported epoch {} (lowest validation score; train.select_best)", s.exported_epoch)?;
     }
     // The exported epoch's evaluation (the last one unless select_best chose another).
     let at_export = |v: &imu_fsda::train::report::SequenceEvals| {
@@ -76,16 +84,16 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         let gained = s.validation_with_gain.iter().find(|g| g.name == v.name).map_or(String::new(), |g| {
             format!("  with its IMU's correction gain {:8.3}°", g.evals.first().map_or(f64::NAN, |e| e.1.aoe_deg))
         });
-        println!("validation {:<24} AOE raw {:8.3}°  model {:8.3}°{gained}", v.name, v.raw.aoe_deg, at_export(v));
+        out!("validation {:<24} AOE raw {:8.3}°  model {:8.3}°{gained}", v.name, v.raw.aoe_deg, at_export(v))?;
     }
     for (imu, g) in &s.correction_gains {
-        println!("correction gain {imu}: {g:.3} (train.correction_gains: the test rows below apply it)");
+        out!("correction gain {imu}: {g:.3} (train.correction_gains: the test rows below apply it)")?;
     }
     for v in &s.monitor {
-        println!("monitor    {:<24} AOE raw {:8.3}°  model {:8.3}°", v.name, v.raw.aoe_deg, at_export(v));
+        out!("monitor    {:<24} AOE raw {:8.3}°  model {:8.3}°", v.name, v.raw.aoe_deg, at_export(v))?;
     }
     for t in &s.test {
-        println!(
+        out!(
             "test {:<30} AOE raw {:8.3}°  model {:8.3}°  (roll {:.3} pitch {:.3} yaw {:.3}, tilt {:.3} heading {:.3})",
             t.name,
             t.raw.aoe_deg,
@@ -95,13 +103,13 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             t.model.yaw_rmse_deg,
             t.model.tilt_rmse_deg,
             t.model.heading_rmse_deg
-        );
+        )?;
     }
-    println!("model: {}", s.model_json);
-    println!("summary: {}", fit::summary_path(&args.out_dir, &s.name).display());
+    out!("model: {}", s.model_json)?;
+    out!("summary: {}", fit::summary_path(&args.out_dir, &s.name).display())?;
     let curves = args.out_dir.join(format!("{}.curves.png", s.name));
     if curves.exists() {
-        println!("curves: {}", curves.display());
+        out!("curves: {}", curves.display())?;
     }
     Ok(())
 }
@@ -138,7 +146,7 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
             let Some(seed) = pending.pop_front() else { break };
             let run = seeds::run_name(name, seed);
             if seeds::finished(&runs, &run, epochs) {
-                println!("seed {seed}: {run} already trained ({epochs} epochs), reused");
+                out!("seed {seed}: {run} already trained ({epochs} epochs), reused")?;
                 bar.inc(1);
                 continue;
             }
@@ -156,7 +164,7 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
             let out = std::fs::File::create(&log).with_context(|| format!("creating {}", log.display()))?;
             cmd.stdout(out.try_clone()?).stderr(out);
             let child = cmd.spawn().with_context(|| format!("starting {}", exe.display()))?;
-            println!("seed {seed}: training {run} (log {})", log.display());
+            out!("seed {seed}: training {run} (log {})", log.display())?;
             running.push((seed, child, log));
         }
         bar.set_message(format!("running {:?}", running.iter().map(|r| r.0).collect::<Vec<_>>()));
@@ -186,18 +194,18 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
     }
 
     let (sel, json) = seeds::select_and_promote(&args.out_dir, name, &seeds)?;
-    println!("{} seeds in {:.1} s; {}:", seeds.len(), started.elapsed().as_secs_f64(), sel.criterion);
+    out!("{} seeds in {:.1} s; {}:", seeds.len(), started.elapsed().as_secs_f64(), sel.criterion)?;
     for c in &sel.candidates {
-        println!(
+        out!(
             "  seed {:<4} validation score {:7.3}°  (test mean AOE {:7.3}°, not used){}",
             c.seed,
             c.validation_score_deg,
             c.test_mean_aoe_deg.unwrap_or(f64::NAN),
             if c.seed == sel.chosen_seed { "  <- exported" } else { "" }
-        );
+        )?;
     }
-    println!("model: {}", json.display());
-    println!("selection: {}", args.out_dir.join(format!("{name}.seeds.json")).display());
+    out!("model: {}", json.display())?;
+    out!("selection: {}", args.out_dir.join(format!("{name}.seeds.json")).display())?;
     Ok(())
 }
 
