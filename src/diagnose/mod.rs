@@ -196,6 +196,7 @@ pub fn diagnose_bags(sim: &Path, real: &Path, opts: &DiagnoseOptions) -> Result<
 /// Diagnose aligned recordings.
 pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
     let start = std::time::Instant::now();
+    check_residual_noise(a, opts.sensors)?;
     // A rotation too large for the linear `mount_rotation` is taken out before the fit, and
     // the fit runs in the real sensor's frame.
     let gross = frame::gross_rotation(a, opts.sensors)?;
@@ -209,6 +210,39 @@ pub fn diagnose(a: &Aligned, opts: &DiagnoseOptions) -> Result<Diagnosis, Diagno
     }
     d.seconds = start.elapsed().as_secs_f64();
     Ok(d)
+}
+
+/// Share of the sim's stated white-noise variance below which the residual cannot be two
+/// independent noise draws (σ ratio 0.5; the third-difference estimate on a recording of
+/// thousands of samples is good to a few per cent, and motion only adds to it).
+const LEAST_RESIDUAL_NOISE_SHARE: f64 = 0.25;
+
+/// real − sim holds the sim's own noise draw beside the real one, so its white part is at
+/// least the sim's stated variance. Below it every likelihood of the fit is miscalibrated
+/// (two identical bags fitted a noise factor of 0.05, a time offset and a low-pass), so the
+/// input is refused with what is wrong instead.
+fn check_residual_noise(a: &Aligned, sensors: Sensors) -> Result<(), DiagnoseError> {
+    let residual = |c: usize| -> Vec<f64> { a.real[c].iter().zip(&a.sim[c]).map(|(r, s)| r - s).collect() };
+    let judged: Vec<usize> = (0..2).filter(|s| sensors.judges(*s)).collect();
+    if judged.iter().all(|s| (3 * s..3 * s + 3).all(|c| residual(c).iter().all(|v| *v == 0.0))) {
+        return Err(DiagnoseError::Input(
+            "the real and the sim IMU streams are identical (real − sim is exactly zero): there is no mismatch to diagnose; was the same recording given twice?"
+                .into(),
+        ));
+    }
+    for s in judged {
+        let stated = if s == 0 { a.sim_variance.0 } else { a.sim_variance.1 };
+        let found = (3 * s..3 * s + 3).map(|c| align::white_variance_from_data(&residual(c))).sum::<f64>() / 3.0;
+        if found < LEAST_RESIDUAL_NOISE_SHARE * stated {
+            let (sensor, unit) = if s == 0 { ("gyroscope", "(rad/s)²") } else { ("accelerometer", "(m/s²)²") };
+            return Err(DiagnoseError::Input(format!(
+                "the {sensor} residual real − sim has {:.2}× the white-noise σ the sim bag states ({stated:.3e} {unit} per sample), where two independent noise draws give at least 1×: \
+                 the sim's covariance fields overstate the noise it simulated, or the two bags share their noise; correct the covariance (or set it to 0 to have the noise estimated from the data)",
+                (found / stated).sqrt()
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The diagnosis with the sim first put in the frame `gross` names (none: the sim's own), and
@@ -488,5 +522,56 @@ fn uncertainty_json(term: &Term, sd: &[f64]) -> serde_json::Value {
             json!({"accel_amplitude": [sd[0].hypot(sd[3]) / std::f64::consts::SQRT_2, sd[1].hypot(sd[4]) / std::f64::consts::SQRT_2, sd[2].hypot(sd[5]) / std::f64::consts::SQRT_2]})
         }
         _ => json!(sd),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// A slow motion seen by a sim and a real sensor, each with its own white noise of
+    /// variance (1e-6, 1e-4); the sim states `stated`.
+    fn aligned(stated: (f64, f64), same_noise: bool) -> Aligned {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let n = 4000;
+        let noise = |rng: &mut rand_chacha::ChaCha8Rng, c: usize| Normal::new(0.0, if c < 3 { 1e-3 } else { 1e-2 }).unwrap().sample(rng);
+        let mut sim: [Vec<f64>; 6] = Default::default();
+        let mut real: [Vec<f64>; 6] = Default::default();
+        for i in 0..n {
+            let t = i as f64 * 0.005;
+            for c in 0..6 {
+                let truth = (0.3 * t + c as f64).sin() + if c == 5 { 9.81 } else { 0.0 };
+                let s = truth + noise(&mut rng, c);
+                sim[c].push(s);
+                real[c].push(if same_noise { s } else { truth + noise(&mut rng, c) });
+            }
+        }
+        Aligned {
+            stamps_ns: (0..n as i64).map(|i| i * 5_000_000).collect(),
+            sim,
+            real,
+            sim_variance: stated,
+            real_variance: stated,
+            world_from_imu: None,
+            temperature_c: None,
+            notes: vec![],
+            sim_recording: crate::core::Recording { name: "t".into(), imu: vec![], ground_truth: vec![], temperature: vec![] },
+        }
+    }
+
+    #[test]
+    fn a_residual_quieter_than_the_sims_own_noise_is_refused() {
+        // Two independent draws at the stated noise: accepted.
+        assert!(check_residual_noise(&aligned((1e-6, 1e-4), false), Sensors::Both).is_ok());
+        // The same bag twice.
+        let e = check_residual_noise(&aligned((1e-6, 1e-4), true), Sensors::Both).unwrap_err().to_string();
+        assert!(e.contains("identical"), "{e}");
+        // A covariance 100× the noise simulated: the gyro's σ ratio is √2 / 10.
+        let e = check_residual_noise(&aligned((1e-4, 1e-4), false), Sensors::Both).unwrap_err().to_string();
+        assert!(e.contains("gyroscope") && e.contains("0.14×"), "{e}");
+        // The gyro alone is judged: the accelerometer's covariance is not its business.
+        assert!(check_residual_noise(&aligned((1e-6, 1e-2), false), Sensors::Gyro).is_ok());
     }
 }
