@@ -119,12 +119,23 @@ impl AslCsv {
                     what: format!("{} fields, expected {}", record.len(), self.columns.len()),
                 })
             };
+            // A row with more fields than the header is as damaged as one with fewer.
+            if record.len() > self.columns.len() {
+                return Err(DatasetError::Malformed {
+                    path: self.path.clone(),
+                    line,
+                    what: format!("{} fields, expected {}", record.len(), self.columns.len()),
+                });
+            }
             let stamp_text = field(0)?;
             let stamp: i64 = stamp_text.parse().map_err(|_| DatasetError::Malformed {
                 path: self.path.clone(),
                 line,
                 what: format!("timestamp {stamp_text:?} is not an integer of ns"),
             })?;
+            if stamp < 0 {
+                return Err(DatasetError::Malformed { path: self.path.clone(), line, what: format!("timestamp {stamp} ns is negative") });
+            }
             for (v, &c) in values.iter_mut().zip(cols) {
                 let text = field(c)?;
                 // "nan"/"inf" parse as floats and are dealt with by the caller (skipped, counted).

@@ -146,4 +146,26 @@ fn import_errors_name_the_problem() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("mocap0/data.csv:3"), "{err}");
     assert_eq!(out.status.code(), Some(1));
+
+    // Rows that no recorder writes: a negative stamp (clamped to 0 in the bag before), a row
+    // with more fields than the header (accepted before), a single usable sample.
+    std::fs::write(gt.join("data.csv"), "#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []\n1,0,0,0,1,0,0,0\n9,0,0,0,1,0,0,0\n").unwrap();
+    let header = "#timestamp [ns],w_RS_S_x,w_RS_S_y,w_RS_S_z,a_RS_S_x,a_RS_S_y,a_RS_S_z\n";
+    let import_fails = |rows: &str, needle: &str| {
+        std::fs::write(csv_dir.join("data.csv"), format!("{header}{rows}")).unwrap();
+        let out = Command::new(bin()).arg("import").arg(dir.path().join("s")).arg("-o").arg(dir.path().join("x.mcap")).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{rows}: {err}");
+        assert!(err.contains(needle), "{rows}: {err}");
+    };
+    import_fails("-5,0,0,0,0,0,9.8\n5,0,0,0,0,0,9.8\n", "data.csv:2: timestamp -5 ns is negative");
+    import_fails("1,0,0,0,0,0,9.8\n5,0,0,0,0,0,9.8,1,2,3\n", "data.csv:3: 10 fields, expected 7");
+    import_fails("5,0,0,0,0,0,9.8\n1,0,0,0,0,0,9.8\n", "1 usable IMU sample(s)");
+    // The output at the CSV being read: the CSV was replaced by the bag before.
+    let source = csv_dir.join("data.csv");
+    std::fs::write(&source, format!("{header}1,0,0,0,0,0,9.8\n5,0,0,0,0,0,9.8\n")).unwrap();
+    let before = std::fs::read(&source).unwrap();
+    let out = Command::new(bin()).arg("import").arg(dir.path().join("s")).arg("-o").arg(&source).output().unwrap();
+    assert!(String::from_utf8_lossy(&out.stderr).contains("is also an input"), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(std::fs::read(&source).unwrap(), before);
 }

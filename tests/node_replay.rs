@@ -232,9 +232,24 @@ fn outputs_never_overwrite_inputs() {
     std::fs::copy(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap"), &bag).unwrap();
     let model = export_random_model(dir.path(), Mode::FsdaF, 12, false);
     let same_bag = dir.path().join(".").join("car.mcap");
-    let before = [std::fs::read(&bag).unwrap(), std::fs::read(&model).unwrap()];
+    // A hard link is the same file under another name (the replay truncated its input before).
+    let linked_bag = dir.path().join("linked.mcap");
+    std::fs::hard_link(&bag, &linked_bag).unwrap();
+    let model_json = model.with_extension("json");
+    let before = [std::fs::read(&bag).unwrap(), std::fs::read(&model).unwrap(), std::fs::read(&model_json).unwrap()];
     for args in [
         vec!["replay".into(), bag.clone(), "-o".into(), same_bag.clone()],
+        vec!["replay".into(), bag.clone(), "-o".into(), linked_bag.clone()],
+        // embed writes <out>.png, .csv and .json: the model's metadata was replaced before.
+        vec![
+            "embed".into(),
+            "--model".into(),
+            model.clone(),
+            "--sequence".into(),
+            bag.clone(),
+            "--out".into(),
+            model.with_extension("png"),
+        ],
         vec!["eval".into(), bag.clone(), "--json".into(), same_bag.clone()],
         vec!["adapt".into(), "--model".into(), model.clone(), "--bag".into(), bag.clone(), "-o".into(), model.clone()],
     ] {
@@ -243,7 +258,26 @@ fn outputs_never_overwrite_inputs() {
         assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
         assert!(err.contains("is also an input"), "{args:?}: {err}");
     }
-    assert!(before == [std::fs::read(&bag).unwrap(), std::fs::read(&model).unwrap()], "an input was changed");
+    assert!(
+        before == [std::fs::read(&bag).unwrap(), std::fs::read(&model).unwrap(), std::fs::read(&model_json).unwrap()],
+        "an input was changed"
+    );
+    // Two outputs at one path: the Markdown replaced the JSON before.
+    let same = dir.path().join("same.txt");
+    let out = Command::new(bin()).arg("eval").arg(&bag).arg("--json").arg(&same).arg("--markdown").arg(&same).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("--json and --markdown are the same file"), "{err}");
+    // Two bags with one file stem get a row each under their own label.
+    let other = dir.path().join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::copy(&bag, other.join("car.mcap")).unwrap();
+    let json = dir.path().join("rows.json");
+    let out =
+        Command::new(bin()).args(["eval", "--method", "raw", "--json"]).arg(&json).arg(&bag).arg(other.join("car.mcap")).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let labels: Vec<&str> = v["rows"].as_array().unwrap().iter().map(|r| r["bag"].as_str().unwrap()).collect();
+    assert!(labels.len() == 2 && labels[0] != labels[1] && labels[1].ends_with("other_car"), "{labels:?}");
 }
 
 /// Numeric options that are NaN, infinite, negative or too large for a clock are refused when

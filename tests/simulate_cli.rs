@@ -125,5 +125,21 @@ fn bad_input_is_a_clear_error() {
     fails_cleanly(&simulate(&["--term", "{term: gyro_wobble, x: 1}", "-o", &o]), &["gyro_wobble", "gyro_bias"]);
     fails_cleanly(&simulate(&["--term", "{term: gyro_scale, scale: [.nan, 0, 0]}", "-o", &o]), &["gyro_scale", "scale"]);
     fails_cleanly(&simulate(&["--config", &path(dir.path(), "missing.yaml"), "-o", &o]), &["missing.yaml"]);
+    // Parameters no sensor has: a bag of NaN before.
+    fails_cleanly(&simulate(&["--term", "{term: mount_rotation, rotvec: [1.0e300, 0, 0]}", "-o", &o]), &["non-finite", "physical range"]);
+    fails_cleanly(&simulate(&["--term", "{term: gyro_bias, bias: [1.0e10, 0, 0]}", "-o", &o]), &["|ω| = 1.000e10"]);
+    // A first stamp ROS 2 cannot hold (its seconds are 32-bit): a wrapped header stamp before.
+    let late = dir.path().join("late.yaml");
+    std::fs::write(&late, "start_time_ns: 2200000000000000000\n").unwrap();
+    fails_cleanly(&simulate(&["--config", &late.display().to_string(), "-o", &o]), &["ROS 2 stamp"]);
+    std::fs::write(&late, "start_time_ns: -5\n").unwrap();
+    fails_cleanly(&simulate(&["--config", &late.display().to_string(), "-o", &o]), &["ROS 2 stamp"]);
+    // The bag and its truth at one path: the YAML replaced the bag before.
+    fails_cleanly(&simulate(&["--seconds", "1", "--truth", &o, "-o", &o]), &["--output and --truth are the same file"]);
     assert!(!Path::new(&o).exists());
+    // A config that sets only terms takes the flags and the defaults for the rest.
+    let terms_only = dir.path().join("terms.yaml");
+    std::fs::write(&terms_only, "terms:\n  - {term: gyro_bias, bias: [0.01, 0, 0]}\n").unwrap();
+    let stdout = ok(&simulate(&["--config", &terms_only.display().to_string(), "--profile", "car", "--seconds", "1", "-o", &o]));
+    assert!(stdout.contains("car / mpu-9250") && stdout.contains("gyro_bias"), "{stdout}");
 }

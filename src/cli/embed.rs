@@ -74,6 +74,14 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
             args.points_per_sequence
         );
     }
+    // The figure, its CSV and its JSON sidecar must not land on the model or a bag.
+    let model_files: Vec<PathBuf> = ["pt", "json", "ot"].iter().map(|e| args.model.with_extension(e)).collect();
+    let inputs: Vec<&Path> = model_files.iter().chain(&args.sequences).map(PathBuf::as_path).collect();
+    let (csv_path, json_path) = (args.out.with_extension("csv"), args.out.with_extension("json"));
+    super::refuse_shared_outputs(&[("--out", &args.out), ("its CSV", &csv_path), ("its JSON", &json_path)])?;
+    for out in [args.out.as_path(), &csv_path, &json_path] {
+        super::refuse_overwriting_input(out, &inputs)?;
+    }
     let opts = TsneOptions { perplexity: args.perplexity, iterations: args.iterations, seed: args.seed, ..Default::default() };
     opts.validate()?; // before any embedding is computed
     let model = EmbeddingModel::load(&args.model).with_context(|| format!("model {}", args.model.display()))?;
@@ -138,9 +146,7 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
     for ((name, dataset, i, stamp), p) in labels.iter().zip(&map.points) {
         let _ = writeln!(csv, "{name},{dataset},{i},{stamp},{:.6},{:.6}", p[0], p[1]);
     }
-    let csv_path = args.out.with_extension("csv");
     std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
-    let json_path = args.out.with_extension("json");
     let summary = serde_json::json!({
         "model": args.model,
         "sequences": args.sequences,

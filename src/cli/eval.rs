@@ -89,6 +89,10 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     for out in args.json.iter().chain(&args.markdown) {
         super::refuse_overwriting_input(out, &inputs)?;
     }
+    let outputs: Vec<(&str, &std::path::Path)> =
+        [("--json", &args.json), ("--markdown", &args.markdown)].into_iter().filter_map(|(n, p)| Some((n, p.as_deref()?))).collect();
+    super::refuse_shared_outputs(&outputs)?;
+    let names = bag_names(&args.bags);
     let opts = EvalOptions { max_gap_ns: (args.max_gap_ms * 1e6) as i64 };
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let detector = RestDetector::default();
@@ -100,9 +104,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         .map(|m| Ok(!load_metadata(&metadata_path(m)).with_context(|| format!("model {}", m.display()))?.imu_names().is_empty()))
         .collect::<anyhow::Result<_>>()?;
     let mut rows = Vec::new();
-    for bag in &args.bags {
+    for (bag, name) in args.bags.iter().zip(names) {
         let (mut rec, report) = read_recording(bag, &topics)?;
-        let name = bag.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         // Values no IMU measures are dropped, as the node drops them, and said in every row:
         // one 1e30 rad/s sample would otherwise decide every method's score.
         let before = rec.imu.len();
@@ -226,7 +229,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         }
     }
     let table = markdown_table(&rows);
-    print!("{table}");
+    out!("{}", table.trim_end_matches('\n'))?;
     if let Some(p) = &args.json {
         std::fs::write(p, serde_json::to_string_pretty(&serde_json::json!({"options": opts, "rows": rows}))?)
             .with_context(|| format!("writing {}", p.display()))?;
@@ -235,6 +238,22 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         std::fs::write(p, &table).with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
+}
+
+/// Each bag's label in the rows and its figures' file names: the file stem, or the path
+/// without its extension where two bags share a stem (`run1/imu.mcap`, `run2/imu.mcap`), so
+/// neither row nor figure stands for the other.
+fn bag_names(bags: &[PathBuf]) -> Vec<String> {
+    let stem = |b: &PathBuf| b.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    bags.iter()
+        .map(|b| {
+            if bags.iter().filter(|o| stem(o) == stem(b)).count() > 1 {
+                b.with_extension("").to_string_lossy().trim_start_matches("./").replace('/', "_")
+            } else {
+                stem(b)
+            }
+        })
+        .collect()
 }
 
 /// Append `more` to a row's note, "; "-separated.

@@ -118,17 +118,56 @@ pub fn error_text(e: &anyhow::Error) -> String {
     text
 }
 
-/// Refuses to write `output` over one of `inputs` (the same file by another spelling too): the
-/// command would truncate what it reads, and that recording or model would be lost. An output
-/// that does not exist yet cannot be one.
+/// What makes two paths the same file: its device and inode when it exists (another
+/// spelling, a symbolic or a hard link all agree), else its canonical directory and name.
+#[derive(PartialEq, Eq)]
+enum FileIdentity {
+    Inode(u64, u64),
+    Path(std::path::PathBuf),
+}
+
+fn file_identity(path: &std::path::Path) -> Option<FileIdentity> {
+    use std::os::unix::fs::MetadataExt as _;
+    if let Ok(m) = std::fs::metadata(path) {
+        return Some(FileIdentity::Inode(m.dev(), m.ino()));
+    }
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => std::path::Path::new("."),
+    };
+    Some(FileIdentity::Path(std::fs::canonicalize(dir).ok()?.join(path.file_name()?)))
+}
+
+/// Refuses to write `output` over one of `inputs` (the same file by another spelling or a
+/// link too): the command would truncate what it reads, and that recording or model would be
+/// lost. An output that does not exist yet cannot be one.
 pub fn refuse_overwriting_input(output: &std::path::Path, inputs: &[&std::path::Path]) -> anyhow::Result<()> {
-    let Ok(out) = std::fs::canonicalize(output) else { return Ok(()) };
-    if let Some(input) = inputs.iter().find(|i| std::fs::canonicalize(i).is_ok_and(|i| i == out)) {
+    if !output.exists() {
+        return Ok(());
+    }
+    let out = file_identity(output);
+    if let Some(input) = inputs.iter().find(|i| i.exists() && file_identity(i) == out) {
         anyhow::bail!(
             "{} is also an input ({}): writing it would destroy what is being read; choose another output",
             output.display(),
             input.display()
         );
+    }
+    Ok(())
+}
+
+/// Refuses two outputs of one command that are the same file: the second would silently
+/// replace the first.
+pub fn refuse_shared_outputs(outputs: &[(&str, &std::path::Path)]) -> anyhow::Result<()> {
+    for (i, (a_name, a)) in outputs.iter().enumerate() {
+        for (b_name, b) in &outputs[i + 1..] {
+            if file_identity(a).is_some_and(|ia| file_identity(b).is_some_and(|ib| ia == ib)) {
+                anyhow::bail!(
+                    "{a_name} and {b_name} are the same file ({}): the second would replace the first; give each its own path",
+                    b.display()
+                );
+            }
+        }
     }
     Ok(())
 }

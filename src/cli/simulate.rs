@@ -76,6 +76,14 @@ fn config(args: &SimulateArgs) -> anyhow::Result<SimConfig> {
 }
 
 pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
+    let mut outputs = vec![("--output", args.output.as_path())];
+    if let Some(t) = &args.truth {
+        outputs.push(("--truth", t.as_path()));
+    }
+    super::refuse_shared_outputs(&outputs)?;
+    for (_, out) in &outputs {
+        super::refuse_overwriting_input(out, &args.config.iter().map(PathBuf::as_path).collect::<Vec<_>>())?;
+    }
     let cfg = config(&args)?;
     let out = simulate(&cfg).context("simulation")?;
     let rec = &out.recording;

@@ -58,6 +58,17 @@ pub enum SimError {
     BadLength { samples: f64, max: usize },
     #[error("temperature model: {0}")]
     BadTemperature(String),
+    #[error(
+        "start_time_ns {start} with {seconds} s of samples does not fit a ROS 2 stamp (0 to {} s, a signed 32-bit count of seconds)",
+        i32::MAX
+    )]
+    BadStart { start: i64, seconds: f64 },
+    #[error(
+        "the terms make IMU sample {index} {what} (|ω| ≤ {:e} rad/s and |a| ≤ {:e} m/s² are what an IMU measures): a term's parameters are out of any physical range",
+        crate::core::IMPLAUSIBLE_RATE_RAD_S,
+        crate::core::IMPLAUSIBLE_ACCEL_M_S2
+    )]
+    Implausible { index: usize, what: String },
     #[error(transparent)]
     Physics(#[from] PhysicsError),
     // The I/O error is in the message, not a `source`, so a chain printer does not repeat it.
@@ -110,9 +121,10 @@ impl TemperatureModel {
     }
 }
 
-/// A simulation, as a YAML file gives it (`params/sim/*.yaml`).
+/// A simulation, as a YAML file gives it (`params/sim/*.yaml`); a field left out takes
+/// [`SimConfig::default`]'s value (the CLI flags override either).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct SimConfig {
     /// Motion: aerial (or mav), handheld, car, quadruped.
     pub profile: Profile,
@@ -197,6 +209,11 @@ impl SimConfig {
     /// Check everything that can be checked before simulating.
     pub fn validate(&self) -> Result<(), SimError> {
         self.samples()?;
+        // The last stamp too must be a ROS 2 time (builtin_interfaces/Time: i32 seconds).
+        let last_ns = self.start_time_ns as f64 + self.seconds * 1e9;
+        if self.start_time_ns < 0 || last_ns >= i32::MAX as f64 * 1e9 {
+            return Err(SimError::BadStart { start: self.start_time_ns, seconds: self.seconds });
+        }
         if let Some(t) = self.temperature_model() {
             t.validate()?;
         }
@@ -288,6 +305,16 @@ pub fn simulate(cfg: &SimConfig) -> Result<SimOutput, SimError> {
     let mut measured = ideal.clone();
     let mut ctx = TermContext::new(cfg.seed);
     apply_terms(&applied, &mut measured, &mut ctx)?;
+    // Parameters no sensor has (a rotation of 1e300 rad) give NaN or absurd readings: refused
+    // rather than written into a bag.
+    if let Some((index, s)) = measured.to_samples().iter().enumerate().find(|(_, s)| !s.is_plausible()) {
+        let what = if s.gyro.iter().chain(s.accel.iter()).all(|v| v.is_finite()) {
+            format!("|ω| = {:.3e} rad/s, |a| = {:.3e} m/s²", s.gyro.norm(), s.accel.norm())
+        } else {
+            "non-finite".to_string()
+        };
+        return Err(SimError::Implausible { index, what });
+    }
 
     // Ground truth: the body pose at 100 Hz (or the IMU rate when lower).
     let pose_stamps = if cfg.rate_hz <= GROUND_TRUTH_RATE_HZ {
