@@ -44,6 +44,25 @@ impl GyroCorrector for BiasCorrector {
     }
 }
 
+/// The gyro as measured: what the node runs with no model configured.
+pub struct PassThrough;
+
+impl GyroCorrector for PassThrough {
+    fn step(&mut self, gyro: &Vector3<f64>, _accel: &Vector3<f64>) -> Vector3<f64> {
+        *gyro
+    }
+    fn reset(&mut self) {}
+    fn window(&self) -> usize {
+        1
+    }
+    fn rate_hz(&self) -> Option<f64> {
+        None
+    }
+    fn name(&self) -> &str {
+        "pass-through (no model)"
+    }
+}
+
 /// A trained model in its streaming form (pure Rust, f64, constant cost per sample).
 pub struct ModelCorrector {
     pub denoiser: crate::model::StreamingDenoiser,

@@ -174,6 +174,20 @@ impl NodeParams {
                 return Err(format!("{key} must be finite and > 0, not {value}"));
             }
         }
+        // One topic for two streams would mix them (raw and denoised on one topic), or feed
+        // the node its own output.
+        let topics = [
+            ("input_topic", &self.input_topic),
+            ("output_topic", &self.output_topic),
+            ("correction_topic", &self.correction_topic),
+            ("diagnostics_topic", &self.diagnostics_topic),
+            ("ground_truth_topic", &self.ground_truth_topic),
+        ];
+        for (i, (a, ta)) in topics.iter().enumerate() {
+            if let Some((b, _)) = topics[i + 1..].iter().find(|(_, tb)| tb == ta) {
+                return Err(format!("{a} and {b} are both {ta}: each stream needs its own topic"));
+            }
+        }
         if self.adapt_support_seconds >= self.adapt_buffer_seconds {
             return Err(format!(
                 "adapt_support_seconds ({}) must be below adapt_buffer_seconds ({}): the rest of the buffer judges the adapted model",
@@ -1039,6 +1053,10 @@ mod tests {
         assert_eq!(p.input_topic, "/vectornav/imu");
         assert_eq!(p.output_topic, "/imu/clean");
         assert!(p.remap("nonsense").is_err());
+        // A remapping onto another stream's topic: the node would subscribe to its own output.
+        p.remap("/imu/clean:=/vectornav/imu").unwrap();
+        let e = p.validate().unwrap_err();
+        assert!(e.contains("input_topic and output_topic are both /vectornav/imu"), "{e}");
     }
 
     #[test]

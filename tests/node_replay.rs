@@ -358,3 +358,45 @@ fn a_closed_stdout_ends_the_command_quietly() {
         assert!(out.status.success() && !err.contains("panicked"), "{args:?}: {:?} {err}", out.status);
     }
 }
+
+/// replay refuses what would give a bag of mixed or empty streams, and its /diagnostics carry
+/// the input rate in the bag's time (0.00 before: it was taken from the wall clock).
+#[test]
+fn replay_streams_are_its_own_and_its_rate_is_the_bags() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap");
+    let replay = |input: &Path, out: &str, extra: &[&str]| {
+        Command::new(bin()).arg("replay").arg(input).arg("-o").arg(dir.path().join(out)).args(extra).output().unwrap()
+    };
+    let fails = |o: std::process::Output, needle: &str| {
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.code() == Some(1) && err.contains(needle), "expected {needle:?}: {err}");
+    };
+    fails(replay(&bag, "a.mcap", &["--input-topic", "/ground_truth/pose"]), "holds geometry_msgs/msg/PoseStamped, not sensor_msgs/msg/Imu");
+    fails(replay(&bag, "a.mcap", &["--input-topic", "/nope"]), "no /nope holding sensor_msgs/msg/Imu");
+    fails(replay(&bag, "a.mcap", &["-r", "/imu/denoised:=/imu/data"]), "already holds /imu/data");
+    fails(
+        replay(&bag, "a.mcap", &["-r", "/imu/gyro_correction:=/imu/denoised"]),
+        "output_topic and correction_topic are both /imu/denoised",
+    );
+
+    let o = replay(&bag, "first.mcap", &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("pass-through (no model)"), "{}", String::from_utf8_lossy(&o.stdout));
+    let first = dir.path().join("first.mcap");
+    let mut rates = Vec::new();
+    for m in BagReader::open(&first).unwrap() {
+        let m = m.unwrap();
+        if &*m.topic == "/diagnostics" {
+            let d = imu_fsda::msg::DiagnosticArray::decode(&m.data).unwrap();
+            let v = d.status[0].values.iter().find(|kv| kv.key == "input_rate_hz").unwrap().value.clone();
+            rates.push(v.parse::<f64>().unwrap());
+        }
+    }
+    // sim_car is 200 Hz: every full period says so (the last message closes a partial one).
+    assert!(rates.len() >= 10 && rates[..rates.len() - 1].iter().all(|r| (r - 200.0).abs() < 1.0), "{rates:?}");
+    // The replayed bag already holds the node's topics: replaying it again would mix two runs.
+    fails(replay(&first, "second.mcap", &[]), "already holds /imu/denoised");
+    let o = replay(&first, "second.mcap", &["-r", "/imu/denoised:=/imu/denoised_2", "-r", "/imu/gyro_correction:=/imu/gyro_correction_2"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

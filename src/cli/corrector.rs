@@ -5,7 +5,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use imu_fsda::core::ImuSample;
-use imu_fsda::infer::{BiasCorrector, GyroCorrector, ModelCorrector};
+use imu_fsda::infer::{GyroCorrector, ModelCorrector, PassThrough};
 use imu_fsda::model::predict::{correct_with_torchscript, metadata_path};
 
 /// Largest difference allowed between the deployed TorchScript file and the streaming form
@@ -18,7 +18,7 @@ const SELF_CHECK_TOLERANCE: f64 = 1e-5;
 pub fn load_corrector(model: &str, imu: &str) -> anyhow::Result<(Box<dyn GyroCorrector>, String)> {
     if model.is_empty() {
         tracing::warn!("no model configured: the gyro is passed through uncorrected");
-        return Ok((Box::new(BiasCorrector { bias: nalgebra::Vector3::zeros() }), "no model: pass-through".into()));
+        return Ok((Box::new(PassThrough), "no model: pass-through".into()));
     }
     let path = Path::new(model);
     let imu = Some(imu).filter(|s| !s.is_empty());

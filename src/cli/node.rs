@@ -60,6 +60,9 @@ impl NodeConfigArgs {
         for r in &self.remaps {
             params.remap(r)?;
         }
+        if !self.remaps.is_empty() {
+            params.validate().map_err(|e| anyhow::anyhow!("after the remappings: {e}"))?;
+        }
         if let Some(imu) = &self.imu {
             params.imu_calibration.clone_from(imu);
         }

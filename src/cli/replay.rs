@@ -31,29 +31,53 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let params = args.config.load()?;
     let (corrector, status) = load_corrector(&params.model, &params.imu_calibration)?;
     let mut pipeline = Pipeline::new(corrector, params.pipeline.clone());
+    let (topics, read_error) = imu_fsda::bag::bag_info(&args.input);
+    let listing = || topics.iter().map(|t| format!("{} [{}]", t.topic, t.type_name)).collect::<Vec<_>>().join(", ");
+    let has = |t: &str| topics.iter().any(|i| i.topic == t && i.type_name == Imu::TYPE_NAME);
     let input_topic = match &args.input_topic {
         Some(t) => t.clone(),
-        None => {
-            let (topics, read_error) = imu_fsda::bag::bag_info(&args.input);
-            let has = |t: &str| topics.iter().any(|i| i.topic == t && i.type_name == Imu::TYPE_NAME);
-            if has(&params.input_topic) {
-                params.input_topic.clone()
-            } else if has(imu_fsda::bag::IMU_TOPIC) {
-                imu_fsda::bag::IMU_TOPIC.to_string()
-            } else if let Some(e) = read_error {
-                // A missing or unreadable bag, not a bag without the topic.
-                return Err(e.into());
-            } else {
-                anyhow::bail!(
-                    "{}: neither {} nor {} holds sensor_msgs/msg/Imu (topics: {}); pass --input-topic",
-                    args.input.display(),
-                    params.input_topic,
-                    imu_fsda::bag::IMU_TOPIC,
-                    topics.iter().map(|t| format!("{} [{}]", t.topic, t.type_name)).collect::<Vec<_>>().join(", ")
-                );
-            }
-        }
+        None if has(&params.input_topic) => params.input_topic.clone(),
+        None => imu_fsda::bag::IMU_TOPIC.to_string(),
     };
+    match topics.iter().find(|t| t.topic == input_topic) {
+        Some(t) if t.type_name == Imu::TYPE_NAME => {}
+        Some(t) => anyhow::bail!(
+            "{}: {input_topic} holds {}, not {}; pass the raw IMU's topic with --input-topic",
+            args.input.display(),
+            t.type_name,
+            Imu::TYPE_NAME
+        ),
+        // A missing or unreadable bag, not a bag without the topic.
+        None if topics.is_empty() && read_error.is_some() => return Err(read_error.expect("checked").into()),
+        None => anyhow::bail!(
+            "{}: no {input_topic} holding {} (topics: {}); pass --input-topic",
+            args.input.display(),
+            Imu::TYPE_NAME,
+            listing()
+        ),
+    }
+    // The node's streams must not land on a stream the bag already has (a bag recorded beside
+    // the live node holds its /imu/denoised): two publishers mixed on one topic. Other nodes'
+    // /diagnostics are the same type and share the topic, as on a live system.
+    for (key, topic) in [("output_topic", &params.output_topic), ("correction_topic", &params.correction_topic)] {
+        if let Some(t) = topics.iter().find(|t| t.topic == *topic) {
+            anyhow::bail!(
+                "{}: the bag already holds {topic} ({} messages of {}): the node's {key} would be mixed into it; remap it, e.g. -r {topic}:={topic}_replay",
+                args.input.display(),
+                t.count,
+                t.type_name
+            );
+        }
+    }
+    if let Some(t) = topics.iter().find(|t| t.topic == params.diagnostics_topic && t.type_name != DiagnosticArray::TYPE_NAME) {
+        anyhow::bail!(
+            "{}: the bag's {} holds {}, not {}; remap diagnostics_topic",
+            args.input.display(),
+            t.topic,
+            t.type_name,
+            DiagnosticArray::TYPE_NAME
+        );
+    }
     super::refuse_overwriting_input(&args.output, &[&args.input])?;
     let mut writer = BagWriter::create(&args.output)?;
     let out_ch = writer.channel::<Imu>(&params.output_topic)?;
@@ -67,6 +91,8 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let mut last_frame: Option<String> = None;
     let mut decode_errors = 0u64;
     let mut last_log = 0u64;
+    // Input rate over each diagnostics period, in the bag's time (log time, receipt).
+    let mut rate_from: Option<(u64, u64)> = None;
     for m in BagReader::open(&args.input)? {
         let m = m?;
         let ch = match channels.get(&m.topic) {
@@ -104,8 +130,13 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             stats.warming_up = c.warming_up;
         }
         let due = *next_diag.get_or_insert(m.log_time_ns + period_ns);
+        let (t0, n0) = *rate_from.get_or_insert((m.log_time_ns, pipeline.counters().received));
         if m.log_time_ns >= due {
             stats.counters = pipeline.counters().clone();
+            if m.log_time_ns > t0 {
+                stats.input_rate_hz = (stats.counters.received - n0) as f64 / ((m.log_time_ns - t0) as f64 * 1e-9);
+                rate_from = Some((m.log_time_ns, stats.counters.received));
+            }
             stats.decode_errors = decode_errors;
             stats.rate_off_nominal = pipeline.rate_off_nominal();
             stats.frame_id = last_frame.clone().unwrap_or_default();
@@ -123,6 +154,13 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     writer.write(diag_ch, last_log as i64, &diagnostics_message(&stats, &args.config.node_name, Time::from_ns(last_log as i64)))?;
     writer.finish().with_context(|| format!("finishing {}", args.output.display()))?;
     let c = &stats.counters;
+    anyhow::ensure!(
+        c.received > 0,
+        "{}: none of the messages on {input_topic} could be read as {} ({decode_errors} decode errors): {} holds a copy of the input and nothing denoised",
+        args.input.display(),
+        Imu::TYPE_NAME,
+        args.output.display()
+    );
     out!(
         "replayed {} {} messages through {} → {} ({} published on {}, dropped: {} non-finite, {} implausible, {} duplicate, {} backwards stamps; {} gaps; {} decode errors)",
         c.received,
