@@ -303,6 +303,8 @@ fn numeric_options_out_of_range_are_refused_by_name() {
         (&["diagnose", "--real", bag, "-o", "unused", "--threshold", "nan"], "--threshold"),
         (&["diagnose", "--real", bag, "-o", "unused", "--gt-smoothing=-1"], "--gt-smoothing"),
         (&["bench", "--memory-hours", "inf"], "--memory-hours"),
+        (&["bench", "--memory-hours", "1e300"], "--memory-hours"),
+        (&["bench", "--samples", "0"], "--samples"),
     ];
     for (args, option) in cases {
         let out = Command::new(bin()).args(*args).output().unwrap();
@@ -310,6 +312,10 @@ fn numeric_options_out_of_range_are_refused_by_name() {
         assert_eq!(out.status.code(), Some(2), "{args:?}: a usage error, not a run or a crash: {err}");
         assert!(err.contains(option) && err.contains("invalid value"), "{args:?}: {err}");
     }
+    // --save-model saves the seeded default model: with --model there is none to save.
+    let out = Command::new(bin()).args(["bench", "--model", bag, "--save-model", "x"]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(2) && err.contains("cannot be used with"), "{err}");
     // A span with one sample in it is no path to score.
     let out = Command::new(bin()).args(["eval", bag, "--method", "raw", "--end-s", "0"]).output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -399,4 +405,26 @@ fn replay_streams_are_its_own_and_its_rate_is_the_bags() {
     fails(replay(&first, "second.mcap", &[]), "already holds /imu/denoised");
     let o = replay(&first, "second.mcap", &["-r", "/imu/denoised:=/imu/denoised_2", "-r", "/imu/gyro_correction:=/imu/gyro_correction_2"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// bench times the samples that follow its warm-up: before, it fed the stream's start again
+/// after warming on it, so the timed run began with a window of samples dropped as backwards
+/// stamps (free), and a short run timed almost nothing (4.5 M samples/s for 500).
+#[test]
+fn bench_times_the_samples_it_says() {
+    let out = Command::new(bin()).args(["bench", "--samples", "300", "--naive-samples", "3", "--memory-hours", "0.0001"]).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(text.contains("µs/sample, 300 samples)") && text.contains("µs/sample, 3 samples)"), "{text}");
+    assert!(text.contains("(72 samples)"), "{text}");
+    // A streaming step costs microseconds, never the tenths of one that a dropped sample does.
+    let per_sample: f64 = text
+        .split("incremental (streaming)")
+        .nth(1)
+        .and_then(|r| r.split('(').nth(1))
+        .and_then(|r| r.split(' ').next())
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(per_sample > 2.0, "{per_sample} µs/sample: samples were not processed\n{text}");
 }

@@ -22,21 +22,27 @@ pub struct BenchArgs {
     /// Model to benchmark (`.pt`/`.json`); default: a seeded FSDA-F model of the paper's shape.
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Samples for the incremental throughput run.
-    #[arg(long, default_value_t = 50_000)]
-    pub samples: usize,
-    /// Samples for the naive full-window run (it is slow).
-    #[arg(long, default_value_t = 400)]
-    pub naive_samples: usize,
-    /// Hours of simulated 200 Hz input for the memory run (0 = skip).
-    #[arg(long, default_value_t = 1.0, value_parser = super::non_negative)]
+    /// Samples timed in the incremental throughput run (after a warm-up of two windows).
+    #[arg(long, default_value_t = 50_000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub samples: u64,
+    /// Samples timed in the naive full-window run (it is slow; after a warm-up of 20).
+    #[arg(long, default_value_t = 400, value_parser = clap::value_parser!(u64).range(1..))]
+    pub naive_samples: u64,
+    /// Hours of simulated 200 Hz input for the memory run (0 = skip; at most 100).
+    #[arg(long, default_value_t = 1.0, value_parser = memory_hours)]
     pub memory_hours: f64,
     /// Write the figures as JSON here too.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Also save the seeded default model here (for the DDS latency script).
-    #[arg(long)]
+    /// Also save the seeded default model into this directory, as bench-fsda-f.pt/.ot/.json
+    /// (for the DDS latency script).
+    #[arg(long, value_name = "DIR", conflicts_with = "model")]
     pub save_model: Option<PathBuf>,
+}
+
+/// Hours of the memory run: 0 to 100 (an hour is 720,000 samples, a few minutes).
+fn memory_hours(s: &str) -> Result<f64, String> {
+    super::non_negative(s).and_then(|h| if h <= 100.0 { Ok(h) } else { Err(format!("{s} h is over the 100 h this run allows")) })
 }
 
 /// A synthetic 200 Hz stream (motion + gravity), encoded as the node receives it.
@@ -77,6 +83,9 @@ fn rss_kib() -> u64 {
 }
 
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    if let Some(dir) = args.save_model.as_ref().filter(|d| d.exists() && !d.is_dir()) {
+        anyhow::bail!("--save-model {}: not a directory (the model is saved into it as bench-fsda-f.*)", dir.display());
+    }
     tch::set_num_threads(1);
     let tmp = tempfile::tempdir()?;
     let model = match &args.model {
@@ -95,20 +104,26 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let n = loaded.net.receptive_field() as usize;
     let cfg = PipelineConfig { nominal_rate_hz: 200.0, ..Default::default() };
 
-    let input = encoded_stream(args.samples.max(1));
+    // Warm the caches and fill the window first, then time the samples that follow (the
+    // stream goes on: replaying its start again would be dropped as backwards stamps).
+    let (samples, naive_samples) = (args.samples as usize, args.naive_samples as usize);
+    let (warm, naive_warm) = (2 * n, 20);
+    let input = encoded_stream(warm.max(naive_warm) + samples.max(naive_samples));
     let mut incremental = Pipeline::new(Box::new(ModelCorrector::load(&model, None)?), cfg.clone());
-    // Warm the caches and the window first.
-    throughput(&mut incremental, &input[..input.len().min(2 * n)])?;
-    let inc = throughput(&mut incremental, &input)?;
+    throughput(&mut incremental, &input[..warm])?;
+    let timed = &input[warm..warm + samples];
+    let inc = throughput(&mut incremental, timed)?;
+    let processed = incremental.counters().processed as usize;
+    anyhow::ensure!(processed == warm + samples, "the incremental run processed {processed} of {} samples", warm + samples);
 
-    let naive_in = &input[..args.naive_samples.max(1).min(input.len())];
+    let naive_in = &input[naive_warm..naive_warm + naive_samples];
     let mut naive = Pipeline::new(Box::new(FullWindowCorrector::new(loaded.net.inference(), &loaded.metadata.name)), cfg.clone());
-    throughput(&mut naive, &naive_in[..naive_in.len().min(20)])?;
+    throughput(&mut naive, &input[..naive_warm])?;
     let nai = throughput(&mut naive, naive_in)?;
 
     out!("model: {} ({:?}), window N = {n}", loaded.metadata.name, loaded.metadata.mode)?;
     out!("decode → correct → integrate → encode, one thread:")?;
-    out!("  incremental (streaming) : {inc:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / inc, input.len())?;
+    out!("  incremental (streaming) : {inc:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / inc, timed.len())?;
     out!("  naive full-window (tch) : {nai:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / nai, naive_in.len())?;
     out!("  speed-up                : {:>12.1}×", inc / nai)?;
     out!("  target ≥ 20,000 samples/s: {}", if inc >= 20_000.0 { "met" } else { "NOT met" })?;
@@ -122,7 +137,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         let mut stamp_offset = 0i64;
         memory.push((0.0, rss_kib()));
         while done < total {
-            for bytes in &chunk {
+            let part = &chunk[..chunk.len().min(total - done)];
+            for bytes in part {
                 let mut msg = Imu::decode(bytes)?;
                 let mut s = msg.sample();
                 s.stamp_ns += stamp_offset;
@@ -130,8 +146,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                     fill_denoised(&mut msg, &c);
                 }
             }
-            done += chunk.len();
-            stamp_offset += chunk.len() as i64 * 5_000_000;
+            done += part.len();
+            stamp_offset += part.len() as i64 * 5_000_000;
             if done % 144_000 < chunk.len() || done >= total {
                 memory.push((done as f64 / 200.0 / 3600.0, rss_kib()));
             }
