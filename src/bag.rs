@@ -36,6 +36,13 @@ pub enum BagError {
         #[source]
         source: mcap::McapError,
     },
+    #[error("{path}: writing the bag failed (after {messages} messages): {source}")]
+    McapWrite {
+        path: PathBuf,
+        messages: u64,
+        #[source]
+        source: mcap::McapError,
+    },
     #[error("{path}: message {index} on {topic} (log time {log_time_ns} ns): {source}")]
     Decode {
         path: PathBuf,
@@ -75,7 +82,7 @@ impl BagWriter {
     pub fn create(path: impl AsRef<Path>) -> Result<Self, BagError> {
         let path = path.as_ref().to_path_buf();
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).map_err(io_err(&path))?;
+            crate::core::create_dir_all(dir).map_err(io_err(&path))?;
         }
         let file = File::create(&path).map_err(io_err(&path))?;
         let writer = mcap::WriteOptions::new()
@@ -84,7 +91,7 @@ impl BagWriter {
             .compression(Some(mcap::Compression::Zstd))
             .chunk_size(Some(1 << 20))
             .create(BufWriter::with_capacity(1 << 16, file))
-            .map_err(|source| BagError::Mcap { path: path.clone(), messages: 0, source })?;
+            .map_err(|source| BagError::McapWrite { path: path.clone(), messages: 0, source })?;
         Ok(BagWriter { path, writer, schemas: BTreeMap::new(), sequence: 0, scratch: Vec::with_capacity(512) })
     }
 
@@ -93,7 +100,7 @@ impl BagWriter {
     }
 
     fn mcap_err(&self, source: mcap::McapError) -> BagError {
-        BagError::Mcap { path: self.path.clone(), messages: self.sequence as u64, source }
+        BagError::McapWrite { path: self.path.clone(), messages: self.sequence as u64, source }
     }
 
     /// Open (or reuse) a channel for messages of type `M` on `topic`.

@@ -113,6 +113,15 @@ pub fn ns_to_s(ns: i64) -> f64 {
     ns as f64 * 1e-9
 }
 
+/// `std::fs::create_dir_all`, but when a file stands where a folder of the path must be, the
+/// error names that file ("File exists" alone sent users looking for the folder).
+pub fn create_dir_all(dir: &std::path::Path) -> std::io::Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| match dir.ancestors().find(|a| !a.as_os_str().is_empty() && a.exists() && !a.is_dir()) {
+        Some(file) => std::io::Error::new(e.kind(), format!("{} is a file, not a folder", file.display())),
+        None => e,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

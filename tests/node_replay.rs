@@ -188,6 +188,12 @@ fn bad_model_files_are_clear_errors_at_start() {
     let shared = export_random_model(dir.path(), Mode::FsdaF, 9, false);
     let err = named(&shared, "euroc");
     assert!(err.contains("shared"), "{err}");
+    // A correction gain no export writes (a share of the correction is in [0, 1]): named,
+    // not found later as outputs that differ by inf in the start-up check.
+    let gains = [("euroc".to_string(), 1e308)].into_iter().collect();
+    let damaged = export_random_model_with_gains(dir.path(), Mode::FsdaF, 10, false, gains);
+    let err = named(&damaged, "euroc");
+    assert!(err.contains("correction gain in the metadata is 1e308"), "{err}");
 
     let model = export_random_model(dir.path(), Mode::Digdl, 6, false);
     let meta_path = model.with_extension("json");
@@ -305,6 +311,9 @@ fn numeric_options_out_of_range_are_refused_by_name() {
         (&["bench", "--memory-hours", "inf"], "--memory-hours"),
         (&["bench", "--memory-hours", "1e300"], "--memory-hours"),
         (&["bench", "--samples", "0"], "--samples"),
+        (&["adapt", "--model", "m.pt", "--bag", bag, "-o", "x.pt", "--query-seconds=-1"], "--query-seconds"),
+        (&["adapt", "--model", "m.pt", "--bag", bag, "-o", "x.pt", "--support-seconds", "1e300"], "--support-seconds"),
+        (&["adapt", "--model", "m.pt", "--bag", bag, "-o", "x.pt", "--lr", "nan"], "--lr"),
     ];
     for (args, option) in cases {
         let out = Command::new(bin()).args(*args).output().unwrap();
@@ -427,4 +436,20 @@ fn bench_times_the_samples_it_says() {
         .parse()
         .unwrap();
     assert!(per_sample > 2.0, "{per_sample} µs/sample: samples were not processed\n{text}");
+}
+
+/// `bag info` of a file that holds nothing readable says only why (no table of zeros first);
+/// `bag echo` of a topic the bag lacks names the topics it has (it printed nothing, exit 0).
+#[test]
+fn bag_commands_say_what_is_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.mcap");
+    let out = Command::new(bin()).args(["bag", "info"]).arg(&missing).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(out.stdout.is_empty(), "{}", String::from_utf8_lossy(&out.stdout));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("No such file"));
+    let bag = Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap");
+    let out = Command::new(bin()).args(["bag", "echo", "--topic", "/nope"]).arg(&bag).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("no messages on /nope") && err.contains("/imu/data"), "{err}");
 }

@@ -333,7 +333,7 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
         return Err(AdaptError::TooLittleData {
             what: "support",
             detail: format!(
-                "{:.1} s of IMU with ground truth ({} samples), at least {:.0} s needed",
+                "{:.3} s of IMU with ground truth ({} samples), at least {:.0} s needed",
                 s_task0.seconds(),
                 s_task0.len(),
                 cfg.min_support_seconds
@@ -374,7 +374,7 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     if q_task.seconds() < cfg.min_query_seconds {
         return Err(AdaptError::TooLittleData {
             what: "query",
-            detail: format!("{:.1} s of IMU with ground truth, at least {:.0} s needed", q_task.seconds(), cfg.min_query_seconds),
+            detail: format!("{:.3} s of IMU with ground truth, at least {:.0} s needed", q_task.seconds(), cfg.min_query_seconds),
         });
     }
     let eopts = EvalOptions { max_gap_ns: (cfg.max_interpolation_gap_ms * 1e6) as i64 };

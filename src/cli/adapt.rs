@@ -28,15 +28,15 @@ pub struct AdaptArgs {
     #[arg(long, default_value = GROUND_TRUTH_TOPIC)]
     pub ground_truth_topic: String,
     /// Support set: this many seconds from the first ground-truth-covered IMU sample.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, value_parser = super::span_seconds)]
     pub support_seconds: f64,
     /// Query set (held back): this many seconds after the support set (default: the rest).
-    #[arg(long)]
+    #[arg(long, value_parser = super::span_seconds)]
     pub query_seconds: Option<f64>,
     /// Inner steps and learning rate (defaults: AdaptConfig's).
     #[arg(long)]
     pub steps: Option<usize>,
-    #[arg(long)]
+    #[arg(long, value_parser = super::non_negative)]
     pub lr: Option<f64>,
     /// Update rule of the inner loop: adam (default) or sgd (the paper's plain gradient step).
     #[arg(long, value_enum)]

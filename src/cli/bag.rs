@@ -38,6 +38,10 @@ pub fn run(cmd: BagCommand) -> anyhow::Result<()> {
 
 fn info(file: PathBuf, json: bool) -> anyhow::Result<()> {
     let (topics, err) = bag_info(&file);
+    // Nothing read (missing, not MCAP): the error alone, not a table of zeros before it.
+    if let (true, Some(e)) = (topics.is_empty(), &err) {
+        anyhow::bail!("{e}");
+    }
     let first = topics.iter().map(|t| t.first_ns).min().unwrap_or(0);
     let last = topics.iter().map(|t| t.last_ns).max().unwrap_or(0);
     let total: u64 = topics.iter().map(|t| t.count).sum();
@@ -84,9 +88,13 @@ fn echo(file: PathBuf, topic: Option<String>, limit: Option<u64>) -> anyhow::Res
     use std::io::Write;
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     let mut n = 0u64;
+    let mut others: std::collections::BTreeSet<std::sync::Arc<str>> = std::collections::BTreeSet::new();
     for m in BagReader::open(&file)? {
         let m = m?;
         if topic.as_deref().is_some_and(|t| t != &*m.topic) {
+            if !others.contains(&m.topic) {
+                others.insert(m.topic.clone());
+            }
             continue;
         }
         if limit.is_some_and(|l| n >= l) {
@@ -104,6 +112,9 @@ fn echo(file: PathBuf, topic: Option<String>, limit: Option<u64>) -> anyhow::Res
         .with_context(|| format!("{}: message {} on {}", file.display(), n, m.topic))?;
         writeln!(out, "{}", serde_json::json!({"topic": &*m.topic, "type": &*m.type_name, "log_time_ns": m.log_time_ns, "msg": value}))?;
         n += 1;
+    }
+    if let (Some(t), 0, false) = (&topic, n, limit == Some(0)) {
+        anyhow::bail!("{}: no messages on {t} (topics: {})", file.display(), others.iter().map(|t| &**t).collect::<Vec<_>>().join(", "));
     }
     Ok(())
 }

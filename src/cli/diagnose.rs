@@ -314,7 +314,7 @@ mod score {
         fixed: (Option<f64>, Option<f64>),
         subset: &[usize],
     ) -> anyhow::Result<()> {
-        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        imu_fsda::core::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let (mut truths, mut found, mut spurious, mut reported, mut within) = (0usize, 0usize, 0usize, 0usize, 0usize);
         let mut errors = Vec::new();

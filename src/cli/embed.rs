@@ -126,7 +126,7 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
         }
     }
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        imu_fsda::core::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     let sc = Scatter {
         title: format!(

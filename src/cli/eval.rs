@@ -220,7 +220,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             if paths.is_empty() {
                 tracing::warn!("{name}: no method evaluated, no figure");
             } else {
-                std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+                imu_fsda::core::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
                 let files = imu_fsda::figures::orientation_figures(dir, &name, &rec, &paths).with_context(|| format!("{name}: figures"))?;
                 for f in files {
                     tracing::info!("wrote {}", f.display());

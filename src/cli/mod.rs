@@ -93,6 +93,11 @@ pub fn seconds(s: &str) -> Result<std::time::Duration, String> {
     non_negative(s).and_then(|x| std::time::Duration::try_from_secs_f64(x).map_err(|_| format!("{s} s is too long")))
 }
 
+/// A span of a recording, s: above 0 and within what a nanosecond stamp counts (292 years).
+pub fn span_seconds(s: &str) -> Result<f64, String> {
+    positive(s).and_then(|x| if x * 1e9 < i64::MAX as f64 { Ok(x) } else { Err(format!("{s} s is longer than any recording")) })
+}
+
 /// An error and its causes on one line, as `{e:#}` prints them, but without repeating a cause
 /// whose text its parent already ends with (our errors name their source in their own message,
 /// so the chain would say it twice: "x.mcap: No such file …: No such file …") and without the

@@ -43,6 +43,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     // The overrides are checked here, before `train.seeds` starts a child per seed that would
     // each report the same error.
     fit::with_overrides(&cfg, None, args.epochs).with_context(|| args.config.display().to_string())?;
+    // The output folder is made now, not at the first checkpoint minutes into the run.
+    imu_fsda::core::create_dir_all(&args.out_dir).with_context(|| format!("--out-dir {}", args.out_dir.display()))?;
     if args.seed.is_none() && cfg.train.seeds.len() > 1 {
         if args.resume.is_some() {
             anyhow::bail!(
@@ -122,7 +124,7 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
     let epochs = args.epochs.unwrap_or(cfg.train.epochs);
     let jobs = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1);
     let runs = seeds::runs_dir(&args.out_dir, name);
-    std::fs::create_dir_all(&runs).with_context(|| format!("creating {}", runs.display()))?;
+    imu_fsda::core::create_dir_all(&runs).with_context(|| format!("creating {}", runs.display()))?;
     let exe = std::env::current_exe().context("locating the imu-fsda binary")?;
     let started = std::time::Instant::now();
 

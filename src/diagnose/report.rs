@@ -234,7 +234,7 @@ pub fn write_corrected_bag(path: &Path, a: &Aligned, d: &Diagnosis) -> Result<()
 
 /// Write everything into `dir`.
 pub fn write_all(dir: &Path, a: &Aligned, d: &Diagnosis) -> Result<(), DiagnoseError> {
-    std::fs::create_dir_all(dir).map_err(|source| DiagnoseError::Io { path: dir.to_path_buf(), source })?;
+    crate::core::create_dir_all(dir).map_err(|source| DiagnoseError::Io { path: dir.to_path_buf(), source })?;
     write(&dir.join("report.json"), &serde_json::to_string_pretty(&json(d)).unwrap_or_default())?;
     // Figures are an extra: without a font the diagnosis is still written, and says why.
     let figures = super::figures::write_figures(dir, d)

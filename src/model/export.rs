@@ -109,8 +109,15 @@ impl ModelMetadata {
         let Some(name) = self.imu_to_apply(imu) else {
             return Ok(1.0);
         };
-        if let Some(g) = self.imu_correction_gains.get(name) {
-            return Ok(*g);
+        if let Some(&g) = self.imu_correction_gains.get(name) {
+            // A share of the network's correction: a value outside [0, 1] is a damaged file.
+            if !(0.0..=1.0).contains(&g) {
+                return Err(ModelError::UnknownImu {
+                    name: name.into(),
+                    detail: format!("its correction gain in the metadata is {g:e}, not a share in [0, 1]: the file is damaged"),
+                });
+            }
+            return Ok(g);
         }
         if self.imu_gyro_calibrations.contains_key(name) {
             return Ok(1.0);
@@ -228,7 +235,7 @@ pub fn trace(inference: &InferenceNet) -> Result<CModule, ModelError> {
 /// `vs` must be the VarStore `net` was built in. The training VarStore is left as it was
 /// (the traced copy is detached; no `freeze` needed).
 pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &ExportInfo) -> Result<ExportPaths, ModelError> {
-    std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+    crate::core::create_dir_all(dir).map_err(io_err(dir))?;
     let paths = ExportPaths::new(dir, name);
     let module = trace(&net.inference())?;
     write_atomically(&paths.torchscript, |tmp| Ok(module.save(tmp)?))?;

@@ -349,7 +349,7 @@ pub enum ModelError {
     #[error("model file {} is corrupt or not in the expected format: {reason}", path.display())]
     CorruptFile { path: PathBuf, reason: String },
     /// The metadata and the weights (or the TorchScript file) disagree.
-    #[error("{} does not match its metadata: {detail}", path.display())]
+    #[error("{}: the model's files disagree: {detail}", path.display())]
     Mismatch { path: PathBuf, detail: String },
     /// An IMU name the model has no Ĉ_ω for.
     #[error("IMU calibration {name:?}: {detail}")]

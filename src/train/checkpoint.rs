@@ -55,7 +55,7 @@ pub fn save(
     ema: Option<&BTreeMap<String, Tensor>>,
     meta: &CheckpointMeta,
 ) -> anyhow::Result<PathBuf> {
-    std::fs::create_dir_all(out_dir)?;
+    anyhow::Context::with_context(crate::core::create_dir_all(out_dir), || format!("creating {}", out_dir.display()))?;
     let (ot, json) = paths(out_dir, name);
     let mut named: Vec<(String, Tensor)> = vs.variables().into_iter().map(|(n, t)| (format!("vs.{n}"), t)).collect();
     named.extend(adam.state());
