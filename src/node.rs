@@ -164,6 +164,7 @@ impl NodeParams {
     /// Refuses values the node cannot run with, naming the key (typos are refused by serde).
     pub fn validate(&self) -> Result<(), String> {
         self.pipeline.validate()?;
+        self.adapt.validate()?;
         let positive = |x: f64| x.is_finite() && x > 0.0;
         for (key, value) in [
             ("diagnostics_period", self.diagnostics_period),

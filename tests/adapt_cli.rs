@@ -93,6 +93,19 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
         "rejected: the adapted model is not better",
     );
 
+    // Settings the inner loop cannot run with: a panic inside tch before.
+    let cfg = d.join("adapt.yaml");
+    for (yaml, needle) in [
+        ("window_samples: 10\n", "adapt.window_samples = 10"),
+        ("loss: {increments: []}\n", "adapt.loss.increments"),
+        ("loss: {increments: [{samples: 0, weight: 1.0}]}\n", "adapt.loss.increments"),
+        ("windows: 0\n", "adapt.windows"),
+        ("max_interpolation_gap_ms: 0\n", "adapt.max_interpolation_gap_ms"),
+    ] {
+        std::fs::write(&cfg, yaml).unwrap();
+        expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--config", cfg.to_str().unwrap()], needle);
+    }
+
     // Ground truth not overlapping the IMU in time.
     let mut shifted = rec.clone();
     for p in &mut shifted.ground_truth {

@@ -116,6 +116,42 @@ impl Default for AdaptConfig {
     }
 }
 
+impl AdaptConfig {
+    /// Refuses settings the inner loop cannot run with, naming the key (as `train`'s config).
+    pub fn validate(&self) -> Result<(), String> {
+        self.loss.validate("adapt.loss")?;
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        if !(self.inner_lr.is_finite() && self.inner_lr >= 0.0) {
+            return Err(format!("adapt.inner_lr = {}: must be finite and ≥ 0", self.inner_lr));
+        }
+        if self.windows == 0 {
+            return Err("adapt.windows must be ≥ 1".into());
+        }
+        let min_window = self.loss.min_window_samples() as usize;
+        if self.window_samples <= min_window {
+            return Err(format!(
+                "adapt.window_samples = {}: must exceed {min_window} samples (every increment length must score one increment after its skip)",
+                self.window_samples
+            ));
+        }
+        for (key, v) in [
+            ("min_support_seconds", self.min_support_seconds),
+            ("min_query_seconds", self.min_query_seconds),
+            ("max_interpolation_gap_ms", self.max_interpolation_gap_ms),
+            ("max_nearest_gt_ms", self.max_nearest_gt_ms),
+            ("max_seconds", self.max_seconds),
+        ] {
+            if !positive(v) {
+                return Err(format!("adapt.{key} = {v}: must be finite and > 0"));
+            }
+        }
+        if !(self.frame_tolerance_deg.is_finite() && self.frame_tolerance_deg >= 0.0) {
+            return Err(format!("adapt.frame_tolerance_deg = {}: must be finite and ≥ 0", self.frame_tolerance_deg));
+        }
+        Ok(())
+    }
+}
+
 /// Why adaptation could not run.
 #[derive(Debug, thiserror::Error)]
 pub enum AdaptError {
@@ -322,6 +358,7 @@ pub fn frame_check(rec: &Recording, cfg: &AdaptConfig) -> Option<FrameCheck> {
 /// ground truth missing / not overlapping the IMU / in another frame (policy `error`).
 pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &AdaptConfig) -> Result<AdaptOutcome, AdaptError> {
     let t_all = Instant::now();
+    cfg.validate().map_err(AdaptError::Other)?;
     let mode = loaded.metadata.mode;
     if !mode.has_embedding() {
         return Err(AdaptError::NoEmbedding(mode));

@@ -89,7 +89,8 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     if args.embedding_only {
         cfg.calibration = false;
     }
-    anyhow::ensure!(args.support_seconds > 0.0, "--support-seconds must be positive");
+    // Before the model and the bag are read.
+    cfg.validate().map_err(|e| anyhow::anyhow!("{e}{}", args.config.as_ref().map_or(String::new(), |p| format!(" ({})", p.display()))))?;
     let (dir, name) = output_name(&args.output)?;
     let meta = metadata_path(&args.model);
     let inputs = [args.model.as_path(), &meta, &args.model.with_extension("ot"), &args.bag];

@@ -113,6 +113,32 @@ impl Default for LossConfig {
 }
 
 impl LossConfig {
+    /// Refuses a loss that cannot be computed or scores nothing; `key` prefixes the message
+    /// (`train.loss`, `adapt.loss`).
+    pub fn validate(&self, key: &str) -> Result<(), String> {
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        let non_negative = |x: f64| x.is_finite() && x >= 0.0;
+        if self.increments.is_empty()
+            || self.increments.iter().any(|i| i.samples < 1 || !non_negative(i.weight) || i.huber_delta_rad.is_some_and(|d| !positive(d)))
+        {
+            return Err(format!("{key}.increments: at least one, each with samples ≥ 1, a finite weight ≥ 0 and any huber_delta_rad > 0"));
+        }
+        if self.skip_first_samples < 0 || self.skip_first_increments < 0 {
+            return Err(format!(
+                "{key}.skip_first_samples ({}) and skip_first_increments ({}) must be ≥ 0",
+                self.skip_first_samples, self.skip_first_increments
+            ));
+        }
+        if !positive(self.huber_delta_rad)
+            || !positive(self.scale)
+            || !non_negative(self.gamma)
+            || !non_negative(self.reconstruction_weight)
+        {
+            return Err(format!("{key}: huber_delta_rad and scale must be > 0, gamma and reconstruction_weight ≥ 0"));
+        }
+        Ok(())
+    }
+
     /// Increments of `j` samples skipped at the start of each window.
     pub fn skipped_increments(&self, j: i64) -> i64 {
         if self.skip_first_samples > 0 {

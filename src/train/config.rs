@@ -581,26 +581,7 @@ impl TrainConfig {
             return Err(format!("train.augment_per_imu: no training recording is from IMU {imu:?} (the training IMUs: {train_imus:?})"));
         }
         let loss = &self.train.loss;
-        if loss.increments.is_empty()
-            || loss.increments.iter().any(|i| i.samples < 1 || !non_negative(i.weight) || i.huber_delta_rad.is_some_and(|d| !positive(d)))
-        {
-            return Err(
-                "train.loss.increments: at least one, each with samples ≥ 1, a finite weight ≥ 0 and any huber_delta_rad > 0".into()
-            );
-        }
-        if loss.skip_first_samples < 0 || loss.skip_first_increments < 0 {
-            return Err(format!(
-                "train.loss.skip_first_samples ({}) and skip_first_increments ({}) must be ≥ 0",
-                loss.skip_first_samples, loss.skip_first_increments
-            ));
-        }
-        if !positive(loss.huber_delta_rad)
-            || !positive(loss.scale)
-            || !non_negative(loss.gamma)
-            || !non_negative(loss.reconstruction_weight)
-        {
-            return Err("train.loss: huber_delta_rad and scale must be > 0, gamma and reconstruction_weight ≥ 0".into());
-        }
+        loss.validate("train.loss")?;
         let min_window = loss.min_window_samples() as usize;
         for (what, w) in [
             ("train.window_samples", t.window_samples),

@@ -445,7 +445,7 @@ mod tests {
         }
 
         for (text, expected) in [
-            ("profile: aerial\n", "not a simulation config"),
+            ("profile: aerial\nspeed: 3\n", "not a simulation config"),
             ("profile: aerial\ngrade: bmi160\nrate_hz: -1\nseconds: 4\nseed: 0\n", "rate"),
         ] {
             std::fs::write(&sim_yaml, text).unwrap();
