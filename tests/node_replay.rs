@@ -453,3 +453,28 @@ fn bag_commands_say_what_is_missing() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.code() == Some(1) && err.contains("no messages on /nope") && err.contains("/imu/data"), "{err}");
 }
+
+/// A model is the three files named by the path given: renamed, it loads (its `.json` records
+/// the old name); a `.pt` of another model beside the `.json` and `.ot` is refused by eval's
+/// start-up check (it was scored silently before).
+#[test]
+fn a_model_is_the_files_its_path_names() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap");
+    let a = export_random_model(&dir.path().join("a"), Mode::FsdaF, 21, false);
+    let b = export_random_model(&dir.path().join("b"), Mode::FsdaF, 22, false);
+    let renamed = dir.path().join("a/mine.pt");
+    for ext in ["pt", "ot", "json"] {
+        std::fs::rename(a.with_extension(ext), renamed.with_extension(ext)).unwrap();
+    }
+    // The old name now holds another model: it must not be the one loaded.
+    std::fs::copy(&b, &a).unwrap();
+    let eval = |model: &Path| Command::new(bin()).args(["eval", "--model"]).arg(model).arg(&bag).output().unwrap();
+    let out = eval(&renamed);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // A .pt that is not the network of its .json and .ot.
+    std::fs::copy(&b, &renamed).unwrap();
+    let out = eval(&renamed);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("the files are not one model"), "{err}");
+}

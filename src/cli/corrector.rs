@@ -44,6 +44,15 @@ pub fn load_corrector(model: &str, imu: &str) -> anyhow::Result<(Box<dyn GyroCor
     Ok((Box::new(corrector), "ok".into()))
 }
 
+/// The node's start-up check for a model another command runs from its TorchScript file
+/// (`eval`): the `.pt` must be the network its `.json` and `.ot` describe (a `.pt` of another
+/// model beside them was scored silently before).
+pub fn check_model_files(model: &Path, imu: Option<&str>) -> anyhow::Result<()> {
+    let (mut corrector, _) = ModelCorrector::load_with_metadata(model, imu)
+        .with_context(|| format!("loading model {} (metadata {})", model.display(), metadata_path(model).display()))?;
+    self_check(model, imu, &mut corrector).with_context(|| format!("model {} failed its start-up check", model.display()))
+}
+
 /// Run the TorchScript file and the streaming form on the same synthetic input (longer
 /// than the window) and require the same output: the `.pt` users deploy elsewhere and the
 /// weights the node streams must be one model.
@@ -64,7 +73,7 @@ fn self_check(path: &Path, imu_name: Option<&str>, corrector: &mut ModelCorrecto
     corrector.reset();
     anyhow::ensure!(
         worst < SELF_CHECK_TOLERANCE,
-        "TorchScript and streaming outputs differ by {worst:.2e} rad/s (> {SELF_CHECK_TOLERANCE:e})"
+        "TorchScript (.pt) and streaming (.json + .ot) outputs differ by {worst:.2e} rad/s (> {SELF_CHECK_TOLERANCE:e}): the files are not one model"
     );
     Ok(())
 }

@@ -103,6 +103,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         .iter()
         .map(|m| Ok(!load_metadata(&metadata_path(m)).with_context(|| format!("model {}", m.display()))?.imu_names().is_empty()))
         .collect::<anyhow::Result<_>>()?;
+    for m in &args.models {
+        super::corrector::check_model_files(m, None)?;
+    }
     let mut rows = Vec::new();
     for (bag, name) in args.bags.iter().zip(names) {
         let (mut rec, report) = read_recording(bag, &topics)?;

@@ -309,8 +309,12 @@ pub fn load_metadata(path: &Path) -> Result<ModelMetadata, ModelError> {
     Ok(metadata)
 }
 
-fn sibling(metadata_path: &Path, file: &str) -> PathBuf {
-    metadata_path.parent().unwrap_or(Path::new(".")).join(file)
+/// A model file beside its metadata, named by the metadata's own stem (`mine.json` →
+/// `mine.pt`, `mine.ot`): the files the user named, even after a rename. The names recorded at
+/// export (`files`) are not used, so a renamed model loads and a stale file of the old name
+/// lying beside it is never picked up instead.
+fn sibling(metadata_path: &Path, extension: &str) -> PathBuf {
+    metadata_path.with_extension(extension)
 }
 
 /// A model rebuilt for fine-tuning or adaptation: its VarStore, the [`Net`] and the metadata.
@@ -330,7 +334,7 @@ fn close(a: f64, b: f64) -> bool {
 /// Loads `<name>.json` + `<name>.ot` into a fresh VarStore on `device` (f32, trainable).
 pub fn load_net(metadata_path: &Path, device: Device) -> Result<LoadedNet, ModelError> {
     let metadata = load_metadata(metadata_path)?;
-    let weights_path = sibling(metadata_path, &metadata.files.weights);
+    let weights_path = sibling(metadata_path, "ot");
     require_file(&weights_path)?;
     let loaded = Tensor::load_multi_with_device(&weights_path, device)
         .map_err(|e| ModelError::CorruptFile { path: weights_path.clone(), reason: super::torch_message(&e) })?;
@@ -462,7 +466,7 @@ impl TorchScriptModel {
 /// Loads `<name>.json` + `<name>.pt` (CPU) and checks the module maps `[1, 8, 6]` to `[1, 8, 3]`.
 pub fn load_torchscript(metadata_path: &Path) -> Result<TorchScriptModel, ModelError> {
     let metadata = load_metadata(metadata_path)?;
-    let path = sibling(metadata_path, &metadata.files.torchscript);
+    let path = sibling(metadata_path, "pt");
     require_file(&path)?;
     let module = CModule::load(&path).map_err(|e| ModelError::CorruptFile { path: path.clone(), reason: super::torch_message(&e) })?;
     let model = TorchScriptModel { module, metadata, calibration_change: None, correction_gain: 1.0 };
