@@ -155,6 +155,24 @@ fn ci_small_learns_exports_and_resumes() {
     assert_eq!(stopped["history"].as_array().unwrap().len(), 63, "stops after the first epoch past the budget");
     assert_eq!(load_metadata(&dir.path().join("ci.json")).unwrap().metrics["stopped_at_budget"], 63.0);
 
+    // A resume continues the same run: fewer epochs than done, or another learning rate, are
+    // refused before anything is written (the checkpoint stays as it is).
+    let ckpt = std::fs::read(dir.path().join("ci.ckpt.json")).unwrap();
+    let other_lr = dir.path().join("ci-lr.yaml");
+    std::fs::write(&other_lr, budgeted.replace("  lr: 0.01", "  lr: 0.02")).unwrap();
+    for (cfg, epochs, needle) in [(&budgeted_cfg, "10", "cannot be shortened"), (&other_lr, "70", "differs in train.lr")] {
+        let out = run(Command::new(bin())
+            .args(["train", "--config"])
+            .arg(cfg)
+            .arg("--out-dir")
+            .arg(dir.path())
+            .args(["--name", "ci", "--no-progress", "--epochs", epochs, "--resume"])
+            .arg(dir.path().join("ci.ckpt.json")));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(needle), "{err}");
+    }
+    assert_eq!(std::fs::read(dir.path().join("ci.ckpt.json")).unwrap(), ckpt);
+
     // A fine-tune from the exported model (`init_from`) with the Generator's BatchNorm frozen
     // starts where that model is, not from scratch, and keeps its running statistics.
     let fine_tune = |same_model: bool| {
@@ -257,6 +275,18 @@ fn seed_restarts_export_the_best_validated_run() {
     assert!(again.status.success() && printed.matches("already trained").count() == 2, "{printed}");
     let resume = train(&["--resume", "x.ckpt.json"]);
     assert!(!resume.status.success() && String::from_utf8_lossy(&resume.stderr).contains("--seed"));
+    // Finished runs under another config are neither reused nor overwritten.
+    let changed = dir.path().join("changed.yaml");
+    std::fs::write(&changed, std::fs::read_to_string(&config).unwrap().replace("  lr: 0.01", "  lr: 0.02")).unwrap();
+    let out = run(Command::new(bin()).args(["train", "--config"]).arg(&changed).arg("--out-dir").arg(dir.path()).args([
+        "--name",
+        "restarts",
+        "--no-progress",
+        "--epochs",
+        "4",
+    ]));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("differs in train.lr") && !err.contains("training failed"), "{err}");
     // A bad override is refused once, before any child starts (no child's "training failed").
     let zero = run(Command::new(bin()).args(["train", "--config"]).arg(&config).arg("--out-dir").arg(dir.path()).args([
         "--no-progress",

@@ -140,6 +140,13 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
     );
     bar.set_prefix(format!("{name}: {} seeds, {jobs} at once", seeds.len()));
 
+    // Every finished run is checked against the config before any child starts.
+    let mut done = std::collections::BTreeSet::new();
+    for &seed in &seeds {
+        if seeds::finished(&runs, &seeds::run_name(name, seed), epochs, cfg)? {
+            done.insert(seed);
+        }
+    }
     let mut pending: std::collections::VecDeque<u64> = seeds.iter().copied().collect();
     let mut running: Vec<(u64, std::process::Child, PathBuf)> = Vec::new();
     let mut failed: Vec<String> = Vec::new();
@@ -147,7 +154,7 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
         while running.len() < jobs && failed.is_empty() {
             let Some(seed) = pending.pop_front() else { break };
             let run = seeds::run_name(name, seed);
-            if seeds::finished(&runs, &run, epochs) {
+            if done.contains(&seed) {
                 out!("seed {seed}: {run} already trained ({epochs} epochs), reused")?;
                 bar.inc(1);
                 continue;

@@ -479,6 +479,44 @@ pub enum ConfigError {
 }
 
 impl TrainConfig {
+    /// The keys (`section.key`) in which `other` trains a different run from `self`: all but
+    /// how long it runs and how it is watched (epochs, time budget, seed and seeds, evaluation
+    /// and checkpoint cadence, threads, the validation, monitor and test lists). A resumed or
+    /// reused run must not differ in any of them.
+    pub fn run_differences(&self, other: &TrainConfig) -> Vec<String> {
+        const WATCHING: [&str; 10] = [
+            "train.epochs",
+            "train.max_train_seconds",
+            "train.seed",
+            "train.seeds",
+            "train.eval_every",
+            "train.checkpoint_every",
+            "train.threads",
+            "dataset.validation",
+            "dataset.monitor",
+            "dataset.test",
+        ];
+        // The data root by any spelling of the same folder.
+        let canonical = |c: &TrainConfig| {
+            let mut c = c.clone();
+            c.dataset.root = std::fs::canonicalize(&c.dataset.root).unwrap_or(c.dataset.root);
+            serde_json::to_value(c).unwrap_or_default()
+        };
+        let (a, b) = (canonical(self), canonical(other));
+        let mut out = Vec::new();
+        for section in ["model", "dataset", "train"] {
+            let (sa, sb) = (&a[section], &b[section]);
+            let keys: BTreeSet<&String> = sa.as_object().into_iter().chain(sb.as_object()).flat_map(|o| o.keys()).collect();
+            for k in keys {
+                let key = format!("{section}.{k}");
+                if !WATCHING.contains(&key.as_str()) && sa.get(k) != sb.get(k) {
+                    out.push(key);
+                }
+            }
+        }
+        out
+    }
+
     /// Reads and checks a config file; `dataset.root` is made absolute against the file's
     /// folder. The `model` section starts from [`ModelConfig::for_mode`] of its `mode`, so
     /// `model: {mode: digdl}` gets all of DIGDL's published settings.

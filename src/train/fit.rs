@@ -700,8 +700,21 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     // Every check that can fail runs here, before any training.
     let resume = opts.resume.as_deref().map(checkpoint::load).transpose()?;
     if let Some(r) = &resume {
-        if r.meta.config.model != cfg.model {
-            anyhow::bail!("--resume: the checkpoint's model config differs from {}'s", opts.name);
+        // A resume continues the same run: other data, losses or rates would make one model
+        // of two runs and a summary that describes neither (train.init_from fine-tunes).
+        let changed = r.meta.config.run_differences(&cfg);
+        if !changed.is_empty() {
+            anyhow::bail!(
+                "--resume continues the run the checkpoint holds, and the config now differs in {}: start a new run (train.init_from fine-tunes from a model)",
+                changed.join(", ")
+            );
+        }
+        if cfg.train.epochs < r.meta.epoch {
+            anyhow::bail!(
+                "--resume: the checkpoint has {} epochs done, more than the {} asked for; a run cannot be shortened (its checkpoint and model are kept as they are)",
+                r.meta.epoch,
+                cfg.train.epochs
+            );
         }
     }
     let mut data = load_datasets(&cfg)?;

@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
+use super::config::TrainConfig;
 use super::fit::{summary_path, validation_score};
 use super::report::TrainSummary;
 use crate::model::export::{load_metadata, write_metadata, ExportFiles};
@@ -30,11 +31,29 @@ pub fn runs_dir(out_dir: &Path, name: &str) -> PathBuf {
 
 /// Whether run `run` in `runs` is complete at `epochs` epochs (its summary says so and its
 /// model is there), so a restarted `train.seeds` command reuses it instead of training again.
-pub fn finished(runs: &Path, run: &str, epochs: usize) -> bool {
-    std::fs::read_to_string(summary_path(runs, run))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .is_some_and(|v| v["epochs"].as_u64() == Some(epochs as u64) && runs.join(format!("{run}.pt")).exists())
+/// A complete run trained under another config is an error naming the keys: reused, it would
+/// export a model the config does not describe; retrained, its results would be lost.
+pub fn finished(runs: &Path, run: &str, epochs: usize, cfg: &TrainConfig) -> anyhow::Result<bool> {
+    let Some(summary) =
+        std::fs::read_to_string(summary_path(runs, run)).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+    else {
+        return Ok(false);
+    };
+    if summary["epochs"].as_u64() != Some(epochs as u64) || !runs.join(format!("{run}.pt")).exists() {
+        return Ok(false);
+    }
+    if let Some(trained) = summary.get("config").and_then(|c| serde_json::from_value::<TrainConfig>(c.clone()).ok()) {
+        let changed = trained.run_differences(cfg);
+        if !changed.is_empty() {
+            anyhow::bail!(
+                "{}: {run} was trained under a config that differs in {}: move {} away (or use another --name or --out-dir) to train anew",
+                runs.display(),
+                changed.join(", "),
+                runs.display()
+            );
+        }
+    }
+    Ok(true)
 }
 
 /// One finished run, as scored.
