@@ -383,6 +383,13 @@ fn bad_inputs_are_refused_before_training() {
     let err = train_fails_on(d, &nan, "nan", "");
     assert!(err.contains("non-finite"), "{err}");
 
+    // Poses at 25 Hz under a 10-ms nearest-pose rule: no 17 consecutive samples qualify, so no
+    // increment could be scored and the run trained the reconstruction alone (L_D = 0) before.
+    let mut sparse = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 0), temperature: vec![] };
+    sparse.ground_truth.retain(|p| p.stamp_ns % 40_000_000 == 0);
+    let err = train_fails_on(d, &sparse, "sparse_gt", "");
+    assert!(err.contains("no 16-sample increment of the loss can be scored") && err.contains("is 5 samples"), "{err}");
+
     // Noise sized for an IMU the training data does not have: a typo, not a silent no-op.
     let fine = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 0), temperature: vec![] };
     let err = train_fails_on(d, &fine, "augment_imu", ", augment_per_imu: {nosuch: {gyro_noise_std: 8.0e-4}}");

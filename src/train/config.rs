@@ -632,6 +632,12 @@ impl TrainConfig {
                 ));
             }
         }
+        if !positive(self.dataset.max_interpolation_gap_ms) || !positive(self.dataset.max_nearest_gt_ms) {
+            return Err(format!(
+                "dataset.max_interpolation_gap_ms ({}) and max_nearest_gt_ms ({}) must be finite and > 0",
+                self.dataset.max_interpolation_gap_ms, self.dataset.max_nearest_gt_ms
+            ));
+        }
         if self.model.mode == Mode::FsdaF && !positive(self.dataset.support_seconds) {
             return Err("dataset.support_seconds must be > 0 for fsda_f".into());
         }

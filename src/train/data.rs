@@ -43,6 +43,13 @@ pub enum DataError {
     NonFinite { name: String, what: &'static str, count: u64 },
     #[error("{name}: {samples} IMU samples ({seconds:.1} s) with ground truth, shorter than {needed}")]
     TooShort { name: String, samples: usize, seconds: f64, needed: String },
+    #[error(
+        "{name}: no {increment}-sample increment of the loss can be scored: the longest run of IMU samples within \
+         dataset.max_nearest_gt_ms ({nearest_ms} ms) of a ground-truth pose is {longest} samples ({share:.1} % of the samples \
+         are), and an increment needs {needed}; poses this sparse need a larger max_nearest_gt_ms (and a \
+         max_interpolation_gap_ms above their interval), if they are to be trusted"
+    )]
+    NoScoredIncrement { name: String, increment: i64, longest: usize, needed: usize, share: f64, nearest_ms: f64 },
     #[error("{name}: crop start_s {start} s is past the end of the ground-truth-covered data ({seconds:.1} s)")]
     EmptyCrop { name: String, start: f64, seconds: f64 },
     #[error(
@@ -78,6 +85,9 @@ pub struct Task {
     pub support_end: usize,
     /// Fraction of samples with valid ground truth.
     pub valid_fraction: f64,
+    /// The longest run of consecutive samples with valid ground truth: an increment of j
+    /// samples is scored only where j + 1 are.
+    pub longest_valid_run: usize,
     /// The IMU that recorded it ([`SourceConfig::imu_name`]).
     pub imu_name: String,
     /// Its row of the model's Ĉ_ω ([`crate::model::Net::calibration_row`]; set by the
@@ -345,6 +355,7 @@ pub fn task_from_recording(
         })
         .collect();
     let valid_count = valid.iter().filter(|v| **v).count();
+    let longest_valid_run = valid.split(|v| !*v).map(<[bool]>::len).max().unwrap_or(0);
     let support_end = match support_seconds {
         Some(s) => {
             let t0 = cropped.imu[0].stamp_ns;
@@ -361,6 +372,7 @@ pub fn task_from_recording(
         valid: Tensor::from_slice(valid),
         support_end,
         valid_fraction: valid_count as f64 / n.max(1) as f64,
+        longest_valid_run,
         imu_name: src.imu_name(),
         calibration_row: None,
         rec: cropped,

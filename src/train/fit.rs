@@ -77,6 +77,19 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
         } else {
             data::check_length(&task, t.window_samples, "the training window", task.len())?;
         }
+        // Without one scored increment the run would train the reconstruction alone (L_D = 0).
+        let shortest = t.loss.increments.iter().map(|i| i.samples).min().unwrap_or(1);
+        if task.longest_valid_run < shortest as usize + 1 {
+            return Err(data::DataError::NoScoredIncrement {
+                name: task.name.clone(),
+                increment: shortest,
+                longest: task.longest_valid_run,
+                needed: shortest as usize + 1,
+                share: 100.0 * task.valid_fraction,
+                nearest_ms: d.max_nearest_gt_ms,
+            }
+            .into());
+        }
         tracing::info!(
             "train {}: {} samples, {:.1} s, support {} samples, {:.1}% with ground truth",
             task.name,
