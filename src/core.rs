@@ -73,6 +73,11 @@ impl Recording {
     }
 
     /// Mean IMU rate from the stamps, Hz (0 when fewer than two samples).
+    /// The IMU's rate from its median sample interval ([`nominal_rate_hz`]).
+    pub fn nominal_imu_rate_hz(&self) -> f64 {
+        nominal_rate_hz(&self.imu)
+    }
+
     pub fn imu_rate_hz(&self) -> f64 {
         let s = self.imu_seconds();
         if s > 0.0 {
@@ -111,6 +116,22 @@ impl Recording {
 /// Nanoseconds to seconds.
 pub fn ns_to_s(ns: i64) -> f64 {
     ns as f64 * 1e-9
+}
+
+/// A stream's rate from its median sample interval, Hz (0 with fewer than two samples): a gap
+/// or a burst does not move it, unlike samples over span.
+pub fn nominal_rate_hz(imu: &[ImuSample]) -> f64 {
+    let mut dt: Vec<i64> = imu.windows(2).map(|w| w[1].stamp_ns - w[0].stamp_ns).collect();
+    if dt.is_empty() {
+        return 0.0;
+    }
+    let mid = dt.len() / 2;
+    let median = *dt.select_nth_unstable(mid).1;
+    if median > 0 {
+        1e9 / median as f64
+    } else {
+        0.0
+    }
 }
 
 /// `std::fs::create_dir_all`, but when a file stands where a folder of the path must be, the

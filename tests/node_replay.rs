@@ -358,6 +358,26 @@ fn eval_drops_implausible_samples_and_says_so() {
     assert!((aoe(&bad_row) - aoe(&clean_row)).abs() < 0.01 * aoe(&clean_row) + 1e-3, "{clean_row} vs {bad_row}");
 }
 
+/// A model run on an IMU at another rate than it was trained for is scored, with the reason
+/// its figure is out of the model's domain on the row (a number alone before).
+#[test]
+fn eval_says_when_the_imu_rate_is_not_the_models() {
+    let d = tempfile::tempdir().unwrap();
+    let (mut rec, _) =
+        read_recording(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap"), &RecordingTopics::default()).unwrap();
+    let every_other: Vec<_> = rec.imu.iter().step_by(2).copied().collect();
+    rec.imu = every_other;
+    let bag = d.path().join("car_100hz.mcap");
+    imu_fsda::bag::write_recording(&bag, &rec).unwrap();
+    let model = export_random_model(d.path(), Mode::FsdaF, 31, false);
+    let json = d.path().join("rows.json");
+    let out = Command::new(bin()).args(["eval", "--json"]).arg(&json).arg("--model").arg(&model).arg(&bag).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let note = v["rows"][0]["note"].as_str().unwrap().to_string();
+    assert!(note.contains("for a 200 Hz IMU and this one runs at 100.0 Hz"), "{note}");
+}
+
 /// A reader that closes the pipe early (`| head`) ends a command quietly: exit 0, no panic.
 #[test]
 fn a_closed_stdout_ends_the_command_quietly() {

@@ -390,6 +390,13 @@ fn bad_inputs_are_refused_before_training() {
     let err = train_fails_on(d, &sparse, "sparse_gt", "");
     assert!(err.contains("no 16-sample increment of the loss can be scored") && err.contains("is 5 samples"), "{err}");
 
+    // A 100-Hz IMU under a 200-Hz model: the window would span twice the time, and the exported
+    // rate (what the node checks its input against) would be wrong for it.
+    let mut slow = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(10000, 0), temperature: vec![] };
+    slow.imu.iter_mut().enumerate().for_each(|(i, s)| s.stamp_ns = i as i64 * 10_000_000);
+    let err = train_fails_on(d, &slow, "slow_imu", "");
+    assert!(err.contains("the model is for a 200 Hz IMU and this one runs at 100.0 Hz"), "{err}");
+
     // Noise sized for an IMU the training data does not have: a typo, not a silent no-op.
     let fine = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 0), temperature: vec![] };
     let err = train_fails_on(d, &fine, "augment_imu", ", augment_per_imu: {nosuch: {gyro_noise_std: 8.0e-4}}");

@@ -359,6 +359,10 @@ pub fn frame_check(rec: &Recording, cfg: &AdaptConfig) -> Option<FrameCheck> {
 pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &AdaptConfig) -> Result<AdaptOutcome, AdaptError> {
     let t_all = Instant::now();
     cfg.validate().map_err(AdaptError::Other)?;
+    let meta = &loaded.metadata;
+    if let Some(why) = crate::model::rate_mismatch(meta.rate_hz, support.nominal_imu_rate_hz(), meta.window_n) {
+        tracing::warn!("{why}: the adaptation can only partly make up for it, and the node will report the input rate off nominal");
+    }
     let mode = loaded.metadata.mode;
     if !mode.has_embedding() {
         return Err(AdaptError::NoEmbedding(mode));

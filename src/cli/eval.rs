@@ -169,7 +169,12 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 Some(g) => format!(", as on IMU {n} (correction gain {g:.3})"),
                 None => format!(", Ĉ_ω of {n}"),
             });
-            streams.push((meta.name.clone(), Ok((gyro, format!("{:?}, N = {}{calib}", meta.mode, meta.window_n)))));
+            let mut note = format!("{:?}, N = {}{calib}", meta.mode, meta.window_n);
+            if let Some(why) = imu_fsda::model::rate_mismatch(meta.rate_hz, rec.nominal_imu_rate_hz(), meta.window_n) {
+                tracing::warn!("{name}: {why}");
+                add_note(&mut note, &why);
+            }
+            streams.push((meta.name.clone(), Ok((gyro, note))));
         }
         for (method, got) in streams {
             let (gyro, note) = match got {

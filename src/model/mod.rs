@@ -369,6 +369,22 @@ impl From<tch::TchError> for ModelError {
 
 /// libtorch's message without the C++ backtrace it appends ("Exception raised from …", then a
 /// line per stack frame): the first lines say what went wrong, the frames are addresses.
+/// How far an IMU's rate may be from a model's `rate_hz` (TUM-VI's 199.37 Hz under a 200-Hz
+/// model is 0.3 % off): the network counts samples, so beyond this its window spans another time.
+pub const RATE_TOLERANCE: f64 = 0.05;
+
+/// Why a model for `model_rate_hz` is out of its domain on an IMU at `imu_rate_hz`, if it is.
+pub fn rate_mismatch(model_rate_hz: f64, imu_rate_hz: f64, window_n: i64) -> Option<String> {
+    let off = (imu_rate_hz / model_rate_hz - 1.0).abs();
+    (imu_rate_hz > 0.0 && model_rate_hz > 0.0 && off > RATE_TOLERANCE).then(|| {
+        format!(
+            "the model is for a {model_rate_hz:.0} Hz IMU and this one runs at {imu_rate_hz:.1} Hz: its {window_n}-sample window spans {:.2} s instead of {:.2} s",
+            window_n as f64 / imu_rate_hz,
+            window_n as f64 / model_rate_hz
+        )
+    })
+}
+
 pub fn torch_message(e: &tch::TchError) -> String {
     without_torch_backtrace(&e.to_string()).to_string()
 }

@@ -77,6 +77,12 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
         } else {
             data::check_length(&task, t.window_samples, "the training window", task.len())?;
         }
+        // The network counts samples: a recording at another rate is another time scale, and the
+        // exported rate_hz (what the node checks its input against) would be wrong for it.
+        let window = cfg.model.receptive_field();
+        if let Some(why) = crate::model::rate_mismatch(cfg.model.rate_hz, task.rec.nominal_imu_rate_hz(), window) {
+            anyhow::bail!("{}: {why}; resample it to model.rate_hz or train a model for its rate", task.name);
+        }
         // Without one scored increment the run would train the reconstruction alone (L_D = 0).
         let shortest = t.loss.increments.iter().map(|i| i.samples).min().unwrap_or(1);
         if task.longest_valid_run < shortest as usize + 1 {
