@@ -358,6 +358,24 @@ fn eval_drops_implausible_samples_and_says_so() {
     assert!((aoe(&bad_row) - aoe(&clean_row)).abs() < 0.01 * aoe(&clean_row) + 1e-3, "{clean_row} vs {bad_row}");
 }
 
+/// A hole in the IMU stream is said on every row (the figure alone hid it).
+#[test]
+fn eval_says_where_the_imu_stream_has_a_hole() {
+    let d = tempfile::tempdir().unwrap();
+    let (mut rec, _) =
+        read_recording(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap"), &RecordingTopics::default()).unwrap();
+    let t0 = rec.imu[0].stamp_ns;
+    rec.imu.retain(|s| !(5_000_000_000..7_000_000_000).contains(&(s.stamp_ns - t0)));
+    let bag = d.path().join("hole.mcap");
+    imu_fsda::bag::write_recording(&bag, &rec).unwrap();
+    let json = d.path().join("rows.json");
+    let out = Command::new(bin()).args(["eval", "--method", "raw", "--json"]).arg(&json).arg(&bag).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let note = v["rows"][0]["note"].as_str().unwrap().to_string();
+    assert!(note.contains("1 gap(s) in the IMU stream (longest 2.005 s)"), "{note}");
+}
+
 /// A model run on an IMU at another rate than it was trained for is scored, with the reason
 /// its figure is out of the model's domain on the row (a number alone before).
 #[test]

@@ -133,6 +133,10 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         } else {
             rec
         };
+        let imu_gaps = imu_gap_note(&rec);
+        if let Some(g) = &imu_gaps {
+            tracing::warn!("{}: {g}", bag.display());
+        }
         let lag = imu_fsda::eval::ground_truth_lag(&rec, &opts, imu_fsda::eval::GROUND_TRUTH_LAG_SEARCH_S);
         if let Some(l) = lag {
             tracing::info!("{name}: ground truth lags the IMU by {:.1} ms (rate correlation {:.3})", l.lag_s * 1e3, l.correlation);
@@ -187,6 +191,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             let mut note = note;
             if report.skipped() > 0 {
                 add_note(&mut note, &format!("skipped {} input samples", report.skipped()));
+            }
+            if let Some(gaps) = &imu_gaps {
+                add_note(&mut note, gaps);
             }
             if implausible > 0 {
                 add_note(
@@ -246,6 +253,24 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         std::fs::write(p, &table).with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
+}
+
+/// Holes in the IMU stream (more than the node's gap rule, 5 nominal periods): every method is
+/// integrated across them with the rate before the hole, which a figure alone would hide (a
+/// 5-s hole took a 0.4° bag to 90°).
+fn imu_gap_note(rec: &imu_fsda::core::Recording) -> Option<String> {
+    let rate = rec.nominal_imu_rate_hz();
+    if rate <= 0.0 {
+        return None;
+    }
+    let limit_ns = (imu_fsda::infer::PipelineConfig::default().gap_periods * 1e9 / rate) as i64;
+    let gaps: Vec<i64> = rec.imu.windows(2).map(|w| w[1].stamp_ns - w[0].stamp_ns).filter(|dt| *dt > limit_ns).collect();
+    let longest = *gaps.iter().max()?;
+    Some(format!(
+        "{} gap(s) in the IMU stream (longest {:.3} s), integrated across with the last rate before each",
+        gaps.len(),
+        longest as f64 * 1e-9
+    ))
 }
 
 /// Each bag's label in the rows and its figures' file names: the file stem, or the path
