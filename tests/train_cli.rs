@@ -374,6 +374,22 @@ fn bad_inputs_are_refused_before_training() {
     let err = train_fails_on(d, &late, "late", "");
     assert!(err.contains("lags the IMU by 80.") && err.contains("correct the stamps"), "{err}");
 
+    // Ground truth that is not this IMU's rotation: trained on without a word before.
+    let flight = imu_fsda::sim::simulate(&sim).unwrap().recording;
+    let mut degrees = flight.clone();
+    degrees.imu.iter_mut().for_each(|s| s.gyro *= 180.0 / std::f64::consts::PI);
+    let err = train_fails_on(d, &degrees, "gyro_in_degrees", "");
+    assert!(err.contains("the gyro is not in rad/s"), "{err}");
+    let mut other_frame = flight.clone();
+    let quarter = nalgebra::UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::FRAC_PI_2, 0.0, 0.0));
+    other_frame.ground_truth.iter_mut().for_each(|p| p.world_from_body *= quarter);
+    let err = train_fails_on(d, &other_frame, "gt_other_frame", "");
+    assert!(err.contains("the ground truth is in another frame: a constant rotation of 90.0°"), "{err}");
+    let mut inverted = flight.clone();
+    inverted.ground_truth.iter_mut().for_each(|p| p.world_from_body = p.world_from_body.inverse());
+    let err = train_fails_on(d, &inverted, "gt_inverted", "");
+    assert!(err.contains("do not follow the gyro's"), "{err}");
+
     let far = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 3_600_000_000_000), temperature: vec![] };
     let err = train_fails_on(d, &far, "no_overlap", "");
     assert!(err.contains("does not overlap the IMU"), "{err}");
@@ -414,4 +430,24 @@ fn bad_inputs_are_refused_before_training() {
     let out = run(Command::new(bin()).args(["train", "--no-progress", "--config"]).arg(&cfg).arg("--out-dir").arg(d.join("out")));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("shorter than the support set"), "{err}");
+}
+
+/// The ground-truth checks accept every real recording of the benchmarks (raw, uncalibrated
+/// gyro included): the rotation each 0.25 s agrees in size and axis with the gyro's.
+#[test]
+fn real_recordings_pass_the_ground_truth_checks() {
+    let Some(data) = shared_data() else { return };
+    for set in ["euroc", "tumvi"] {
+        for entry in std::fs::read_dir(data.join(set)).unwrap() {
+            let path = entry.unwrap().path();
+            let (_, rec, _) = imu_fsda::dataset::load_sequence(&path).unwrap();
+            let (ratio, n, frame) = imu_fsda::train::data::rotation_agreement(&rec).unwrap();
+            let f = frame.unwrap();
+            eprintln!(
+                "{}: ratio {ratio:.3} over {n}; frame {:.2}°, residual {:.2}° (identity {:.2}°)",
+                rec.name, f.angle_deg, f.residual_deg, f.residual_identity_deg
+            );
+            imu_fsda::train::data::check_ground_truth_follows_gyro(&rec, true).unwrap();
+        }
+    }
 }

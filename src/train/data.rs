@@ -50,6 +50,21 @@ pub enum DataError {
          max_interpolation_gap_ms above their interval), if they are to be trusted"
     )]
     NoScoredIncrement { name: String, increment: i64, longest: usize, needed: usize, share: f64, nearest_ms: f64 },
+    #[error(
+        "{name}: the ground truth turns {ratio:.3}× as far as the gyro over 0.25 s (median over {increments} increments of \
+         clear motion; 1 is expected): the gyro is not in rad/s, or the poses are not this IMU's"
+    )]
+    RotationScale { name: String, ratio: f64, increments: usize },
+    #[error(
+        "{name}: the ground truth is in another frame: a constant rotation of {angle_deg:.1}° takes the gyro's increments \
+         onto it (residual {residual_deg:.1}° with it, {identity_deg:.1}° without); express the ground truth in the IMU frame"
+    )]
+    OtherFrame { name: String, angle_deg: f64, residual_deg: f64, identity_deg: f64 },
+    #[error(
+        "{name}: the ground truth's rotation axes do not follow the gyro's (RMS {residual_deg:.1}° apart over {increments} \
+         0.25-s increments, even after the best constant rotation): inverted quaternions (body-from-world) or another body's poses?"
+    )]
+    NotFollowing { name: String, residual_deg: f64, increments: usize },
     #[error("{name}: crop start_s {start} s is past the end of the ground-truth-covered data ({seconds:.1} s)")]
     EmptyCrop { name: String, start: f64, seconds: f64 },
     #[error(
@@ -168,8 +183,76 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
     }
     check_clock(&rec)?;
     check_plausible(&rec)?;
+    check_ground_truth_follows_gyro(&rec, true)?;
     Ok(rec)
 }
+
+/// How the ground truth's rotation compares with the gyro's over 0.25-s increments: the median
+/// ratio of their angles where either turns by over 0.1 rad (6°, beyond any gyro bias over
+/// 0.25 s), the number of such increments, and the frame check on them.
+pub fn rotation_agreement(rec: &Recording) -> Option<(f64, usize, Option<crate::adapt::frame::FrameCheck>)> {
+    let rate = rec.nominal_imu_rate_hz();
+    if rate <= 0.0 {
+        return None;
+    }
+    let window = ((0.25 * rate).round() as usize).max(2);
+    let opts = crate::eval::EvalOptions::default();
+    let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), opts.max_gap_ns);
+    let mut ratios = Vec::new();
+    let mut k = 0;
+    while k + window < rec.imu.len() {
+        if let (Some(a), Some(b)) = (gt[k], gt[k + window]) {
+            let mut d = nalgebra::UnitQuaternion::identity();
+            for n in k..k + window {
+                d *= crate::so3::exp(&(rec.imu[n].gyro * ((rec.imu[n + 1].stamp_ns - rec.imu[n].stamp_ns) as f64 * 1e-9)));
+            }
+            let (g, i) = ((a.inverse() * b).angle(), d.angle());
+            if g.max(i) > 0.1 {
+                ratios.push(g / i.max(1e-9));
+            }
+        }
+        k += window;
+    }
+    if ratios.is_empty() {
+        return None;
+    }
+    let mid = ratios.len() / 2;
+    let median = *ratios.select_nth_unstable_by(mid, f64::total_cmp).1;
+    Some((median, ratios.len(), crate::adapt::frame::check_frame(&rec.imu, &gt, window, 0.05)))
+}
+
+/// Refuses ground truth that does not describe this IMU's rotation: a gyro in °/s, a pose that
+/// never turns while the gyro does, inverted quaternions, another frame. Training on it
+/// fits the network to nonsense without a word (the loss just stays high).
+/// `other_frame`: whether ground truth in another constant frame is refused here (`adapt`
+/// has its own policy for it: refuse or re-express).
+pub fn check_ground_truth_follows_gyro(rec: &Recording, other_frame: bool) -> Result<(), DataError> {
+    let Some((ratio, increments, frame)) = rotation_agreement(rec) else { return Ok(()) };
+    if increments >= 10 && !(0.5..=2.0).contains(&ratio) {
+        return Err(DataError::RotationScale { name: rec.name.clone(), ratio, increments });
+    }
+    if let Some(f) = frame.filter(|f| f.increments >= 10) {
+        if f.is_other_frame(5.0) {
+            if !other_frame {
+                return Ok(());
+            }
+            return Err(DataError::OtherFrame {
+                name: rec.name.clone(),
+                angle_deg: f.angle_deg,
+                residual_deg: f.residual_deg,
+                identity_deg: f.residual_identity_deg,
+            });
+        }
+        if f.residual_deg > NOT_FOLLOWING_DEG {
+            return Err(DataError::NotFollowing { name: rec.name.clone(), residual_deg: f.residual_deg, increments: f.increments });
+        }
+    }
+    Ok(())
+}
+
+/// RMS angle between the ground truth's and the gyro's 0.25-s rotation axes (after the best
+/// constant rotation) beyond which the ground truth is not this IMU's motion.
+const NOT_FOLLOWING_DEG: f64 = 45.0;
 
 /// Refuses a recording whose ground truth is measurably off the IMU's clock
 /// ([`crate::eval::misaligned_ground_truth`]).
