@@ -451,3 +451,40 @@ fn real_recordings_pass_the_ground_truth_checks() {
         }
     }
 }
+
+/// A `train.seeds` parent stopped by SIGTERM (timeout, systemd) takes its children with it:
+/// before, they went on training, and a restarted parent started second writers on their runs.
+#[test]
+fn seed_children_stop_with_their_parent() {
+    let Some(data) = shared_data() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(manifest().join("params/train/ci-small.yaml")).unwrap();
+    let text = text.replace("root: ../../../shared/data", &format!("root: {}", data.display())).replace("  seed: 0\n", "  seeds: [0, 1]\n");
+    let config = dir.path().join("orphans.yaml");
+    std::fs::write(&config, text).unwrap();
+    let mut parent = Command::new(bin())
+        .args(["train", "--config"])
+        .arg(&config)
+        .arg("--out-dir")
+        .arg(dir.path())
+        .args(["--no-progress", "--epochs", "100000", "--jobs", "2"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let logs: Vec<PathBuf> = ["orphans-s0.log", "orphans-s1.log"].iter().map(|l| dir.path().join("orphans.runs").join(l)).collect();
+    let size = |p: &PathBuf| std::fs::metadata(p).map_or(0, |m| m.len());
+    let started = std::time::Instant::now();
+    // Wait until both children are training (their logs grow past the data loading).
+    while logs.iter().any(|l| size(l) < 2000) {
+        assert!(started.elapsed().as_secs() < 120, "the children did not start");
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    unsafe { libc::kill(parent.id() as i32, libc::SIGTERM) };
+    parent.wait().unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let before: Vec<u64> = logs.iter().map(size).collect();
+    std::thread::sleep(std::time::Duration::from_secs(3));
+    let after: Vec<u64> = logs.iter().map(size).collect();
+    assert_eq!(before, after, "a child went on training after its parent stopped");
+}

@@ -170,6 +170,16 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
             if ckpt_ot.exists() && ckpt_json.exists() {
                 cmd.arg("--resume").arg(&ckpt_json);
             }
+            // A child outlives a parent stopped by SIGTERM (timeout, systemd, a scheduler): it
+            // would go on writing its run while a restarted parent starts a second writer on it.
+            // PR_SET_PDEATHSIG has the kernel stop it with its parent.
+            // SAFETY: prctl is async-signal-safe and touches no memory of the parent.
+            unsafe {
+                std::os::unix::process::CommandExt::pre_exec(&mut cmd, || {
+                    libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+                    Ok(())
+                });
+            }
             let out = std::fs::File::create(&log).with_context(|| format!("creating {}", log.display()))?;
             cmd.stdout(out.try_clone()?).stderr(out);
             let child = cmd.spawn().with_context(|| format!("starting {}", exe.display()))?;
