@@ -33,9 +33,9 @@ impl EmbeddingModel {
         let loaded = load_net(&meta, Device::Cpu)?;
         let inf = loaded.net.inference().to_kind(Kind::Double);
         if inf.embedding.is_empty() {
-            return Err(ModelError::Mismatch {
+            return Err(ModelError::WrongKind {
                 path: meta,
-                detail: format!("a {:?} model has no Embedding to show", loaded.metadata.mode),
+                detail: format!("a {:?} model has no Embedding to show (only FSDA and FSDA-F models have one)", loaded.metadata.mode),
             });
         }
         Ok(EmbeddingModel { name: loaded.metadata.name, mean: inf.mean, std: inf.std, params: inf.embedding })

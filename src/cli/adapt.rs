@@ -117,10 +117,14 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     let (support, query) = split_recording(&rec, args.support_seconds, args.query_seconds, &cfg);
     anyhow::ensure!(
         !query.imu.is_empty(),
-        "{}: nothing left after the {} s support set to judge the adaptation on (the bag has {:.1} s of IMU)",
+        "{}: nothing left after the {} s support set to judge the adaptation on (the bag has {:.1} s of IMU, {})",
         args.bag.display(),
         args.support_seconds,
-        rec.imu_seconds()
+        rec.imu_seconds(),
+        match (rec.ground_truth.first(), rec.ground_truth.last()) {
+            (Some(a), Some(b)) => format!("{:.1} s of ground truth", (b.stamp_ns - a.stamp_ns) as f64 * 1e-9),
+            _ => "no ground truth".into(),
+        }
     );
     let outcome = adapt(&loaded, &support, &query, &cfg)?;
     let r = &outcome.report;

@@ -351,6 +351,9 @@ pub enum ModelError {
     /// The metadata and the weights (or the TorchScript file) disagree.
     #[error("{}: the model's files disagree: {detail}", path.display())]
     Mismatch { path: PathBuf, detail: String },
+    /// A sound model of a kind the command cannot use (a DIGDL model where an Embedding is needed).
+    #[error("{}: {detail}", path.display())]
+    WrongKind { path: PathBuf, detail: String },
     /// An IMU name the model has no Ĉ_ω for.
     #[error("IMU calibration {name:?}: {detail}")]
     UnknownImu { name: String, detail: String },

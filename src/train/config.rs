@@ -621,11 +621,16 @@ impl TrainConfig {
         let loss = &self.train.loss;
         loss.validate("train.loss")?;
         let min_window = loss.min_window_samples() as usize;
-        for (what, w) in [
-            ("train.window_samples", t.window_samples),
-            ("train.maml.support_window_samples", t.maml.support_window_samples),
-            ("train.maml.query_window_samples", t.maml.query_window_samples),
-        ] {
+        // Only the windows this mode trains on (fsda_f: the MAML ones; the others: window_samples).
+        let windows = if self.model.mode == Mode::FsdaF {
+            vec![
+                ("train.maml.support_window_samples", t.maml.support_window_samples),
+                ("train.maml.query_window_samples", t.maml.query_window_samples),
+            ]
+        } else {
+            vec![("train.window_samples", t.window_samples)]
+        };
+        for (what, w) in windows {
             if w <= min_window {
                 return Err(format!(
                     "{what} = {w}: must exceed {min_window} samples (every increment length must score one increment after its skip)"

@@ -39,7 +39,7 @@ pub enum DataError {
          IMU sample: interpolation needs two poses at most {max_gap_ms} ms apart around a sample"
     )]
     NotCovered { name: String, poses: usize, gt_start: f64, gt_end: f64, max_gap_ms: f64 },
-    #[error("{name}: {count} non-finite (NaN/inf) {what} in the data; fix or drop them before training")]
+    #[error("{name}: {count} {what} in the data; fix or drop them before training")]
     NonFinite { name: String, what: &'static str, count: u64 },
     #[error("{name}: {samples} IMU samples ({seconds:.1} s) with ground truth, shorter than {needed}")]
     TooShort { name: String, samples: usize, seconds: f64, needed: String },
@@ -173,10 +173,14 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
     });
     rec.name = name.clone();
     if report.imu_non_finite > 0 {
-        return Err(DataError::NonFinite { name, what: "IMU samples", count: report.imu_non_finite });
+        return Err(DataError::NonFinite { name, what: "non-finite (NaN/inf) IMU samples", count: report.imu_non_finite });
     }
     if report.ground_truth_invalid > 0 {
-        return Err(DataError::NonFinite { name, what: "ground-truth poses", count: report.ground_truth_invalid });
+        return Err(DataError::NonFinite {
+            name,
+            what: "invalid ground-truth poses (NaN/inf, or a quaternion of norm near 0)",
+            count: report.ground_truth_invalid,
+        });
     }
     if rec.ground_truth.is_empty() {
         return Err(DataError::NoGroundTruth(name));
@@ -370,7 +374,10 @@ pub fn check_length(task: &Task, needed: usize, what: &str, available: usize) ->
         return Err(DataError::TooShort {
             name: task.name.clone(),
             samples: available,
-            seconds: available as f64 / task.rec.imu_rate_hz().max(1e-9),
+            seconds: match task.rec.nominal_imu_rate_hz() {
+                r if r > 0.0 => available as f64 / r,
+                _ => 0.0,
+            },
             needed: format!("{what} ({needed} samples)"),
         });
     }

@@ -64,8 +64,8 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
         let task = data::load_task(&d.root, src, d, maml.then_some(d.support_seconds))?;
         if maml {
             if task.support_end >= task.len() {
-                let needed = format!("the support set ({} s) plus a query set", d.support_seconds);
-                data::check_length(&task, task.len() + 1, &needed, task.len())?;
+                let needed = format!("the support set ({} s) plus a query window", d.support_seconds);
+                data::check_length(&task, task.support_end + t.maml.query_window_samples, &needed, task.len())?;
             }
             data::check_length(&task, t.maml.support_window_samples, "the support window", task.support_end)?;
             data::check_length(
