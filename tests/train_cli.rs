@@ -431,6 +431,18 @@ fn bad_inputs_are_refused_before_training() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("shorter than the support set (60 s) plus a query window"), "{err}");
     assert!(!err.contains("8001 samples"), "the needed length is the support set's and a query window's: {err}");
+
+    // A name is a file stem: an empty one wrote dotfiles (.pt, .json) before.
+    for name in ["", "../x", ".hidden"] {
+        let out = run(Command::new(bin())
+            .args(["train", "--no-progress", "--config"])
+            .arg(&cfg)
+            .arg("--out-dir")
+            .arg(d.join("out"))
+            .args(["--name", name]));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("a model name is a file stem"), "{name:?}: {err}");
+    }
 }
 
 /// The ground-truth checks accept every real recording of the benchmarks (raw, uncalibrated

@@ -15,7 +15,8 @@ pub struct EvalArgs {
     /// Bags with an IMU topic and a ground-truth topic.
     #[arg(required = true)]
     pub bags: Vec<PathBuf>,
-    /// Methods to evaluate (repeat the flag); default: raw and static-bias.
+    /// Methods to evaluate (repeat the flag); default: raw and static-bias when no --model is
+    /// given either (with --model, only the methods named here are added to the models).
     #[arg(short, long = "method", value_enum)]
     pub methods: Vec<BaselineMethod>,
     /// Exported models to evaluate too (`.pt`/`.json`; repeatable): the TorchScript file is

@@ -40,6 +40,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let cfg = TrainConfig::load(&args.config)?;
     let name =
         args.name.clone().unwrap_or_else(|| args.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or("model".into()));
+    // The name becomes file names: <name>.pt, <name>.runs/ (an empty one wrote dotfiles).
+    if name.is_empty() || name.contains(['/', '\\']) || name.starts_with('.') {
+        anyhow::bail!("--name {name:?}: a model name is a file stem, not empty, without a path separator or a leading dot");
+    }
     // The overrides are checked here, before `train.seeds` starts a child per seed that would
     // each report the same error.
     fit::with_overrides(&cfg, None, args.epochs).with_context(|| args.config.display().to_string())?;
