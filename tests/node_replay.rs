@@ -338,42 +338,44 @@ fn numeric_options_out_of_range_are_refused_by_name() {
 fn eval_drops_implausible_samples_and_says_so() {
     let d = tempfile::tempdir().unwrap();
     let clean = Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap");
-    let topics = RecordingTopics::default();
-    let (mut rec, _) = read_recording(&clean, &topics).unwrap();
+    let mut rec = car_recording();
     let k = rec.imu.len() / 2;
     rec.imu[k].gyro = nalgebra::Vector3::new(1e30, 0.0, 0.0);
     let bad = d.path().join("implausible.mcap");
     imu_fsda::bag::write_recording(&bad, &rec).unwrap();
-    let row = |bag: &Path, tag: &str| {
-        let json = d.path().join(format!("{tag}.json"));
-        let out = Command::new(bin()).args(["eval", "--method", "raw", "--json"]).arg(&json).arg(bag).output().unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
-        v["rows"][0].clone()
-    };
-    let (clean_row, bad_row) = (row(&clean, "clean"), row(&bad, "bad"));
+    let (clean_row, bad_row) =
+        (eval_first_row(d.path(), &clean, &["--method", "raw"]), eval_first_row(d.path(), &bad, &["--method", "raw"]));
     let aoe = |r: &serde_json::Value| r["aoe_deg"].as_f64().unwrap();
     assert!(bad_row["note"].as_str().unwrap().contains("dropped 1 implausible IMU samples"), "{bad_row}");
     // One 5-ms sample less: the same score to a small fraction of it.
     assert!((aoe(&bad_row) - aoe(&clean_row)).abs() < 0.01 * aoe(&clean_row) + 1e-3, "{clean_row} vs {bad_row}");
 }
 
+/// The bundled simulated car, as read.
+fn car_recording() -> imu_fsda::core::Recording {
+    read_recording(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap"), &RecordingTopics::default()).unwrap().0
+}
+
+/// `imu-fsda eval <args> --json rows.json <bag>`'s first row.
+fn eval_first_row(dir: &Path, bag: &Path, args: &[&str]) -> serde_json::Value {
+    let json = dir.join("rows.json");
+    let out = Command::new(bin()).arg("eval").args(args).arg("--json").arg(&json).arg(bag).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    v["rows"][0].clone()
+}
+
 /// A hole in the IMU stream is said on every row (the figure alone hid it).
 #[test]
 fn eval_says_where_the_imu_stream_has_a_hole() {
     let d = tempfile::tempdir().unwrap();
-    let (mut rec, _) =
-        read_recording(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap"), &RecordingTopics::default()).unwrap();
+    let mut rec = car_recording();
     let t0 = rec.imu[0].stamp_ns;
     rec.imu.retain(|s| !(5_000_000_000..7_000_000_000).contains(&(s.stamp_ns - t0)));
     let bag = d.path().join("hole.mcap");
     imu_fsda::bag::write_recording(&bag, &rec).unwrap();
-    let json = d.path().join("rows.json");
-    let out = Command::new(bin()).args(["eval", "--method", "raw", "--json"]).arg(&json).arg(&bag).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    let note = v["rows"][0]["note"].as_str().unwrap().to_string();
-    assert!(note.contains("1 gap(s) in the IMU stream (longest 2.005 s)"), "{note}");
+    let row = eval_first_row(d.path(), &bag, &["--method", "raw"]);
+    assert!(row["note"].as_str().unwrap().contains("1 gap(s) in the IMU stream (longest 2.005 s)"), "{row}");
 }
 
 /// A model run on an IMU at another rate than it was trained for is scored, with the reason
@@ -381,19 +383,13 @@ fn eval_says_where_the_imu_stream_has_a_hole() {
 #[test]
 fn eval_says_when_the_imu_rate_is_not_the_models() {
     let d = tempfile::tempdir().unwrap();
-    let (mut rec, _) =
-        read_recording(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap"), &RecordingTopics::default()).unwrap();
-    let every_other: Vec<_> = rec.imu.iter().step_by(2).copied().collect();
-    rec.imu = every_other;
+    let mut rec = car_recording();
+    rec.imu = rec.imu.iter().step_by(2).copied().collect();
     let bag = d.path().join("car_100hz.mcap");
     imu_fsda::bag::write_recording(&bag, &rec).unwrap();
     let model = export_random_model(d.path(), Mode::FsdaF, 31, false);
-    let json = d.path().join("rows.json");
-    let out = Command::new(bin()).args(["eval", "--json"]).arg(&json).arg("--model").arg(&model).arg(&bag).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    let note = v["rows"][0]["note"].as_str().unwrap().to_string();
-    assert!(note.contains("for a 200 Hz IMU and this one runs at 100.0 Hz"), "{note}");
+    let row = eval_first_row(d.path(), &bag, &["--model", model.to_str().unwrap()]);
+    assert!(row["note"].as_str().unwrap().contains("for a 200 Hz IMU and this one runs at 100.0 Hz"), "{row}");
 }
 
 /// A reader that closes the pipe early (`| head`) ends a command quietly: exit 0, no panic.
