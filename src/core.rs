@@ -72,12 +72,12 @@ impl Recording {
         }
     }
 
-    /// Mean IMU rate from the stamps, Hz (0 when fewer than two samples).
     /// The IMU's rate from its median sample interval ([`nominal_rate_hz`]).
     pub fn nominal_imu_rate_hz(&self) -> f64 {
         nominal_rate_hz(&self.imu)
     }
 
+    /// Mean IMU rate from the stamps, Hz (0 when fewer than two samples).
     pub fn imu_rate_hz(&self) -> f64 {
         let s = self.imu_seconds();
         if s > 0.0 {

@@ -98,16 +98,16 @@ pub fn span_seconds(s: &str) -> Result<f64, String> {
     positive(s).and_then(|x| if x * 1e9 < i64::MAX as f64 { Ok(x) } else { Err(format!("{s} s is longer than any recording")) })
 }
 
-/// An error and its causes on one line, as `{e:#}` prints them, but without repeating a cause
-/// whose text its parent already ends with (our errors name their source in their own message,
-/// so the chain would say it twice: "x.mcap: No such file …: No such file …") and without the
-/// C++ backtrace libtorch appends to its messages.
 /// Whether the command ended because its standard output was closed (a pager or `head`
 /// quit): the reader wanted no more, which is not a failure.
 pub fn is_broken_pipe(e: &anyhow::Error) -> bool {
     e.chain().any(|c| c.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe))
 }
 
+/// An error and its causes on one line, as `{e:#}` prints them, but without repeating a cause
+/// whose text its parent already ends with (our errors name their source in their own message,
+/// so the chain would say it twice: "x.mcap: No such file …: No such file …") and without the
+/// C++ backtrace libtorch appends to its messages.
 pub fn error_text(e: &anyhow::Error) -> String {
     let mut text = String::new();
     for cause in e.chain() {
