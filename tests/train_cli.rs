@@ -275,6 +275,10 @@ fn seed_restarts_export_the_best_validated_run() {
     assert!(again.status.success() && printed.matches("already trained").count() == 2, "{printed}");
     let resume = train(&["--resume", "x.ckpt.json"]);
     assert!(!resume.status.success() && String::from_utf8_lossy(&resume.stderr).contains("--seed"));
+    // One seed under the chosen export's name would replace it (and leave the selection stale).
+    let one = train(&["--seed", "1"]);
+    let err = String::from_utf8_lossy(&one.stderr);
+    assert!(!one.status.success() && err.contains("was chosen among seeds"), "{err}");
     // Finished runs under another config are neither reused nor overwritten.
     let changed = dir.path().join("changed.yaml");
     std::fs::write(&changed, std::fs::read_to_string(&config).unwrap().replace("  lr: 0.01", "  lr: 0.02")).unwrap();

@@ -57,6 +57,16 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
         return run_seeds(&args, &cfg, &name);
     }
+    // One seed's run under the name of an export chosen among seeds would replace that export
+    // and leave <name>.seeds.json describing a model that is no longer there.
+    let selection = args.out_dir.join(format!("{name}.seeds.json"));
+    if args.seed.is_some() && args.resume.is_none() && selection.exists() {
+        anyhow::bail!(
+            "{} was chosen among seeds ({}): --seed would replace it with one run; give this run its own --name",
+            args.out_dir.join(format!("{name}.pt")).display(),
+            selection.display()
+        );
+    }
     let seed = args.seed.or(cfg.train.seeds.first().copied());
     let opts = fit::RunOptions {
         seed,
