@@ -155,6 +155,20 @@ fn ci_small_learns_exports_and_resumes() {
     assert_eq!(stopped["history"].as_array().unwrap().len(), 63, "stops after the first epoch past the budget");
     assert_eq!(load_metadata(&dir.path().join("ci.json")).unwrap().metrics["stopped_at_budget"], 63.0);
 
+    // A run of other length than the config's does not replace an existing model of its name
+    // (timing `params/train/fsda-f.yaml --epochs 3` from the repo root replaced the bundled one).
+    let model_json = std::fs::read(dir.path().join("ci.json")).unwrap();
+    let out = run(Command::new(bin()).args(["train", "--config"]).arg(&budgeted_cfg).arg("--out-dir").arg(dir.path()).args([
+        "--name",
+        "ci",
+        "--no-progress",
+        "--epochs",
+        "3",
+    ]));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--epochs 3 (the config trains 60) would replace"), "{err}");
+    assert_eq!(std::fs::read(dir.path().join("ci.json")).unwrap(), model_json);
+
     // A resume continues the same run: fewer epochs than done, or another learning rate, are
     // refused before anything is written (the checkpoint stays as it is).
     let ckpt = std::fs::read(dir.path().join("ci.ckpt.json")).unwrap();
@@ -191,7 +205,7 @@ fn ci_small_learns_exports_and_resumes() {
         .unwrap();
         run(Command::new(bin()).args(["train", "--config"]).arg(&cfg).arg("--out-dir").arg(dir.path()).args([
             "--name",
-            "ft",
+            if same_model { "ft" } else { "ft-other" },
             "--no-progress",
             "--epochs",
             "3",

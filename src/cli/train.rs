@@ -67,6 +67,16 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             selection.display()
         );
     }
+    // A run shortened (or lengthened) on the command line, e.g. to time a few epochs, must not
+    // replace the model its config trains: by default that is models/<name>, the bundled one.
+    let existing = args.out_dir.join(format!("{name}.json"));
+    if let Some(e) = args.epochs.filter(|e| *e != cfg.train.epochs && args.resume.is_none() && existing.exists()) {
+        anyhow::bail!(
+            "--epochs {e} (the config trains {}) would replace {}: give a shortened or lengthened run its own --out-dir or --name",
+            cfg.train.epochs,
+            existing.display()
+        );
+    }
     let seed = args.seed.or(cfg.train.seeds.first().copied());
     let opts = fit::RunOptions {
         seed,
