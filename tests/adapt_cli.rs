@@ -93,6 +93,15 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
         "rejected: the adapted model is not better",
     );
 
+    // An -o whose .json is some other record (the model's training summary): replaced before.
+    let summary = d.join("bad/x.json");
+    std::fs::create_dir_all(d.join("bad")).unwrap();
+    std::fs::write(&summary, "{\"epochs\": 3}").unwrap();
+    let o = run(&["adapt", "--model", m, "--bag", c, "-o", bo]);
+    assert!(!o.status.success() && stderr(&o).contains("is not a model's metadata"), "{}", stderr(&o));
+    assert_eq!(std::fs::read_to_string(&summary).unwrap(), "{\"epochs\": 3}");
+    std::fs::remove_file(&summary).unwrap();
+
     // Settings the inner loop cannot run with: a panic inside tch before.
     let cfg = d.join("adapt.yaml");
     for (yaml, needle) in [

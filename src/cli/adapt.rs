@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use imu_fsda::adapt::{adapt, save_adapted, split_recording, AdaptConfig, FramePolicy};
 use imu_fsda::bag::{read_recording, RecordingTopics, GROUND_TRUTH_TOPIC, IMU_TOPIC};
-use imu_fsda::model::export::load_net;
+use imu_fsda::model::export::{load_metadata, load_net};
 use imu_fsda::model::predict::metadata_path;
 
 #[derive(Debug, clap::Args)]
@@ -96,6 +96,15 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     let inputs = [args.model.as_path(), &meta, &args.model.with_extension("ot"), &args.bag];
     for ext in ["pt", "ot", "json", "adapt.json"] {
         super::refuse_overwriting_input(&dir.join(format!("{name}.{ext}")), &inputs)?;
+    }
+    // An existing <name>.json that is not a model's metadata is some other record (a training
+    // summary `<model>.train.json` beside `-o <model>.train.pt`): not this command's to replace.
+    let out_json = dir.join(format!("{name}.json"));
+    if out_json.exists() && load_metadata(&out_json).is_err() {
+        anyhow::bail!(
+            "{} exists and is not a model's metadata: writing the adapted model there would replace it; choose another -o",
+            out_json.display()
+        );
     }
     let loaded = load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading model {}", args.model.display()))?;
     loaded.select_imu(args.imu.as_deref())?;
