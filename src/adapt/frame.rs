@@ -44,29 +44,37 @@ impl FrameCheck {
     }
 }
 
-/// Increments of `window` samples whose ground-truth rotation is at least `min_angle_rad`.
-/// `gt[k]` is the ground-truth attitude at `imu[k]` (None where there is none).
-pub fn check_frame(imu: &[ImuSample], gt: &[Option<UnitQuaternion<f64>>], window: usize, min_angle_rad: f64) -> Option<FrameCheck> {
+/// Rotation vectors of consecutive `window`-sample increments, (ground truth's, raw gyro's),
+/// wherever the ground truth covers both ends. `gt[k]` is the ground-truth attitude at `imu[k]`
+/// (None where there is none).
+pub fn increments(imu: &[ImuSample], gt: &[Option<UnitQuaternion<f64>>], window: usize) -> Vec<(Vector3<f64>, Vector3<f64>)> {
     let window = window.max(2);
-    let mut pairs: Vec<(Vector3<f64>, Vector3<f64>)> = Vec::new();
+    let mut pairs = Vec::new();
     let mut k = 0;
     while k + window < imu.len() {
-        let (Some(a), Some(b)) = (gt[k], gt[k + window]) else {
-            k += window;
-            continue;
-        };
-        let mut d = UnitQuaternion::identity();
-        for n in k..k + window {
-            let dt = (imu[n + 1].stamp_ns - imu[n].stamp_ns) as f64 * 1e-9;
-            d *= exp(&(imu[n].gyro * dt));
-        }
-        let phi_gt = log(&(a.inverse() * b));
-        let phi_imu = log(&d);
-        if phi_gt.norm() >= min_angle_rad && phi_imu.norm() >= min_angle_rad {
-            pairs.push((phi_gt, phi_imu));
+        if let (Some(a), Some(b)) = (gt[k], gt[k + window]) {
+            let mut d = UnitQuaternion::identity();
+            for n in k..k + window {
+                let dt = (imu[n + 1].stamp_ns - imu[n].stamp_ns) as f64 * 1e-9;
+                d *= exp(&(imu[n].gyro * dt));
+            }
+            pairs.push((log(&(a.inverse() * b)), log(&d)));
         }
         k += window;
     }
+    pairs
+}
+
+/// The frame check on increments of `window` samples ([`increments`]).
+pub fn check_frame(imu: &[ImuSample], gt: &[Option<UnitQuaternion<f64>>], window: usize, min_angle_rad: f64) -> Option<FrameCheck> {
+    check_frame_on(&increments(imu, gt, window), min_angle_rad)
+}
+
+/// The frame check on increment pairs (ground truth's, gyro's), using those where both turn by
+/// at least `min_angle_rad`.
+pub fn check_frame_on(all: &[(Vector3<f64>, Vector3<f64>)], min_angle_rad: f64) -> Option<FrameCheck> {
+    let pairs: Vec<&(Vector3<f64>, Vector3<f64>)> =
+        all.iter().filter(|(g, i)| g.norm() >= min_angle_rad && i.norm() >= min_angle_rad).collect();
     if pairs.len() < 3 {
         return None;
     }

@@ -307,7 +307,8 @@ pub fn simulate(cfg: &SimConfig) -> Result<SimOutput, SimError> {
     apply_terms(&applied, &mut measured, &mut ctx)?;
     // Parameters no sensor has (a rotation of 1e300 rad) give NaN or absurd readings: refused
     // rather than written into a bag.
-    if let Some((index, s)) = measured.to_samples().iter().enumerate().find(|(_, s)| !s.is_plausible()) {
+    let samples = measured.to_samples();
+    if let Some((index, s)) = samples.iter().enumerate().find(|(_, s)| !s.is_plausible()) {
         let what = if s.gyro.iter().chain(s.accel.iter()).all(|v| v.is_finite()) {
             format!("|ω| = {:.3e} rad/s, |a| = {:.3e} m/s²", s.gyro.norm(), s.accel.norm())
         } else {
@@ -356,7 +357,7 @@ pub fn simulate(cfg: &SimConfig) -> Result<SimOutput, SimError> {
     let imu_variance = noise.per_sample_variance(ideal.nominal_dt());
     let recording = Recording {
         name: format!("sim {} {} {} Hz {} s seed {}", cfg.profile, cfg.grade, cfg.rate_hz, cfg.seconds, cfg.seed),
-        imu: measured.to_samples(),
+        imu: samples,
         ground_truth,
         temperature,
     };

@@ -200,29 +200,16 @@ pub fn rotation_agreement(rec: &Recording) -> Option<(f64, usize, Option<crate::
         return None;
     }
     let window = ((0.25 * rate).round() as usize).max(2);
-    let opts = crate::eval::EvalOptions::default();
-    let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), opts.max_gap_ns);
-    let mut ratios = Vec::new();
-    let mut k = 0;
-    while k + window < rec.imu.len() {
-        if let (Some(a), Some(b)) = (gt[k], gt[k + window]) {
-            let mut d = nalgebra::UnitQuaternion::identity();
-            for n in k..k + window {
-                d *= crate::so3::exp(&(rec.imu[n].gyro * ((rec.imu[n + 1].stamp_ns - rec.imu[n].stamp_ns) as f64 * 1e-9)));
-            }
-            let (g, i) = ((a.inverse() * b).angle(), d.angle());
-            if g.max(i) > 0.1 {
-                ratios.push(g / i.max(1e-9));
-            }
-        }
-        k += window;
-    }
+    let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), crate::eval::EvalOptions::default().max_gap_ns);
+    let pairs = crate::adapt::frame::increments(&rec.imu, &gt, window);
+    let mut ratios: Vec<f64> =
+        pairs.iter().map(|(g, i)| (g.norm(), i.norm())).filter(|(g, i)| g.max(*i) > 0.1).map(|(g, i)| g / i.max(1e-9)).collect();
     if ratios.is_empty() {
         return None;
     }
     let mid = ratios.len() / 2;
     let median = *ratios.select_nth_unstable_by(mid, f64::total_cmp).1;
-    Some((median, ratios.len(), crate::adapt::frame::check_frame(&rec.imu, &gt, window, 0.05)))
+    Some((median, ratios.len(), crate::adapt::frame::check_frame_on(&pairs, 0.05)))
 }
 
 /// Refuses ground truth that does not describe this IMU's rotation: a gyro in °/s, a pose that
