@@ -62,11 +62,15 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BagError + '_ {
     move |source| BagError::Io { path: path.to_path_buf(), source }
 }
 
-/// Writes a ROS 2 MCAP bag. Call [`BagWriter::finish`] to write the summary; a bag that is
-/// not finished still holds its complete chunks (readable, without a summary).
+/// Writes a ROS 2 MCAP bag. The bag is written as `<path>.partial` and renamed to `path` by
+/// [`BagWriter::finish`], so a run that fails or is killed half-way never replaces an earlier
+/// bag of that name, nor leaves a truncated one where a finished one is expected. A writer
+/// dropped unfinished (an error) closes `<path>.partial` as a readable bag of what it holds.
 pub struct BagWriter {
     path: PathBuf,
-    writer: mcap::Writer<BufWriter<File>>,
+    partial: PathBuf,
+    /// `None` once finished.
+    writer: Option<mcap::Writer<BufWriter<File>>>,
     schemas: BTreeMap<&'static str, u16>,
     sequence: u32,
     scratch: Vec<u8>,
@@ -84,15 +88,20 @@ impl BagWriter {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             crate::core::create_dir_all(dir).map_err(io_err(&path))?;
         }
-        let file = File::create(&path).map_err(io_err(&path))?;
+        let partial = partial_path(&path);
+        let file = File::create(&partial).map_err(io_err(&partial))?;
         let writer = mcap::WriteOptions::new()
             .profile("ros2")
             .library(concat!("imu-fsda ", env!("CARGO_PKG_VERSION")))
             .compression(Some(mcap::Compression::Zstd))
             .chunk_size(Some(1 << 20))
             .create(BufWriter::with_capacity(1 << 16, file))
-            .map_err(|source| BagError::McapWrite { path: path.clone(), messages: 0, source })?;
-        Ok(BagWriter { path, writer, schemas: BTreeMap::new(), sequence: 0, scratch: Vec::with_capacity(512) })
+            .map_err(|source| BagError::McapWrite { path: partial.clone(), messages: 0, source })?;
+        Ok(BagWriter { path, partial, writer: Some(writer), schemas: BTreeMap::new(), sequence: 0, scratch: Vec::with_capacity(512) })
+    }
+
+    fn mcap(&mut self) -> &mut mcap::Writer<BufWriter<File>> {
+        self.writer.as_mut().expect("a BagWriter is consumed by finish")
     }
 
     pub fn path(&self) -> &Path {
@@ -100,7 +109,7 @@ impl BagWriter {
     }
 
     fn mcap_err(&self, source: mcap::McapError) -> BagError {
-        BagError::McapWrite { path: self.path.clone(), messages: self.sequence as u64, source }
+        BagError::McapWrite { path: self.partial.clone(), messages: self.sequence as u64, source }
     }
 
     /// Open (or reuse) a channel for messages of type `M` on `topic`.
@@ -108,12 +117,12 @@ impl BagWriter {
         let schema_id = match self.schemas.get(M::TYPE_NAME) {
             Some(id) => *id,
             None => {
-                let id = self.writer.add_schema(M::TYPE_NAME, "ros2msg", M::DEFINITION.as_bytes()).map_err(|e| self.mcap_err(e))?;
+                let id = self.mcap().add_schema(M::TYPE_NAME, "ros2msg", M::DEFINITION.as_bytes()).map_err(|e| self.mcap_err(e))?;
                 self.schemas.insert(M::TYPE_NAME, id);
                 id
             }
         };
-        let id = self.writer.add_channel(schema_id, topic, "cdr", &BTreeMap::new()).map_err(|e| self.mcap_err(e))?;
+        let id = self.mcap().add_channel(schema_id, topic, "cdr", &BTreeMap::new()).map_err(|e| self.mcap_err(e))?;
         Ok(Channel { id })
     }
 
@@ -122,9 +131,9 @@ impl BagWriter {
     pub fn channel_like(&mut self, topic: &str, schema: Option<&mcap::Schema<'_>>) -> Result<Channel, BagError> {
         let schema_id = match schema {
             None => 0,
-            Some(s) => self.writer.add_schema(&s.name, &s.encoding, &s.data).map_err(|e| self.mcap_err(e))?,
+            Some(s) => self.mcap().add_schema(&s.name, &s.encoding, &s.data).map_err(|e| self.mcap_err(e))?,
         };
-        let id = self.writer.add_channel(schema_id, topic, "cdr", &BTreeMap::new()).map_err(|e| self.mcap_err(e))?;
+        let id = self.mcap().add_channel(schema_id, topic, "cdr", &BTreeMap::new()).map_err(|e| self.mcap_err(e))?;
         Ok(Channel { id })
     }
 
@@ -148,14 +157,39 @@ impl BagWriter {
         let t = log_time_ns.max(0) as u64;
         let header = mcap::records::MessageHeader { channel_id: channel.id, sequence: self.sequence, log_time: t, publish_time: t };
         self.sequence = self.sequence.wrapping_add(1);
-        self.writer.write_to_known_channel(&header, cdr).map_err(|e| self.mcap_err(e))
+        self.mcap().write_to_known_channel(&header, cdr).map_err(|e| self.mcap_err(e))
     }
 
     /// Write the summary (schemas, channels, Statistics, indexes) and close the file.
     pub fn finish(mut self) -> Result<(), BagError> {
-        self.writer.finish().map_err(|e| self.mcap_err(e))?;
-        Ok(())
+        let mut writer = self.writer.take().expect("a BagWriter is consumed by finish");
+        writer.finish().map_err(|e| self.mcap_err(e))?;
+        writer.into_inner().into_inner().map_err(|e| BagError::Io { path: self.partial.clone(), source: e.into_error() })?;
+        std::fs::rename(&self.partial, &self.path).map_err(io_err(&self.path))
     }
+}
+
+impl Drop for BagWriter {
+    fn drop(&mut self) {
+        if let Some(mut w) = self.writer.take() {
+            let closed = w.finish().is_ok();
+            drop(w);
+            tracing::warn!(
+                "{} was not finished; the {} messages written are in {}{}",
+                self.path.display(),
+                self.sequence,
+                self.partial.display(),
+                if closed { "" } else { " (without its summary)" }
+            );
+        }
+    }
+}
+
+/// Where a bag is written until it is finished: `<path>.partial`, beside it.
+pub fn partial_path(path: &Path) -> PathBuf {
+    let mut p = path.as_os_str().to_owned();
+    p.push(".partial");
+    PathBuf::from(p)
 }
 
 /// One message read from a bag: its topic, type, log time and CDR payload.

@@ -10,6 +10,10 @@ fn main() -> std::process::ExitCode {
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) if cli::is_broken_pipe(&e) => std::process::ExitCode::SUCCESS,
+        Err(e) if cli::interrupts::is_interruption(&e) => {
+            eprintln!("{}", cli::error_text(&e));
+            std::process::ExitCode::from(130)
+        }
         Err(e) => {
             eprintln!("error: {}", cli::error_text(&e));
             std::process::ExitCode::FAILURE

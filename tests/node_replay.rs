@@ -512,3 +512,62 @@ fn a_model_is_the_files_its_path_names() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.code() == Some(1) && err.contains("the files are not one model"), "{err}");
 }
+
+fn topic_count(bag: &Path, topic: &str) -> usize {
+    BagReader::open(bag).unwrap().filter(|m| m.as_ref().unwrap().topic.as_ref() == topic).count()
+}
+
+/// A replay that ends early keeps what it did: a damaged input is replayed up to the damage
+/// (exit 1, naming both); SIGTERM / Ctrl-C finishes the output at the next message (exit 130);
+/// a killed replay leaves the earlier output of that name as it was and its own `.partial`.
+#[test]
+fn a_replay_that_ends_early_keeps_what_it_replayed() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(bag) = euroc_bag(dir.path()) else { return };
+    let model = export_random_model(dir.path(), Mode::FsdaF, 5, false);
+    let total = topic_count(&bag, "/imu/data");
+    let replay = |input: &Path, output: &Path| {
+        let mut c = Command::new(bin());
+        c.arg("replay").arg(input).arg("-o").arg(output).arg("--model").arg(&model);
+        c.stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::piped());
+        c
+    };
+
+    let cut = dir.path().join("cut.mcap");
+    let bytes = std::fs::read(&bag).unwrap();
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let out_cut = dir.path().join("out_cut.mcap");
+    let o = replay(&cut, &out_cut).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("damaged") && err.contains(&*out_cut.to_string_lossy()) && err.contains(&*cut.to_string_lossy()), "{err}");
+    let kept = topic_count(&out_cut, "/imu/denoised");
+    assert!(kept > total / 4 && kept < total, "{kept} of {total} denoised before the damage");
+
+    // Stopped or killed once the output is open (its `.partial` exists), mid-loop.
+    let run_until_partial = |output: &Path, signal: i32| -> std::process::Output {
+        let partial = imu_fsda::bag::partial_path(output);
+        let child = replay(&bag, output).spawn().unwrap();
+        let t0 = std::time::Instant::now();
+        while !partial.exists() {
+            assert!(t0.elapsed().as_secs() < 60, "the replay never opened its output");
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        unsafe { libc::kill(child.id() as i32, signal) };
+        child.wait_with_output().unwrap()
+    };
+    let out_term = dir.path().join("out_term.mcap");
+    let o = run_until_partial(&out_term, libc::SIGTERM);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert!(err.contains("interrupted") && err.contains(&*out_term.to_string_lossy()), "{err}");
+    let kept = topic_count(&out_term, "/imu/denoised");
+    assert!(kept < total, "{kept} of {total}: the replay was not stopped");
+    assert!(!imu_fsda::bag::partial_path(&out_term).exists());
+
+    let earlier = std::fs::read(&out_term).unwrap();
+    let o = run_until_partial(&out_term, libc::SIGKILL);
+    assert_eq!(std::os::unix::process::ExitStatusExt::signal(&o.status), Some(libc::SIGKILL));
+    assert!(std::fs::read(&out_term).unwrap() == earlier, "a killed replay changed the earlier output");
+    assert!(imu_fsda::bag::partial_path(&out_term).exists());
+}

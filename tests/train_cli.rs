@@ -483,8 +483,9 @@ fn real_recordings_pass_the_ground_truth_checks() {
     }
 }
 
-/// A `train.seeds` parent stopped by SIGTERM (timeout, systemd) takes its children with it:
-/// before, they went on training, and a restarted parent started second writers on their runs.
+/// A `train.seeds` parent stopped by SIGTERM (timeout, systemd, Ctrl-C) takes its children with
+/// it, each at its checkpoint: before, they went on training, and a restarted parent started
+/// second writers on their runs.
 #[test]
 fn seed_children_stop_with_their_parent() {
     let Some(data) = shared_data() else { return };
@@ -512,7 +513,14 @@ fn seed_children_stop_with_their_parent() {
         std::thread::sleep(std::time::Duration::from_millis(200));
     }
     unsafe { libc::kill(parent.id() as i32, libc::SIGTERM) };
-    parent.wait().unwrap();
+    // The parent stops its children at their next epoch, each writing its checkpoint, and
+    // says so with the exit status of an interrupted command.
+    assert_eq!(parent.wait().unwrap().code(), Some(130));
+    for run in ["orphans-s0", "orphans-s1"] {
+        let ckpt = dir.path().join("orphans.runs").join(format!("{run}.ckpt.json"));
+        let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&ckpt).unwrap()).unwrap();
+        assert!(meta["epoch"].as_u64().is_some_and(|e| e >= 1), "{run}: {}", meta["epoch"]);
+    }
     std::thread::sleep(std::time::Duration::from_millis(1500));
     let before: Vec<u64> = logs.iter().map(size).collect();
     std::thread::sleep(std::time::Duration::from_secs(3));

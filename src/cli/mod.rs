@@ -98,6 +98,47 @@ pub fn span_seconds(s: &str) -> Result<f64, String> {
     positive(s).and_then(|x| if x * 1e9 < i64::MAX as f64 { Ok(x) } else { Err(format!("{s} s is longer than any recording")) })
 }
 
+/// Ctrl-C / SIGTERM for commands that stop cleanly at the next message or epoch instead of
+/// dying half-way: [`interrupts::catch`] arms it, [`interrupts::requested`] is polled. The
+/// first signal only sets a flag; the handler then restores the default, so a second one
+/// ends the process at once.
+pub mod interrupts {
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    static REQUESTED: AtomicBool = AtomicBool::new(false);
+
+    extern "C" fn on_signal(signal: libc::c_int) {
+        REQUESTED.store(true, Ordering::SeqCst);
+        // SAFETY: signal() is async-signal-safe; it restores the default for the next one.
+        unsafe {
+            libc::signal(signal, libc::SIG_DFL);
+        }
+    }
+
+    pub fn catch() {
+        for signal in [libc::SIGINT, libc::SIGTERM] {
+            // SAFETY: the handler only stores to an atomic and calls signal().
+            unsafe {
+                libc::signal(signal, on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t);
+            }
+        }
+    }
+
+    pub fn requested() -> bool {
+        REQUESTED.load(Ordering::Relaxed)
+    }
+
+    /// The error a command returns when it stopped at a signal: `main` exits with 130.
+    #[derive(Debug, thiserror::Error)]
+    #[error("interrupted: {0}")]
+    pub struct Interrupted(pub String);
+
+    /// Whether a command ended at a signal (exit 130), by its own word or a training run's.
+    pub fn is_interruption(e: &anyhow::Error) -> bool {
+        e.chain().any(|c| c.is::<Interrupted>() || c.is::<imu_fsda::train::Stopped>())
+    }
+}
+
 /// Whether the command ended because its standard output was closed (a pager or `head`
 /// quit): the reader wanted no more, which is not a failure.
 pub fn is_broken_pipe(e: &anyhow::Error) -> bool {

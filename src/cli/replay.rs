@@ -93,8 +93,21 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let mut last_log = 0u64;
     // Input rate over each diagnostics period, in the bag's time (log time, receipt).
     let mut rate_from: Option<(u64, u64)> = None;
+    // A damaged input or Ctrl-C ends the loop; what was replayed before it is kept.
+    let (mut damage, mut read) = (None, 0u64);
+    super::interrupts::catch();
     for m in BagReader::open(&args.input)? {
-        let m = m?;
+        if super::interrupts::requested() {
+            break;
+        }
+        let m = match m {
+            Ok(m) => m,
+            Err(e) => {
+                damage = Some(e);
+                break;
+            }
+        };
+        read += 1;
         let ch = match channels.get(&m.topic) {
             Some(c) => *c,
             None => {
@@ -153,6 +166,13 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     stats.frame_id = last_frame.unwrap_or_default();
     writer.write(diag_ch, last_log as i64, &diagnostics_message(&stats, &args.config.node_name, Time::from_ns(last_log as i64)))?;
     writer.finish().with_context(|| format!("finishing {}", args.output.display()))?;
+    let kept = || format!("{} holds the replay of the {read} messages before it", args.output.display());
+    if let Some(e) = damage {
+        return Err(anyhow::Error::new(e).context(format!("the input is damaged; {}", kept())));
+    }
+    if super::interrupts::requested() {
+        return Err(super::interrupts::Interrupted(kept()).into());
+    }
     let c = &stats.counters;
     anyhow::ensure!(
         c.received > 0,

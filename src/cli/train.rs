@@ -85,7 +85,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         name,
         epochs: args.epochs,
         progress: !args.no_progress && std::io::stderr().is_terminal(),
+        stop_requested: Some(super::interrupts::requested),
     };
+    super::interrupts::catch();
     let s = fit::train(&cfg, &opts)?;
     out!(
         "trained {} ({:?}, seed {}): {} epochs in {:.1} s ({:.3} s/epoch, {} threads); loss {:.4} → {:.4}",
@@ -174,8 +176,22 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
     let mut pending: std::collections::VecDeque<u64> = seeds.iter().copied().collect();
     let mut running: Vec<(u64, std::process::Child, PathBuf)> = Vec::new();
     let mut failed: Vec<String> = Vec::new();
+    // Ctrl-C reaches the parent only (each child has its own process group): it stops every
+    // running child at its next epoch's checkpoint, starts no more, and waits for them.
+    super::interrupts::catch();
+    let mut forwarded = false;
     while !pending.is_empty() || !running.is_empty() {
-        while running.len() < jobs && failed.is_empty() {
+        let interrupted = super::interrupts::requested();
+        if interrupted && !forwarded {
+            for (_, child, _) in &running {
+                // SAFETY: kill() on our own child's pid; it has not been reaped (try_wait below).
+                unsafe {
+                    libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
+                }
+            }
+            forwarded = true;
+        }
+        while running.len() < jobs && failed.is_empty() && !interrupted {
             let Some(seed) = pending.pop_front() else { break };
             let run = seeds::run_name(name, seed);
             if done.contains(&seed) {
@@ -197,10 +213,13 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
             // A child outlives a parent stopped by SIGTERM (timeout, systemd, a scheduler): it
             // would go on writing its run while a restarted parent starts a second writer on it.
             // PR_SET_PDEATHSIG has the kernel stop it with its parent.
-            // SAFETY: prctl is async-signal-safe and touches no memory of the parent.
+            // Its own process group keeps a terminal's Ctrl-C to the parent, which forwards it
+            // once (a child's second signal would end it before its checkpoint).
+            // SAFETY: prctl and setpgid are async-signal-safe and touch no memory of the parent.
             unsafe {
                 std::os::unix::process::CommandExt::pre_exec(&mut cmd, || {
                     libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+                    libc::setpgid(0, 0);
                     Ok(())
                 });
             }
@@ -220,6 +239,8 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
                     bar.inc(1);
                     if status.success() {
                         tracing::info!("seed {seed} finished");
+                    } else if forwarded && status.code() == Some(130) {
+                        out!("seed {seed}: stopped at its checkpoint (log {})", log.display())?;
                     } else {
                         failed.push(format!("seed {seed} ({status}): {} (log {})", last_error(&log), log.display()));
                     }
@@ -227,11 +248,18 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
             }
         }
         running = still;
-        if !failed.is_empty() && running.is_empty() {
+        if (!failed.is_empty() || forwarded) && running.is_empty() {
             break;
         }
     }
     bar.finish_and_clear();
+    if forwarded {
+        return Err(super::interrupts::Interrupted(format!(
+            "the runs in {} stopped at their checkpoints (finished ones are kept); the same command resumes them",
+            runs.display()
+        ))
+        .into());
+    }
     if !failed.is_empty() {
         anyhow::bail!("training failed: {}; finished runs are kept, rerun to resume the rest", failed.join(", "));
     }

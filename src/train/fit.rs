@@ -43,6 +43,18 @@ pub struct RunOptions {
     pub epochs: Option<usize>,
     /// Draw the progress bar (on stderr, only when it is a terminal).
     pub progress: bool,
+    /// Polled after every epoch: when it says so (Ctrl-C), the run writes its checkpoint and
+    /// returns [`Stopped`].
+    pub stop_requested: Option<fn() -> bool>,
+}
+
+/// A run stopped on request at an epoch's end, its checkpoint written.
+#[derive(Debug, thiserror::Error)]
+#[error("stopped after epoch {epoch} of {epochs}; checkpoint {}: continue with the same command and --resume {}", checkpoint.display(), checkpoint.display())]
+pub struct Stopped {
+    pub epoch: usize,
+    pub epochs: usize,
+    pub checkpoint: PathBuf,
 }
 
 /// All recordings of a run, loaded and checked.
@@ -956,9 +968,15 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         if over_budget {
             break;
         }
-        if cfg.train.checkpoint_every > 0 && done % cfg.train.checkpoint_every == 0 && done < epochs {
+        let stop = done < epochs && opts.stop_requested.is_some_and(|f| f());
+        if stop || cfg.train.checkpoint_every > 0 && done % cfg.train.checkpoint_every == 0 && done < epochs {
             let secs = prior_seconds + started.elapsed().as_secs_f64();
-            save_ckpt(done, &adam, &history, &validation, &monitor, best, best_vars.as_ref(), ema.as_ref(), drift.as_ref(), secs)?;
+            let checkpoint =
+                save_ckpt(done, &adam, &history, &validation, &monitor, best, best_vars.as_ref(), ema.as_ref(), drift.as_ref(), secs)?;
+            if stop {
+                pb.abandon();
+                return Err(Stopped { epoch: done, epochs, checkpoint }.into());
+            }
         }
     }
     pb.finish();

@@ -20,4 +20,4 @@ pub mod report;
 pub mod seeds;
 
 pub use config::TrainConfig;
-pub use fit::{train, RunOptions};
+pub use fit::{train, RunOptions, Stopped};
