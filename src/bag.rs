@@ -56,6 +56,8 @@ pub enum BagError {
     WrongType { path: PathBuf, topic: String, found: String, expected: String },
     #[error("{path}: no messages on topic {topic} (topics present: {present})")]
     MissingTopic { path: PathBuf, topic: String, present: String },
+    #[error("{path}: {what}")]
+    NotMcap { path: PathBuf, what: String },
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BagError + '_ {
@@ -216,6 +218,9 @@ type ChannelInfo = (Arc<str>, Arc<str>, Option<Arc<mcap::Schema<'static>>>);
 impl BagReader {
     pub fn open(path: impl AsRef<Path>) -> Result<Self, BagError> {
         let path = path.as_ref().to_path_buf();
+        if let Some(what) = not_mcap(&path) {
+            return Err(BagError::NotMcap { path, what });
+        }
         let file = File::open(&path).map_err(io_err(&path))?;
         // A corrupt length field must not make the reader allocate it (no record can be
         // longer than the file), and a damaged chunk must be an error, not altered data.
@@ -249,6 +254,38 @@ impl Iterator for BagReader {
             })
             .clone();
         Some(Ok(BagMessage { topic, type_name, schema, log_time_ns: msg.log_time, data: msg.data.into_owned() }))
+    }
+}
+
+/// What `ros2 bag record` leaves that is not an MCAP file, said plainly (the MCAP reader's own
+/// errors for them are "Bad magic number" or a compression-stream error): a rosbag2 folder, an
+/// SQLite3 `.db3` bag, a bag compressed whole (`--compression-mode file`).
+fn not_mcap(path: &Path) -> Option<String> {
+    if path.is_dir() {
+        let inside: Vec<PathBuf> = std::fs::read_dir(path).ok()?.filter_map(|e| e.ok().map(|e| e.path())).collect();
+        let with = |ext: &str| inside.iter().filter(|p| p.to_string_lossy().ends_with(ext)).cloned().collect::<Vec<_>>();
+        let (mcaps, db3s) = (with(".mcap"), with(".db3"));
+        return Some(match (mcaps.first(), db3s.first()) {
+            (Some(m), _) => format!(
+                "a folder (a rosbag2 recording?): pass its MCAP file{}, e.g. {}",
+                if mcaps.len() > 1 { "s one at a time" } else { "" },
+                m.display()
+            ),
+            (None, Some(_)) => {
+                "a rosbag2 folder in SQLite3 (.db3) storage: only MCAP is read; convert it with `ros2 bag convert` to storage_id mcap, or record with `ros2 bag record -s mcap`".into()
+            }
+            _ => "a folder, not an MCAP bag".into(),
+        });
+    }
+    let mut head = [0u8; 16];
+    let n = std::io::Read::read(&mut File::open(path).ok()?, &mut head).ok()?;
+    let head = &head[..n];
+    if head.starts_with(b"SQLite format 3\0") {
+        Some("an SQLite3 (.db3) rosbag2 file: only MCAP is read; convert it with `ros2 bag convert` to storage_id mcap, or record with `ros2 bag record -s mcap`".into())
+    } else if head.starts_with(&[0x28, 0xb5, 0x2f, 0xfd]) {
+        Some("a zstd-compressed file (rosbag2 --compression-mode file): decompress it first (`zstd -d`), then read the .mcap".into())
+    } else {
+        None
     }
 }
 
@@ -310,9 +347,25 @@ pub struct LoadReport {
     pub ground_truth_invalid: u64,
     pub ground_truth_out_of_order: u64,
     pub temperature_read: u64,
+    /// Messages written after one with a later log time: read in log-time order, not skipped.
+    pub out_of_log_time_order: u64,
 }
 
 impl LoadReport {
+    /// When most IMU samples repeat or go back from an earlier header stamp, the stamps are
+    /// not the samples' times (a driver that leaves `header.stamp` at zero): what to say.
+    pub fn stamp_problem(&self) -> Option<String> {
+        let bad = self.imu_duplicate_stamp + self.imu_backwards_stamp;
+        (self.imu_read >= 2 && 2 * bad > self.imu_read).then(|| {
+            format!(
+                "{bad} of {} IMU samples repeat or go back from an earlier header stamp ({} repeated, {} backwards): \
+                 header.stamp is not set to the sample's time (a driver leaving it at zero?); the stamps are what every \
+                 command here integrates with",
+                self.imu_read, self.imu_duplicate_stamp, self.imu_backwards_stamp
+            )
+        })
+    }
+
     pub fn skipped(&self) -> u64 {
         self.imu_non_finite
             + self.imu_duplicate_stamp
@@ -361,6 +414,12 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
     let mut rec = Recording { name: path.display().to_string(), ..Default::default() };
     let mut report = LoadReport::default();
     let mut present: BTreeMap<Arc<str>, Arc<str>> = BTreeMap::new();
+    // Decoded with their log times first: MCAP does not require a file to be in log-time order
+    // (a recorder's threads interleave), and readers order it by log time, as `ros2 bag play`
+    // does. In file order such a bag lost its late-written samples as "backwards stamps".
+    let mut imu: Vec<(u64, ImuSample)> = Vec::new();
+    let mut poses: Vec<(u64, Option<PoseSample>)> = Vec::new();
+    let mut temperature: Vec<(u64, TemperatureSample)> = Vec::new();
     for (index, m) in BagReader::open(path)?.enumerate() {
         let m = m?;
         let index = index as u64 + 1;
@@ -379,9 +438,7 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
             if *m.type_name != *Imu::TYPE_NAME {
                 return Err(wrong_type(Imu::TYPE_NAME));
             }
-            let s = Imu::decode(&m.data).map_err(decode_err)?.sample();
-            report.imu_read += 1;
-            push_imu(&mut rec.imu, s, &mut report);
+            imu.push((m.log_time_ns, Imu::decode(&m.data).map_err(decode_err)?.sample()));
         } else if topics.ground_truth.as_deref() == Some(&*m.topic) {
             let pose = match &*m.type_name {
                 t if t == PoseStamped::TYPE_NAME => PoseStamped::decode(&m.data).map_err(decode_err)?.sample(),
@@ -396,24 +453,41 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
                 }
                 _ => return Err(wrong_type("geometry_msgs/msg/PoseStamped, nav_msgs/msg/Odometry or sensor_msgs/msg/Imu")),
             };
-            report.ground_truth_read += 1;
-            match pose {
-                None => report.ground_truth_invalid += 1,
-                Some(p) => match rec.ground_truth.last() {
-                    Some(last) if p.stamp_ns <= last.stamp_ns => report.ground_truth_out_of_order += 1,
-                    _ => rec.ground_truth.push(p),
-                },
-            }
+            poses.push((m.log_time_ns, pose));
         } else if topics.temperature.as_deref() == Some(&*m.topic) {
             if *m.type_name != *Temperature::TYPE_NAME {
                 return Err(wrong_type(Temperature::TYPE_NAME));
             }
-            let t: TemperatureSample = Temperature::decode(&m.data).map_err(decode_err)?.sample();
-            report.temperature_read += 1;
-            if t.celsius.is_finite() && rec.temperature.last().is_none_or(|l| t.stamp_ns > l.stamp_ns) {
-                rec.temperature.push(t);
-            }
+            temperature.push((m.log_time_ns, Temperature::decode(&m.data).map_err(decode_err)?.sample()));
         }
+    }
+    report.out_of_log_time_order = in_log_time_order(&mut imu) + in_log_time_order(&mut poses) + in_log_time_order(&mut temperature);
+    for (_, s) in imu {
+        report.imu_read += 1;
+        push_imu(&mut rec.imu, s, &mut report);
+    }
+    for (_, pose) in poses {
+        report.ground_truth_read += 1;
+        match pose {
+            None => report.ground_truth_invalid += 1,
+            Some(p) => match rec.ground_truth.last() {
+                Some(last) if p.stamp_ns <= last.stamp_ns => report.ground_truth_out_of_order += 1,
+                _ => rec.ground_truth.push(p),
+            },
+        }
+    }
+    report.temperature_read = temperature.len() as u64;
+    for (_, t) in temperature {
+        if t.celsius.is_finite() && rec.temperature.last().is_none_or(|l| t.stamp_ns > l.stamp_ns) {
+            rec.temperature.push(t);
+        }
+    }
+    if report.out_of_log_time_order > 0 {
+        tracing::info!(
+            "{}: {} messages were written out of log-time order; read in log-time order",
+            path.display(),
+            report.out_of_log_time_order
+        );
     }
     if rec.imu.is_empty() {
         let present = present.iter().map(|(t, ty)| format!("{t} [{ty}]")).collect::<Vec<_>>().join(", ");
@@ -423,6 +497,23 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
         tracing::warn!("{}: {}", path.display(), report);
     }
     Ok((rec, report))
+}
+
+/// Orders one topic's messages by log time (a stable sort: equal log times keep the file's
+/// order); returns how many came before an earlier-written one's log time.
+fn in_log_time_order<T>(messages: &mut [(u64, T)]) -> u64 {
+    let mut latest = 0u64;
+    let mut late = 0u64;
+    for (t, _) in messages.iter() {
+        if *t < latest {
+            late += 1;
+        }
+        latest = latest.max(*t);
+    }
+    if late > 0 {
+        messages.sort_by_key(|m| m.0);
+    }
+    late
 }
 
 /// Append an IMU sample unless it is non-finite or not strictly after the last one.
@@ -497,6 +588,29 @@ mod tests {
     use super::*;
     use nalgebra::{UnitQuaternion, Vector3};
 
+    /// What `ros2 bag record` leaves that is not an MCAP file is named, with what to do.
+    #[test]
+    fn rosbag2_folders_sqlite_and_compressed_files_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let says = |p: &Path| match BagReader::open(p) {
+            Err(e @ BagError::NotMcap { .. }) => e.to_string(),
+            Err(e) => panic!("{}: {e}", p.display()),
+            Ok(_) => panic!("{}: opened", p.display()),
+        };
+        let rosbag2 = dir.path().join("rec");
+        std::fs::create_dir_all(&rosbag2).unwrap();
+        std::fs::write(rosbag2.join("metadata.yaml"), "rosbag2_bagfile_information: {}\n").unwrap();
+        std::fs::write(rosbag2.join("rec_0.mcap"), b"").unwrap();
+        assert!(says(&rosbag2).contains("rec_0.mcap"), "{}", says(&rosbag2));
+        std::fs::remove_file(rosbag2.join("rec_0.mcap")).unwrap();
+        std::fs::write(rosbag2.join("rec_0.db3"), b"SQLite format 3\0").unwrap();
+        assert!(says(&rosbag2).contains("ros2 bag convert"));
+        assert!(says(&rosbag2.join("rec_0.db3")).contains("SQLite3"));
+        let zst = dir.path().join("rec_0.mcap.zstd");
+        std::fs::write(&zst, [0x28, 0xb5, 0x2f, 0xfd, 0, 0, 0, 0]).unwrap();
+        assert!(says(&zst).contains("zstd -d"));
+    }
+
     fn recording() -> Recording {
         let imu = (0..500)
             .map(|k| ImuSample {
@@ -539,6 +653,31 @@ mod tests {
         assert!((imu.rate_hz() - 200.0).abs() < 1e-6);
     }
 
+    /// Messages written out of log-time order (allowed by MCAP) are read in log-time order,
+    /// not dropped as backwards stamps.
+    #[test]
+    fn a_bag_out_of_log_time_order_is_read_in_log_time_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("shuffled.mcap");
+        let rec = recording();
+        let mut w = BagWriter::create(&path).unwrap();
+        let ch = w.channel::<Imu>(IMU_TOPIC).unwrap();
+        let mut order: Vec<usize> = (0..rec.imu.len()).collect();
+        for pair in order.chunks_mut(7) {
+            pair.reverse();
+        }
+        for k in order {
+            let s = &rec.imu[k];
+            w.write(ch, s.stamp_ns, &Imu::from_sample(s, IMU_FRAME)).unwrap();
+        }
+        w.finish().unwrap();
+        let (back, report) =
+            read_recording(&path, &RecordingTopics { ground_truth: None, temperature: None, ..Default::default() }).unwrap();
+        assert_eq!(back.imu, rec.imu);
+        assert_eq!(report.skipped(), 0);
+        assert!(report.out_of_log_time_order > 400, "{}", report.out_of_log_time_order);
+    }
+
     #[test]
     fn bad_samples_are_skipped_and_counted() {
         let dir = tempfile::tempdir().unwrap();
@@ -547,15 +686,17 @@ mod tests {
         rec.imu[10].gyro.x = f64::NAN;
         rec.imu[20].stamp_ns = rec.imu[19].stamp_ns; // duplicate
         rec.imu[30].accel.z = f64::INFINITY;
-        // The writer interleaves by stamp, so write the raw stream by hand to keep a backwards stamp.
+        // The writer interleaves by stamp, so write the raw stream by hand to keep a backwards
+        // header stamp (received in order: its log time is in order).
         let mut w = BagWriter::create(&path).unwrap();
         let ch = w.channel::<Imu>(IMU_TOPIC).unwrap();
         for (k, s) in rec.imu.iter().enumerate() {
             let mut s = *s;
+            let received = s.stamp_ns;
             if k == 40 {
                 s.stamp_ns -= 1_000_000_000;
             }
-            w.write(ch, s.stamp_ns, &Imu::from_sample(&s, IMU_FRAME)).unwrap();
+            w.write(ch, received, &Imu::from_sample(&s, IMU_FRAME)).unwrap();
         }
         w.finish().unwrap();
         let (back, report) = read_recording(&path, &RecordingTopics::default()).unwrap();

@@ -72,7 +72,7 @@ impl Recording {
         }
     }
 
-    /// The IMU's rate from its median sample interval ([`nominal_rate_hz`]).
+    /// The IMU's rate from its sample intervals near the median ([`nominal_rate_hz`]).
     pub fn nominal_imu_rate_hz(&self) -> f64 {
         nominal_rate_hz(&self.imu)
     }
@@ -118,20 +118,24 @@ pub fn ns_to_s(ns: i64) -> f64 {
     ns as f64 * 1e-9
 }
 
-/// A stream's rate from its median sample interval, Hz (0 with fewer than two samples): a gap
-/// or a burst does not move it, unlike samples over span.
+/// A stream's rate, Hz (0 with fewer than two samples): from the mean of the sample intervals
+/// within half a median interval of the median, so a gap or a burst does not move it (unlike
+/// samples over span), and stamps rounded coarser than the period (a 400-Hz IMU stamped in
+/// whole ms: 2, 3, 2, 3 ms) still give the rate (the median alone said 500 Hz).
 pub fn nominal_rate_hz(imu: &[ImuSample]) -> f64 {
-    let mut dt: Vec<i64> = imu.windows(2).map(|w| w[1].stamp_ns - w[0].stamp_ns).collect();
+    let dt: Vec<i64> = imu.windows(2).map(|w| w[1].stamp_ns - w[0].stamp_ns).collect();
     if dt.is_empty() {
         return 0.0;
     }
-    let mid = dt.len() / 2;
-    let median = *dt.select_nth_unstable(mid).1;
-    if median > 0 {
-        1e9 / median as f64
-    } else {
-        0.0
+    let mut sorted = dt.clone();
+    let mid = sorted.len() / 2;
+    let median = *sorted.select_nth_unstable(mid).1;
+    if median <= 0 {
+        return 0.0;
     }
+    let (lo, hi) = (median / 2, median + median / 2);
+    let (sum, count) = dt.iter().filter(|d| (lo..=hi).contains(*d)).fold((0i128, 0i128), |(s, c), d| (s + *d as i128, c + 1));
+    1e9 * count as f64 / sum as f64
 }
 
 /// `std::fs::create_dir_all`, but when a file stands where a folder of the path must be, the
@@ -161,6 +165,22 @@ mod tests {
             })
             .collect();
         Recording { name: "r".into(), imu, ground_truth, temperature: vec![] }
+    }
+
+    /// The rate holds through gaps and bursts, and for stamps rounded to whole ms at 400 Hz.
+    #[test]
+    fn nominal_rate_from_intervals_near_the_median() {
+        let at = |stamps: Vec<i64>| -> Vec<ImuSample> {
+            stamps.into_iter().map(|t| ImuSample { stamp_ns: t, gyro: Vector3::zeros(), accel: Vector3::zeros() }).collect()
+        };
+        let ms_rounded: Vec<i64> = (0..4000).map(|k| (k as f64 * 2.5).round() as i64 * 1_000_000).collect();
+        assert!((nominal_rate_hz(&at(ms_rounded)) - 400.0).abs() < 0.5);
+        let mut gappy: Vec<i64> = (0..1000).map(|k| k * 5_000_000).collect();
+        gappy.extend((0..1000).map(|k| 10_000_000_000 + k * 5_000_000));
+        gappy.extend((0..100).map(|k| 20_000_000_000 + k * 100_000));
+        assert!((nominal_rate_hz(&at(gappy)) - 200.0).abs() < 1e-9);
+        assert_eq!(nominal_rate_hz(&at(vec![7, 7, 7])), 0.0);
+        assert_eq!(nominal_rate_hz(&at(vec![7])), 0.0);
     }
 
     #[test]

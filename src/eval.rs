@@ -199,7 +199,8 @@ const MIN_LAG_PAIRS: usize = 200;
 
 /// The ground truth's lag behind the IMU, from the cross-correlation of the gyro's norm with the
 /// ground truth's rotation-rate norm, both at the IMU stamps and averaged over 5 samples, for
-/// lags up to `max_lag_s` either way (the peak refined by a parabola). Norms need no
+/// lags up to `max_lag_s` either way, or around a clearer peak up to 10 s away found on 0.05-s
+/// block means (the peak refined by a parabola). Norms need no
 /// IMU-to-body rotation, and a gyro bias shifts them far less than the motion does. `None`
 /// without enough covered samples or motion. A clock offset between the IMU and the ground
 /// truth reads as drift to every metric and as a wrong correction to training and adaptation.
@@ -226,32 +227,23 @@ pub fn ground_truth_lag(rec: &Recording, opts: &EvalOptions, max_lag_s: f64) -> 
         }
     }
     let period = rec.imu_seconds() / (n - 1) as f64;
-    let max_lag = ((max_lag_s / period).round() as usize).min(n / 2);
-    let correlation_at = |lag: i64| -> Option<f64> {
-        let (mut m, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0.0, 0.0, 0.0, 0.0, 0.0);
-        // Pairs (gyro at k, ground truth at k + lag) inside both series.
-        let skip = lag.unsigned_abs() as usize;
-        let pairs: Box<dyn Iterator<Item = (&f64, &f64)>> =
-            if lag >= 0 { Box::new(gyro_norm.iter().zip(&gt_rate[skip..])) } else { Box::new(gyro_norm[skip..].iter().zip(&gt_rate)) };
-        for (&a, &b) in pairs {
-            if a.is_finite() && b.is_finite() {
-                m += 1;
-                sa += a;
-                sb += b;
-                saa += a * a;
-                sbb += b * b;
-                sab += a * b;
-            }
-        }
-        if m < MIN_LAG_PAIRS {
-            return None;
-        }
-        let m = m as f64;
-        let (va, vb) = (saa - sa * sa / m, sbb - sb * sb / m);
-        (va > 0.0 && vb > 0.0).then(|| (sab - sa * sb / m) / (va * vb).sqrt())
+    let max_lag = ((max_lag_s / period).round() as usize).min(n / 2) as i64;
+    // A clock offset beyond the search would otherwise go unsaid (the best lag inside it is
+    // then at its edge, or too weak to trust): a coarse search over 0.05-s block means first,
+    // and the fine search is moved to its peak when that lies outside.
+    let block = ((COARSE_BLOCK_S / period).round() as usize).max(1);
+    let (coarse_gyro, coarse_gt) = (block_means(&gyro_norm, block), block_means(&gt_rate, block));
+    let coarse_max = ((COARSE_LAG_SEARCH_S / (block as f64 * period)).round() as usize).min(coarse_gyro.len() / 2) as i64;
+    let coarse_min_pairs = (MIN_LAG_PAIRS / block).max(20);
+    let coarse_best = (-coarse_max..=coarse_max)
+        .filter_map(|l| lag_correlation(&coarse_gyro, &coarse_gt, l, coarse_min_pairs).map(|c| (l * block as i64, c)))
+        .max_by(|a, b| a.1.total_cmp(&b.1));
+    let (from, to) = match coarse_best {
+        Some((l, c)) if l.abs() > max_lag && c >= GROUND_TRUTH_LAG_MIN_CORRELATION => (l - 2 * block as i64, l + 2 * block as i64),
+        _ => (-max_lag, max_lag),
     };
-    let lags: Vec<i64> = (-(max_lag as i64)..=max_lag as i64).collect();
-    let corr: Vec<Option<f64>> = lags.iter().map(|&l| correlation_at(l)).collect();
+    let lags: Vec<i64> = (from..=to).collect();
+    let corr: Vec<Option<f64>> = lags.iter().map(|&l| lag_correlation(&gyro_norm, &gt_rate, l, MIN_LAG_PAIRS)).collect();
     let (best, c) = corr.iter().enumerate().filter_map(|(i, c)| c.map(|c| (i, c))).max_by(|a, b| a.1.total_cmp(&b.1))?;
     // Sub-sample peak: the parabola through the best lag and its neighbours.
     let shift = match (best.checked_sub(1).and_then(|i| corr[i]), corr.get(best + 1).copied().flatten()) {
@@ -259,6 +251,51 @@ pub fn ground_truth_lag(rec: &Recording, opts: &EvalOptions, max_lag_s: f64) -> 
         _ => 0.0,
     };
     Some(GroundTruthLag { lag_s: (lags[best] as f64 + shift) * period, correlation: c })
+}
+
+/// Block length (s) and reach (s, either way) of [`ground_truth_lag`]'s coarse search.
+const COARSE_BLOCK_S: f64 = 0.05;
+const COARSE_LAG_SEARCH_S: f64 = 10.0;
+
+/// Means of consecutive blocks of `len` values, over the finite ones (NaN where none is).
+fn block_means(x: &[f64], len: usize) -> Vec<f64> {
+    x.chunks(len)
+        .map(|b| {
+            let (sum, count) = b.iter().filter(|v| v.is_finite()).fold((0.0, 0usize), |(s, c), v| (s + v, c + 1));
+            if count > 0 {
+                sum / count as f64
+            } else {
+                f64::NAN
+            }
+        })
+        .collect()
+}
+
+/// Pearson correlation of `a[k]` with `b[k + lag]` over the pairs where both are finite;
+/// `None` with fewer than `min_pairs` of them or no variance.
+fn lag_correlation(a: &[f64], b: &[f64], lag: i64, min_pairs: usize) -> Option<f64> {
+    let skip = lag.unsigned_abs() as usize;
+    if skip >= a.len().min(b.len()) {
+        return None;
+    }
+    let (a, b) = if lag >= 0 { (a, &b[skip..]) } else { (&a[skip..], b) };
+    let (mut m, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for (&x, &y) in a.iter().zip(b) {
+        if x.is_finite() && y.is_finite() {
+            m += 1;
+            sa += x;
+            sb += y;
+            saa += x * x;
+            sbb += y * y;
+            sab += x * y;
+        }
+    }
+    if m < min_pairs {
+        return None;
+    }
+    let m = m as f64;
+    let (va, vb) = (saa - sa * sa / m, sbb - sb * sb / m);
+    (va > 0.0 && vb > 0.0).then(|| (sab - sa * sb / m) / (va * vb).sqrt())
 }
 
 #[derive(Default)]
@@ -474,7 +511,8 @@ mod tests {
     #[test]
     fn ground_truth_lag_is_measured_from_the_rates() {
         let opts = EvalOptions::default();
-        for lag_ms in [0.0, 3.0, 37.0, -23.0, 300.0] {
+        // Beyond the 1-s search (session 36: a 3-s offset went unsaid), found by the coarse one.
+        for lag_ms in [0.0, 3.0, 37.0, -23.0, 300.0, 3000.0, -6500.0] {
             let got = ground_truth_lag(&swaying((lag_ms * 1e6) as i64), &opts, GROUND_TRUTH_LAG_SEARCH_S).unwrap();
             assert!((got.lag_s * 1e3 - lag_ms).abs() < 1.0, "{lag_ms} ms: {got:?}");
             assert!(got.correlation > 0.9, "{got:?}");

@@ -16,7 +16,10 @@ const CDR_BE_HEADER: [u8; 4] = [0x00, 0x00, 0x00, 0x00];
 pub enum MsgError {
     #[error("{type_name}: payload of {len} bytes is too short for a CDR encapsulation header")]
     Short { type_name: &'static str, len: usize },
-    #[error("{type_name}: unsupported CDR encapsulation {header:02x?} (expected plain CDR, XCDR1)")]
+    #[error(
+        "{type_name}: unsupported CDR encapsulation {header:02x?} (expected plain CDR, XCDR1){}",
+        if *header == [0x28, 0xb5, 0x2f, 0xfd] { ": the message is zstd-compressed (rosbag2 --compression-mode message); decompress the bag first (`ros2 bag convert` without compression)" } else { "" }
+    )]
     Encapsulation { type_name: &'static str, header: [u8; 4] },
     #[error("{type_name}: CDR decode failed: {source}")]
     Decode {

@@ -98,3 +98,34 @@ fn an_output_that_is_a_file_is_refused() {
     assert!(err.contains("exists and is not a directory"), "{err}");
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
 }
+
+/// An input that is one of the files the report directory holds (the last run's
+/// corrected_sim.mcap given back as --sim, into the same -o) is refused before anything is
+/// written: before, the report replaced it.
+#[test]
+fn an_input_inside_the_report_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("report");
+    std::fs::create_dir_all(&out).unwrap();
+    let corrected = out.join("corrected_sim.mcap");
+    std::fs::copy(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap"), &corrected).unwrap();
+    let before = std::fs::read(&corrected).unwrap();
+    for side in ["--sim", "--real"] {
+        let other = if side == "--sim" { "--real" } else { "--sim" };
+        let o = Command::new(bin())
+            .arg("diagnose")
+            .arg(side)
+            .arg(&corrected)
+            .arg(other)
+            .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap"))
+            .arg("-o")
+            .arg(d.path().join(".").join("report"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{side}: {err}");
+        assert!(err.contains("is also an input"), "{side}: {err}");
+    }
+    assert!(std::fs::read(&corrected).unwrap() == before, "the input was rewritten");
+    assert!(!out.join("report.json").exists(), "a report was written");
+}

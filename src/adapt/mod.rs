@@ -385,6 +385,7 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     crate::train::data::check_clock(&query)?;
     crate::train::data::check_plausible(&support)?;
     crate::train::data::check_plausible(&query)?;
+    crate::train::data::check_accel_units(&support)?;
     crate::train::data::check_ground_truth_follows_gyro(&support, false)?;
     let mut frame = None;
     let mut frame_applied = false;

@@ -81,6 +81,12 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
         return score::run(n, args.seed, &args.out, &opts, &args.score_only, (args.score_seconds, args.score_rate), &args.score_cases);
     }
     let real_path = args.real.clone().context("--real is required")?;
+    // A report directory rewritten over one of its inputs (the last run's corrected_sim.mcap
+    // given back as --sim) would destroy it: refused before anything is written.
+    let inputs: Vec<&std::path::Path> = [&args.sim, &args.real, &args.noise_model].into_iter().flatten().map(|p| p.as_path()).collect();
+    for name in report::FILES {
+        super::refuse_overwriting_input(&args.out.join(name), &inputs)?;
+    }
     match diagnose_to(&args, &real_path, &opts) {
         Ok(()) => Ok(()),
         Err(e) => {

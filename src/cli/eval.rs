@@ -110,6 +110,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     for (bag, name) in args.bags.iter().zip(names) {
         let (mut rec, report) = read_recording(bag, &topics)?;
+        if let Some(why) = report.stamp_problem() {
+            anyhow::bail!("{}: {why}", bag.display());
+        }
         // Values no IMU measures are dropped, as the node drops them, and said in every row:
         // one 1e30 rad/s sample would otherwise decide every method's score.
         let before = rec.imu.len();
@@ -149,6 +152,23 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             tracing::warn!("{}: {note}; check the clocks", bag.display());
             note
         });
+        // Ground truth that cannot be this IMU's attitude (a gyro in °/s, another frame,
+        // inverted quaternions) and an accelerometer not in m/s² are scored as recorded and
+        // said on every row: `train` and `adapt` refuse them.
+        // (A clock offset, said above, also makes the frames disagree: not said twice.)
+        let input_notes: Vec<String> = [
+            imu_fsda::train::data::check_ground_truth_follows_gyro(&rec, true).err().filter(|_| lag_note.is_none()),
+            imu_fsda::train::data::check_accel_units(&rec).err(),
+        ]
+        .into_iter()
+        .flatten()
+        .map(|e| {
+            let text = e.to_string();
+            let text = text.strip_prefix(&format!("{}: ", rec.name)).unwrap_or(&text).to_string();
+            tracing::warn!("{}: {text}", bag.display());
+            format!("{text}; scored as recorded")
+        })
+        .collect();
         // Integrated paths of the methods that evaluated, for the figures.
         let mut paths: Vec<(String, OrientationPath)> = Vec::new();
         let mut keep = |name: &str, path: OrientationPath| {
@@ -208,6 +228,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             }
             if let Some(lag) = &lag_note {
                 add_note(&mut note, lag);
+            }
+            for n in &input_notes {
+                add_note(&mut note, n);
             }
             match evaluate_with_path(&rec, &gyro, &opts) {
                 Ok((e, path)) => {

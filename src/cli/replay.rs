@@ -94,7 +94,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     // Input rate over each diagnostics period, in the bag's time (log time, receipt).
     let mut rate_from: Option<(u64, u64)> = None;
     // A damaged input or Ctrl-C ends the loop; what was replayed before it is kept.
-    let (mut damage, mut read) = (None, 0u64);
+    let (mut damage, mut read, mut out_of_order) = (None, 0u64, 0u64);
     super::interrupts::catch();
     for m in BagReader::open(&args.input)? {
         if super::interrupts::requested() {
@@ -117,7 +117,10 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             }
         };
         writer.write_raw(ch, m.log_time_ns as i64, &m.data)?;
-        last_log = m.log_time_ns;
+        if m.log_time_ns < last_log {
+            out_of_order += 1;
+        }
+        last_log = last_log.max(m.log_time_ns);
         if *m.topic != *input_topic {
             continue;
         }
@@ -173,7 +176,23 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     if super::interrupts::requested() {
         return Err(super::interrupts::Interrupted(kept()).into());
     }
+    if out_of_order > 0 {
+        // The live node sees messages as they arrive; a replay feeds them in the file's order.
+        tracing::warn!(
+            "{}: {out_of_order} messages are written out of log-time order; replayed in the file's order (eval, adapt and train read in log-time order)",
+            args.input.display()
+        );
+    }
     let c = &stats.counters;
+    if c.received >= 2 && 2 * (c.dropped_duplicate_stamp + c.dropped_backwards_stamp) > c.received {
+        tracing::warn!(
+            "{}: {} of {} IMU messages repeat or go back from an earlier header stamp and were dropped: header.stamp is not \
+             the sample's time (a driver leaving it at zero?)",
+            args.input.display(),
+            c.dropped_duplicate_stamp + c.dropped_backwards_stamp,
+            c.received
+        );
+    }
     anyhow::ensure!(
         c.received > 0,
         "{}: none of the messages on {input_topic} could be read as {} ({decode_errors} decode errors): {} holds a copy of the input and nothing denoised",

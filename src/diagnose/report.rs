@@ -232,7 +232,21 @@ pub fn write_corrected_bag(path: &Path, a: &Aligned, d: &Diagnosis) -> Result<()
     Ok(w.finish()?)
 }
 
-/// Write everything into `dir`.
+/// Every file [`write_all`] writes into its directory (figures included).
+pub const FILES: &[&str] = &[
+    "report.json",
+    "report.md",
+    "patch.yaml",
+    "allan.csv",
+    "psd.csv",
+    "residual_rms.csv",
+    "psd.png",
+    "allan.png",
+    "residual.png",
+    "corrected_sim.mcap",
+];
+
+/// Write everything into `dir` (the files of [`FILES`]).
 pub fn write_all(dir: &Path, a: &Aligned, d: &Diagnosis) -> Result<(), DiagnoseError> {
     crate::core::create_dir_all(dir).map_err(|source| DiagnoseError::Io { path: dir.to_path_buf(), source })?;
     write(&dir.join("report.json"), &serde_json::to_string_pretty(&json(d)).unwrap_or_default())?;

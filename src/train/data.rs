@@ -81,6 +81,11 @@ pub enum DataError {
         crate::core::IMPLAUSIBLE_ACCEL_M_S2
     )]
     Implausible { name: String, count: usize, largest_rate: f64, largest_accel: f64 },
+    #[error(
+        "{name}: the accelerometer's median |a| is {median:.3} (gravity alone is 9.81 m/s²): {}",
+        if (0.5..=2.0).contains(median) { "in g, not m/s²? (multiply by 9.80665)" } else { "not the specific force in m/s² (gravity removed by the driver, or other units?)" }
+    )]
+    AccelUnits { name: String, median: f64 },
 }
 
 /// One recording ready for training or evaluation.
@@ -187,6 +192,7 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
     }
     check_clock(&rec)?;
     check_plausible(&rec)?;
+    check_accel_units(&rec)?;
     check_ground_truth_follows_gyro(&rec, true)?;
     Ok(rec)
 }
@@ -268,6 +274,28 @@ pub fn check_plausible(rec: &Recording) -> Result<(), DataError> {
         largest_rate: largest(|s| s.gyro.norm()),
         largest_accel: largest(|s| s.accel.norm()),
     })
+}
+
+/// Refuses an accelerometer whose median |a| is not near gravity ([`accel_units_suspect`]).
+pub fn check_accel_units(rec: &Recording) -> Result<(), DataError> {
+    match accel_units_suspect(rec) {
+        Some(median) => Err(DataError::AccelUnits { name: rec.name.clone(), median }),
+        None => Ok(()),
+    }
+}
+
+/// The median |a| when it is outside [g/2, 2g]: an accelerometer on any robot on Earth reads
+/// gravity plus motion whose median stays near g, so outside that it is in g (median ≈ 1),
+/// has gravity removed (≈ 0) or is in other units. The model reads the specific force in m/s².
+pub fn accel_units_suspect(rec: &Recording) -> Option<f64> {
+    const G: f64 = 9.80665;
+    let mut norms: Vec<f64> = rec.imu.iter().map(|s| s.accel.norm()).filter(|n| n.is_finite()).collect();
+    if norms.len() < 100 {
+        return None;
+    }
+    let mid = norms.len() / 2;
+    let median = *norms.select_nth_unstable_by(mid, f64::total_cmp).1;
+    (!(0.5 * G..=2.0 * G).contains(&median)).then_some(median)
 }
 
 /// A `simulate` source: the simulator's recording (IMU and ground-truth pose), never a bag.
