@@ -164,7 +164,7 @@ impl GyroCorrector for FullWindowCorrector {
 
 /// Pipeline settings (the node reads them from its ROS parameters).
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PipelineConfig {
     /// Nominal input rate, Hz; 0 = take the corrector's, else measure it from the first samples.
     pub nominal_rate_hz: f64,
@@ -255,6 +255,8 @@ pub struct Counters {
     pub dropped_duplicate_stamp: u64,
     pub dropped_backwards_stamp: u64,
     pub gaps: u64,
+    /// Times the source's clock went back and was followed ([`CLOCK_JUMP_SAMPLES`]).
+    pub clock_jumps: u64,
     pub rate_changes: u64,
     pub resets: u64,
     pub warmup_samples: u64,
@@ -346,7 +348,22 @@ pub struct Pipeline {
     counters: Counters,
     first_dts: [i64; 8],
     n_first_dts: usize,
+    /// Consecutive samples dropped as backwards whose own stamps advance: (last stamp, count).
+    backwards_run: Option<(i64, u32)>,
+    /// Consecutive intervals longer than a gap: a few in a row are a rate, not a hole.
+    consecutive_gaps: u32,
+    /// Whether the nominal period came from the first intervals (not the model or config).
+    period_learned: bool,
 }
+
+/// Consecutive samples, advancing among themselves but behind the last accepted stamp, after
+/// which the source's clock is taken as having gone back (a driver restarted, or one stamp
+/// was far in the future) and followed, as after a gap. Before, one stamp three hours ahead
+/// stopped the output for good: every later sample was "backwards".
+pub const CLOCK_JUMP_SAMPLES: u32 = 20;
+
+/// Intervals longer than a gap in a row after which the input's rate is taken as changed.
+pub const RATE_FROM_GAPS: u32 = 8;
 
 impl Pipeline {
     pub fn new(corrector: Box<dyn GyroCorrector>, cfg: PipelineConfig) -> Self {
@@ -364,6 +381,9 @@ impl Pipeline {
             counters: Counters::default(),
             first_dts: [0; 8],
             n_first_dts: 0,
+            backwards_run: None,
+            consecutive_gaps: 0,
+            period_learned: false,
         }
     }
 
@@ -422,12 +442,31 @@ impl Pipeline {
                 return Err(Dropped::DuplicateStamp);
             }
             if dt_ns < 0 {
-                self.counters.dropped_backwards_stamp += 1;
-                return Err(Dropped::BackwardsStamp);
+                let run = match self.backwards_run {
+                    Some((t, n)) if s.stamp_ns > t => n + 1,
+                    _ => 1,
+                };
+                if run < CLOCK_JUMP_SAMPLES {
+                    self.backwards_run = Some((s.stamp_ns, run));
+                    self.counters.dropped_backwards_stamp += 1;
+                    return Err(Dropped::BackwardsStamp);
+                }
             }
-            self.learn_period(dt_ns);
-            let is_gap = self.nominal_period_ns.is_some_and(|p| dt_ns as f64 > self.cfg.gap_periods * p);
-            if is_gap {
+            self.backwards_run = None;
+            let jumped_back = dt_ns < 0;
+            if !jumped_back {
+                self.learn_period(dt_ns);
+            }
+            let is_gap = jumped_back || self.nominal_period_ns.is_some_and(|p| dt_ns as f64 > self.cfg.gap_periods * p);
+            if jumped_back {
+                after_gap = true;
+                self.counters.clock_jumps += 1;
+                self.counters.resets += 1;
+                self.corrector.reset();
+                self.since_reset = 0;
+                // How long the source was lost is not known: a second's worth of gap.
+                self.attitude.covariance += Matrix3::identity() * self.cfg.gap_variance_per_second;
+            } else if is_gap {
                 after_gap = true;
                 self.counters.gaps += 1;
                 self.counters.resets += 1;
@@ -510,14 +549,27 @@ impl Pipeline {
                     let p = (d[3] + d[4]) as f64 / 2.0;
                     self.nominal_period_ns = Some(p);
                     self.smoothed_period_ns = p;
+                    self.period_learned = true;
                 }
             }
             Some(p) => {
-                // Gaps are not rate changes.
+                // A gap is not a rate change, but gaps in a row are: a stream slower than the
+                // nominal (20 Hz into a 200-Hz model) made every sample a gap, unreported.
                 if (dt_ns as f64) < self.cfg.gap_periods * p {
                     self.smoothed_period_ns += 0.02 * (dt_ns as f64 - self.smoothed_period_ns);
+                    self.consecutive_gaps = 0;
+                } else {
+                    self.consecutive_gaps += 1;
                 }
-                let off = (self.smoothed_period_ns / p - 1.0).abs() > self.cfg.rate_tolerance;
+                if self.period_learned && self.consecutive_gaps >= RATE_FROM_GAPS {
+                    // Learnt from a start-up burst: learn it again from what follows.
+                    self.nominal_period_ns = None;
+                    self.n_first_dts = 0;
+                    self.consecutive_gaps = 0;
+                    self.counters.rate_changes += 1;
+                    return;
+                }
+                let off = (self.smoothed_period_ns / p - 1.0).abs() > self.cfg.rate_tolerance || self.consecutive_gaps >= RATE_FROM_GAPS;
                 if off && !self.rate_off {
                     self.counters.rate_changes += 1;
                 }
@@ -599,6 +651,57 @@ mod tests {
         assert!(q199.angle_to(&q200) < 1e-15, "held across the gap");
         assert!(p200[(0, 0)] > p199[(0, 0)] + 0.2, "flagged by a larger covariance");
         assert_eq!(p.counters().rate_changes, 0);
+    }
+
+    /// One stamp three hours ahead (or a source whose clock restarts) is followed after
+    /// [`CLOCK_JUMP_SAMPLES`] samples, as after a gap; a single backwards stamp is only dropped.
+    #[test]
+    fn a_clock_that_jumps_back_is_followed() {
+        let mut imu = stream(400, 5_000_000);
+        imu[100].stamp_ns += 3 * 3600 * 1_000_000_000;
+        imu[300].stamp_ns -= 1_000_000_000;
+        let mut p = Pipeline::new(
+            Box::new(BiasCorrector { bias: Vector3::zeros() }),
+            PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..Default::default() },
+        );
+        let out: Vec<Result<CorrectedImu, Dropped>> = imu.iter().map(|s| p.push(s)).collect();
+        assert!(out[100].as_ref().unwrap().after_gap, "the jump ahead is a gap");
+        let back = 100 + CLOCK_JUMP_SAMPLES as usize;
+        assert!(out[101..back].iter().all(|o| matches!(o, Err(Dropped::BackwardsStamp))));
+        assert!(out[back].as_ref().unwrap().after_gap, "followed at sample {back}");
+        assert!(out[back + 1..300].iter().all(|o| o.as_ref().is_ok_and(|c| !c.after_gap)));
+        assert!(matches!(out[300], Err(Dropped::BackwardsStamp)));
+        assert!(out[301..].iter().all(Result::is_ok), "one glitch is not a jump");
+        let c = p.counters();
+        assert_eq!((c.clock_jumps, c.gaps, c.dropped_backwards_stamp), (1, 1, CLOCK_JUMP_SAMPLES as u64));
+    }
+
+    /// A stream slower than the model's rate (every interval a gap) is reported as a rate
+    /// change; a period learnt from a start-up burst is learnt again from what follows.
+    #[test]
+    fn gaps_in_a_row_are_a_rate() {
+        let slow = stream(100, 50_000_000);
+        let mut p = Pipeline::new(
+            Box::new(BiasCorrector { bias: Vector3::zeros() }),
+            PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..Default::default() },
+        );
+        for s in &slow {
+            let _ = p.push(s);
+        }
+        assert!(p.rate_off_nominal() && p.counters().rate_changes == 1, "{:?}", p.counters());
+        let mut burst = stream(20, 500_000);
+        let t0 = burst.last().unwrap().stamp_ns;
+        burst.extend(stream(400, 5_000_000).into_iter().map(|mut s| {
+            s.stamp_ns += t0;
+            s
+        }));
+        let mut p = Pipeline::new(
+            Box::new(BiasCorrector { bias: Vector3::zeros() }),
+            PipelineConfig { gravity_init_seconds: 0.0, ..Default::default() },
+        );
+        let out: Vec<CorrectedImu> = burst.iter().map(|s| p.push(s).unwrap()).collect();
+        assert_eq!(p.nominal_rate_hz().map(f64::round), Some(200.0));
+        assert!(out[100..].iter().all(|c| !c.after_gap), "the orientation is integrated again");
     }
 
     #[test]

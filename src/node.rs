@@ -161,7 +161,8 @@ impl NodeParams {
         Ok(params)
     }
 
-    /// Refuses values the node cannot run with, naming the key (typos are refused by serde).
+    /// Refuses values the node cannot run with, naming the key (typos are refused by serde,
+    /// inside `pipeline:` too).
     pub fn validate(&self) -> Result<(), String> {
         self.pipeline.validate()?;
         self.adapt.validate()?;
@@ -174,6 +175,13 @@ impl NodeParams {
             if !positive(value) {
                 return Err(format!("{key} must be finite and > 0, not {value}"));
             }
+        }
+        // A period a clock cannot count (1e300 s) panicked converting to a Duration.
+        if self.diagnostics_period > MAX_DIAGNOSTICS_PERIOD_S {
+            return Err(format!(
+                "diagnostics_period must be at most {MAX_DIAGNOSTICS_PERIOD_S} s (a day), not {}",
+                self.diagnostics_period
+            ));
         }
         // One topic for two streams would mix them (raw and denoised on one topic), or feed
         // the node its own output.
@@ -361,6 +369,9 @@ impl SplitLatency {
     }
 }
 
+/// Longest `diagnostics_period`, s.
+pub const MAX_DIAGNOSTICS_PERIOD_S: f64 = 86_400.0;
+
 /// What the diagnostics report (shared between the processing and diagnostics tasks).
 #[derive(Debug, Default)]
 pub struct NodeStats {
@@ -384,6 +395,10 @@ pub struct NodeStats {
     pub adapt_seconds: Option<f64>,
     /// Latencies split by adaptation state (recorded only when the service is on).
     pub split_latency: SplitLatency,
+    /// The node stopped while an adaptation ran on its thread: abandoned, the running model
+    /// unchanged. The process must then end without running libtorch's exit-time destructors
+    /// under that thread (it crashed with SIGSEGV): see `imu-fsda node`.
+    pub adaptation_abandoned: bool,
 }
 
 /// Build the /diagnostics message from the stats.
@@ -396,10 +411,13 @@ pub fn diagnostics_message(stats: &NodeStats, node_name: &str, stamp: Time) -> D
         (DiagnosticStatus::STALE, "no input yet".to_string())
     } else if stats.rate_off_nominal {
         (DiagnosticStatus::WARN, "input rate off nominal".to_string())
+    } else if dropped > 0 || c.gaps > 0 || c.clock_jumps > 0 {
+        // Before "warming up": a stream whose every sample is a gap warms up for ever.
+        let jumps = if c.clock_jumps > 0 { format!(", {} clock jumps back followed", c.clock_jumps) } else { String::new() };
+        let warming = if stats.warming_up { " (warming up)" } else { "" };
+        (DiagnosticStatus::WARN, format!("running{warming}; {dropped} inputs dropped, {} gaps{jumps}", c.gaps))
     } else if stats.warming_up {
         (DiagnosticStatus::OK, "warming up".to_string())
-    } else if dropped > 0 || c.gaps > 0 {
-        (DiagnosticStatus::WARN, format!("running; {dropped} inputs dropped, {} gaps", c.gaps))
     } else {
         (DiagnosticStatus::OK, "running".to_string())
     };
@@ -418,6 +436,7 @@ pub fn diagnostics_message(stats: &NodeStats, node_name: &str, stamp: Time) -> D
         kv("dropped_backwards_stamp", c.dropped_backwards_stamp.to_string()),
         kv("decode_errors", stats.decode_errors.to_string()),
         kv("gaps_reset", c.gaps.to_string()),
+        kv("clock_jumps", c.clock_jumps.to_string()),
         kv("rate_changes", c.rate_changes.to_string()),
         kv("frame_id_changes", stats.frame_changes.to_string()),
         kv("warmup_samples", c.warmup_samples.to_string()),
@@ -639,7 +658,12 @@ pub async fn run_node_with_adaptation(
     // Stop the spinner before the node is dropped so peers hear it leave.
     node.stop_spinner();
     spin.abort();
-    let s = std::mem::take(&mut *stats.lock().expect("stats lock"));
+    let mut s = std::mem::take(&mut *stats.lock().expect("stats lock"));
+    if adapting.load(Ordering::Relaxed) {
+        tracing::warn!("stopped during an adaptation: it is abandoned, the running model was not changed");
+        s.adaptation_abandoned = true;
+        s.adapt_status = "abandoned: the node stopped while it ran".into();
+    }
     Ok(s)
 }
 
@@ -661,17 +685,20 @@ async fn process_loop(
     let stream = subscription.async_stream();
     futures::pin_mut!(stream);
     let mut published = 0u64;
+    let mut received_any = false;
     let mut last_frame: Option<String> = None;
     let mut rate_t0: Option<(Instant, u64)> = None;
     loop {
+        // Idle counts from the first input, published or dropped (an all-NaN stream ends too).
         let next = match limits.idle_exit {
-            Some(idle) if published > 0 => match tokio::time::timeout(idle, stream.next()).await {
+            Some(idle) if received_any => match tokio::time::timeout(idle, stream.next()).await {
                 Ok(x) => x,
                 Err(_) => return,
             },
             _ => stream.next().await,
         };
         let Some(item) = next else { return };
+        received_any = true;
         let arrived = Instant::now();
         let state = tap.as_ref().map(|t| usize::from(t.adapting.load(Ordering::Relaxed)));
         let (mut msg, source_ns) = match item {
@@ -1037,6 +1064,9 @@ mod tests {
             ("    pipeline:\n      initial_tilt_variance: -1.0e-4\n", "initial_tilt_variance"),
             ("    pipeline:\n      rate_tolerance: 0.0\n", "rate_tolerance"),
             ("    diagnostics_period: .inf\n", "diagnostics_period"),
+            ("    diagnostics_period: 1.0e300\n", "diagnostics_period"),
+            ("    pipeline:\n      gap_period: 3.0\n", "gap_period"),
+            ("    pipeline:\n      bias_stddev: -1.0\n", "bias_stddev"),
             ("    adapt_support_seconds: 120.0\n", "adapt_support_seconds"),
         ] {
             let err = with(body).unwrap_err().to_string();

@@ -110,7 +110,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     let stats = rt.block_on(run_node_with_adaptation(&args.config.node_name, params, env, pipeline, status, limits, adapt))?;
     let c = &stats.counters;
     eprintln!(
-        "imu-fsda node: received {}, published {}, dropped {} (non-finite {}, implausible {}, duplicate {}, backwards {}), gaps {}, latency p50 {:.0} µs p99 {:.0} µs",
+        "imu-fsda node: received {}, published {}, dropped {} (non-finite {}, implausible {}, duplicate {}, backwards {}), gaps {}, clock jumps back {}, latency p50 {:.0} µs p99 {:.0} µs",
         c.received,
         c.processed,
         c.dropped(),
@@ -119,6 +119,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         c.dropped_duplicate_stamp,
         c.dropped_backwards_stamp,
         c.gaps,
+        c.clock_jumps,
         stats.latency.quantile_us(0.5),
         stats.latency.quantile_us(0.99)
     );
@@ -132,6 +133,15 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
                 "latency_by_adaptation_state": stats.split_latency.summary_json(),
             })
         )?;
+    }
+    if stats.adaptation_abandoned {
+        // The adaptation thread is still inside libtorch: the exit-time destructors of its
+        // globals would run under it (SIGSEGV). Everything is said and written; leave now.
+        use std::io::Write as _;
+        let _ = std::io::stdout().flush();
+        let _ = std::io::stderr().flush();
+        // SAFETY: _exit ends the process at once; no Rust state is used after it.
+        unsafe { libc::_exit(0) }
     }
     Ok(())
 }

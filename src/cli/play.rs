@@ -227,7 +227,13 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     let mut first_log: Option<u64> = None;
     let mut sent = 0u64;
     let mut read_error = None;
+    // Ctrl-C / SIGTERM stops at the next message (or within 0.1 s of a wait) and still says
+    // what was played and measured.
+    super::interrupts::catch();
     for m in BagReader::open(&args.input)? {
+        if super::interrupts::requested() {
+            break;
+        }
         let m = match m {
             Ok(m) => m,
             Err(e) => {
@@ -239,9 +245,14 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
         let t0 = *first_log.get_or_insert(m.log_time_ns);
         if args.rate > 0.0 {
             let due = Duration::from_secs_f64((m.log_time_ns.saturating_sub(t0)) as f64 * 1e-9 / args.rate);
-            let now = start.elapsed();
-            if due > now {
-                tokio::time::sleep(due - now).await;
+            while let Some(wait) = due.checked_sub(start.elapsed()).filter(|w| !w.is_zero()) {
+                if super::interrupts::requested() {
+                    break;
+                }
+                tokio::time::sleep(wait.min(Duration::from_millis(100))).await;
+            }
+            if super::interrupts::requested() {
+                break;
             }
         }
         if let Some(c) = &clock_pub {
@@ -276,6 +287,9 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
             l.0.quantile_us(0.5),
             l.0.quantile_us(0.99)
         )?;
+    }
+    if super::interrupts::requested() {
+        return Err(super::interrupts::Interrupted(format!("stopped after {sent} messages")).into());
     }
     Ok(())
 }
