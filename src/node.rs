@@ -52,6 +52,8 @@ pub enum NodeError {
     NoSection { path: String, node: String, found: String },
     #[error("invalid topic name {name:?}: {why}")]
     TopicName { name: String, why: String },
+    #[error("invalid {what} {value:?}: {why}")]
+    Invalid { what: &'static str, value: String, why: String },
     #[error("DDS: {0}")]
     Dds(String),
     #[error("invalid environment: {0}")]
@@ -166,6 +168,13 @@ impl NodeParams {
     pub fn validate(&self) -> Result<(), String> {
         self.pipeline.validate()?;
         self.adapt.validate()?;
+        // Said, not changed without a word (they were taken as 1 and clamped).
+        if self.queue_depth == 0 {
+            return Err("queue_depth must be at least 1 (a history of 0 messages holds nothing)".into());
+        }
+        if !(0..=19).contains(&self.adapt_thread_nice) {
+            return Err(format!("adapt_thread_nice must be 0–19 (a niceness at or below the node's own), not {}", self.adapt_thread_nice));
+        }
         let positive = |x: f64| x.is_finite() && x > 0.0;
         for (key, value) in [
             ("diagnostics_period", self.diagnostics_period),
@@ -209,7 +218,9 @@ impl NodeParams {
     /// Apply `from:=to` topic remappings (as `--ros-args -r`).
     pub fn remap(&mut self, rule: &str) -> Result<(), NodeError> {
         let (from, to) =
-            rule.split_once(":=").ok_or_else(|| NodeError::TopicName { name: rule.into(), why: "a remapping is from:=to".into() })?;
+            rule.split_once(":=").filter(|(f, t)| !f.trim_matches('/').is_empty() && !t.trim_matches('/').is_empty()).ok_or_else(|| {
+                NodeError::Invalid { what: "remapping", value: rule.into(), why: "a remapping is from:=to, both names given".into() }
+            })?;
         let norm = |t: &str| if t.starts_with('/') { t.to_string() } else { format!("/{t}") };
         let (from, to) = (norm(from), norm(to));
         let mut hit = false;
@@ -528,7 +539,11 @@ pub async fn run_node_with_adaptation(
     }
     let mut node = context
         .new_node(
-            NodeName::new("/", node_name).map_err(|e| NodeError::TopicName { name: node_name.into(), why: format!("{e:?}") })?,
+            NodeName::new("/", node_name).map_err(|e| NodeError::Invalid {
+                what: "node name",
+                value: node_name.into(),
+                why: format!("{e:?}"),
+            })?,
             options,
         )
         .map_err(|e| NodeError::Dds(format!("node: {e:?}")))?;
@@ -564,9 +579,10 @@ pub async fn run_node_with_adaptation(
                 GroundTruthSub::Odometry(node.create_subscription(&t, Some(gt_qos.clone())).map_err(dds)?)
             }
             other => {
-                return Err(NodeError::TopicName {
-                    name: params.ground_truth_topic.clone(),
-                    why: format!("ground_truth_type {other:?}: geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry"),
+                return Err(NodeError::Invalid {
+                    what: "ground_truth_type",
+                    value: other.into(),
+                    why: "geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry".into(),
                 })
             }
         });
@@ -1067,6 +1083,8 @@ mod tests {
             ("    diagnostics_period: 1.0e300\n", "diagnostics_period"),
             ("    pipeline:\n      gap_period: 3.0\n", "gap_period"),
             ("    pipeline:\n      bias_stddev: -1.0\n", "bias_stddev"),
+            ("    queue_depth: 0\n", "queue_depth"),
+            ("    adapt_thread_nice: -5\n", "adapt_thread_nice"),
             ("    adapt_support_seconds: 120.0\n", "adapt_support_seconds"),
         ] {
             let err = with(body).unwrap_err().to_string();
@@ -1084,6 +1102,9 @@ mod tests {
         assert_eq!(p.input_topic, "/vectornav/imu");
         assert_eq!(p.output_topic, "/imu/clean");
         assert!(p.remap("nonsense").is_err());
+        for empty in [":=/x", "/a:=", "/:=/x", ":="] {
+            assert!(p.remap(empty).is_err(), "{empty}");
+        }
         // A remapping onto another stream's topic: the node would subscribe to its own output.
         p.remap("/imu/clean:=/vectornav/imu").unwrap();
         let e = p.validate().unwrap_err();

@@ -392,6 +392,46 @@ fn eval_says_when_the_imu_rate_is_not_the_models() {
     assert!(row["note"].as_str().unwrap().contains("for a 200 Hz IMU and this one runs at 100.0 Hz"), "{row}");
 }
 
+/// Recordings that cannot be scored as they are (a gyro in °/s, an accelerometer in g,
+/// ground truth 3 s off the IMU's clock) are scored as recorded and say why on the row (they
+/// were silent before); stamps that are not set are refused; a bag that cannot be read among
+/// others is a row saying why, the others' rows kept, and the command exits 1.
+#[test]
+fn eval_says_what_is_wrong_with_a_recording() {
+    let d = tempfile::tempdir().unwrap();
+    let bag_of = |name: &str, f: &dyn Fn(&mut imu_fsda::core::Recording)| {
+        let mut rec = car_recording();
+        f(&mut rec);
+        let bag = d.path().join(name);
+        imu_fsda::bag::write_recording(&bag, &rec).unwrap();
+        bag
+    };
+    type Edit<'a> = &'a dyn Fn(&mut imu_fsda::core::Recording);
+    let cases: [(&str, Edit, &str); 3] = [
+        ("degps.mcap", &|r| r.imu.iter_mut().for_each(|s| s.gyro *= 180.0 / std::f64::consts::PI), "the gyro is not in rad/s"),
+        ("in_g.mcap", &|r| r.imu.iter_mut().for_each(|s| s.accel /= 9.80665), "in g, not m/s²"),
+        ("late.mcap", &|r| r.ground_truth.iter_mut().for_each(|p| p.stamp_ns += 3_000_000_000), "ground truth lags the IMU by 299"),
+    ];
+    for (name, f, says) in cases {
+        let row = eval_first_row(d.path(), &bag_of(name, f), &["--method", "raw"]);
+        assert!(row["note"].as_str().unwrap().contains(says), "{name}: {row}");
+    }
+    let unset = bag_of("unset.mcap", &|r| r.imu.iter_mut().for_each(|s| s.stamp_ns = 0));
+    let out = Command::new(bin()).arg("eval").arg(&unset).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("header.stamp is not set"), "{err}");
+
+    let good = bag_of("good.mcap", &|_| {});
+    let json = d.path().join("rows.json");
+    let out = Command::new(bin()).args(["eval", "--method", "raw", "--json"]).arg(&json).arg(&good).arg(&unset).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("1 of 2 bags could not be evaluated"), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    assert!(rows[0]["aoe_deg"].is_number(), "{}", rows[0]);
+    assert!(rows[1]["note"].as_str().unwrap().starts_with("not evaluated:"), "{}", rows[1]);
+}
+
 /// A reader that closes the pipe early (`| head`) ends a command quietly: exit 0, no panic.
 #[test]
 fn a_closed_stdout_ends_the_command_quietly() {

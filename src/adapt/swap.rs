@@ -188,11 +188,13 @@ pub struct Buffers {
     pub seconds: f64,
     pub imu: VecDeque<SeqSample>,
     pub ground_truth: VecDeque<PoseSample>,
+    /// Consecutive poses refused as not after the last whose own stamps advance.
+    ground_truth_backwards_run: Option<(i64, u32)>,
 }
 
 impl Buffers {
     pub fn new(seconds: f64) -> Self {
-        Buffers { seconds, imu: VecDeque::new(), ground_truth: VecDeque::new() }
+        Buffers { seconds, imu: VecDeque::new(), ground_truth: VecDeque::new(), ground_truth_backwards_run: None }
     }
 
     fn horizon(&self, newest: i64) -> i64 {
@@ -200,6 +202,11 @@ impl Buffers {
     }
 
     pub fn push_imu(&mut self, s: SeqSample) {
+        // The pipeline followed its source's clock back (`infer::CLOCK_JUMP_SAMPLES`): the old
+        // timeline cannot be paired with the new one.
+        if self.imu.back().is_some_and(|b| s.sample.stamp_ns <= b.sample.stamp_ns) {
+            self.imu.clear();
+        }
         let h = self.horizon(s.sample.stamp_ns);
         self.imu.push_back(s);
         while self.imu.front().is_some_and(|x| x.sample.stamp_ns < h) {
@@ -207,11 +214,23 @@ impl Buffers {
         }
     }
 
-    /// Poses must come in stamp order; others are ignored (returns false).
+    /// Poses must come in stamp order; others are ignored (returns false), unless
+    /// [`crate::infer::CLOCK_JUMP_SAMPLES`] of them in a row advance among themselves: then the
+    /// source's clock went back (or one pose was stamped far ahead) and is followed, the
+    /// buffer starting again. Before, one pose hours ahead blocked adaptation until restart.
     pub fn push_ground_truth(&mut self, p: PoseSample) -> bool {
         if self.ground_truth.back().is_some_and(|l| p.stamp_ns <= l.stamp_ns) {
-            return false;
+            let run = match self.ground_truth_backwards_run {
+                Some((t, n)) if p.stamp_ns > t => n + 1,
+                _ => 1,
+            };
+            if run < crate::infer::CLOCK_JUMP_SAMPLES {
+                self.ground_truth_backwards_run = Some((p.stamp_ns, run));
+                return false;
+            }
+            self.ground_truth.clear();
         }
+        self.ground_truth_backwards_run = None;
         let h = self.horizon(p.stamp_ns);
         self.ground_truth.push_back(p);
         while self.ground_truth.front().is_some_and(|x| x.stamp_ns < h) {
@@ -247,6 +266,26 @@ mod tests {
                 }
             })
             .collect()
+    }
+
+    /// One pose stamped hours ahead is followed back after `CLOCK_JUMP_SAMPLES` poses; a single
+    /// out-of-order pose is only refused.
+    #[test]
+    fn ground_truth_follows_a_clock_that_jumps_back() {
+        let pose =
+            |t: i64| PoseSample { stamp_ns: t, position_in_world: Vector3::zeros(), world_from_body: nalgebra::UnitQuaternion::identity() };
+        let mut b = Buffers::new(60.0);
+        for k in 0..100 {
+            assert!(b.push_ground_truth(pose(k * 10_000_000)));
+        }
+        assert!(b.push_ground_truth(pose(3 * 3600 * 1_000_000_000)));
+        let accepted: Vec<bool> = (100..200).map(|k| b.push_ground_truth(pose(k * 10_000_000))).collect();
+        let first = accepted.iter().position(|a| *a).unwrap();
+        assert_eq!(first + 1, crate::infer::CLOCK_JUMP_SAMPLES as usize);
+        assert!(accepted[first..].iter().all(|a| *a));
+        assert_eq!(b.ground_truth.front().unwrap().stamp_ns, (100 + first as i64) * 10_000_000);
+        assert!(!b.push_ground_truth(pose(150 * 10_000_000)), "one late pose is refused");
+        assert!(b.push_ground_truth(pose(200 * 10_000_000)));
     }
 
     /// After the swap the outputs equal those of the new model run from the start, and every

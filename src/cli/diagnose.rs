@@ -23,6 +23,15 @@ pub struct DiagnoseArgs {
     /// gyro_noise_density, accel_noise_density, gyro_bias_random_walk, accel_bias_random_walk).
     #[arg(long, conflicts_with = "sim")]
     pub noise_model: Option<PathBuf>,
+    /// IMU topic of both bags (sensor_msgs/Imu).
+    #[arg(long, default_value = imu_fsda::bag::IMU_TOPIC)]
+    pub imu_topic: String,
+    /// Ground-truth topic of both bags (PoseStamped, Odometry, or an Imu carrying orientation).
+    #[arg(long, default_value = imu_fsda::bag::GROUND_TRUTH_TOPIC)]
+    pub ground_truth_topic: String,
+    /// Temperature topic of both bags (sensor_msgs/Temperature), if any.
+    #[arg(long, default_value = imu_fsda::bag::TEMPERATURE_TOPIC)]
+    pub temperature_topic: String,
     /// Output directory: report.json, report.md, patch.yaml, CSVs, PNG figures (psd, allan,
     /// residual), corrected_sim.mcap.
     #[arg(short, long)]
@@ -108,13 +117,24 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
     };
     opts.gt_smoothing_s = smoothing;
     let opts = &opts;
+    let topics = RecordingTopics {
+        imu: args.imu_topic.clone(),
+        ground_truth: Some(args.ground_truth_topic.clone()),
+        temperature: Some(args.temperature_topic.clone()),
+    };
     let mut aligned = match (&args.sim, &args.noise_model) {
-        (Some(sim), _) => align::load(sim, real_path)?,
+        (Some(sim), _) => align::load_on(sim, real_path, &topics)?,
         (None, Some(model)) => {
-            let text = std::fs::read_to_string(model).with_context(|| format!("reading {}", model.display()))?;
+            let text = std::fs::read_to_string(model).map_err(|e| match e.kind() {
+                std::io::ErrorKind::InvalidData => anyhow::anyhow!(
+                    "{}: not a text file; --noise-model takes YAML (gyro_noise_density, accel_noise_density, gyro_bias_random_walk, accel_bias_random_walk), a simulated bag goes to --sim",
+                    model.display()
+                ),
+                _ => anyhow::Error::new(e).context(format!("reading {}", model.display())),
+            })?;
             let noise: imu_fsda::sim::NoiseModel =
                 serde_yaml::from_str(&text).with_context(|| format!("{}: not a noise model", model.display()))?;
-            let (mut real, _) = read_recording(real_path, &RecordingTopics::default())?;
+            let (mut real, _) = read_recording(real_path, &topics)?;
             // Outside the ground truth's span there is nothing to simulate (and its first
             // samples fix the bias walk's start, W₀ = 0, which the bias estimate rests on).
             let (cut0, cut1) = imu_fsda::diagnose::kinematics::crop_to_ground_truth(&mut real, smoothing.unwrap_or(0.0));

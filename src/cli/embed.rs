@@ -24,6 +24,9 @@ pub struct EmbedArgs {
     /// Output PNG; the points go to the same path with `.csv` and `.json`.
     #[arg(short, long)]
     pub out: PathBuf,
+    /// IMU topic of the bags (sensor_msgs/Imu); dataset folders are read as they are.
+    #[arg(long, default_value = imu_fsda::bag::IMU_TOPIC)]
+    pub imu_topic: String,
     /// Samples drawn (uniformly, without replacement) from each sequence.
     #[arg(long, default_value_t = 300)]
     pub points_per_sequence: usize,
@@ -47,7 +50,7 @@ struct Source {
     imu: Vec<ImuSample>,
 }
 
-fn load(path: &Path) -> anyhow::Result<Source> {
+fn load(path: &Path, imu_topic: &str) -> anyhow::Result<Source> {
     if path.is_dir() {
         let (seq, rec, _) = load_sequence(path).with_context(|| format!("reading {}", path.display()))?;
         let dataset = match seq.kind {
@@ -56,7 +59,7 @@ fn load(path: &Path) -> anyhow::Result<Source> {
         };
         Ok(Source { name: short_name(&seq.name), dataset, imu: rec.imu })
     } else {
-        let topics = RecordingTopics { ground_truth: None, ..RecordingTopics::default() };
+        let topics = RecordingTopics { imu: imu_topic.into(), ground_truth: None, temperature: None };
         let (rec, _) = read_recording(path, &topics)?; // its errors name the bag
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         Ok(Source { name, dataset: "bag", imu: rec.imu })
@@ -88,7 +91,7 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
     let mut labels: Vec<(String, &'static str, usize, i64)> = Vec::new();
     let mut x: Vec<Vec<f64>> = Vec::new();
     for (k, path) in args.sequences.iter().enumerate() {
-        let src = load(path)?;
+        let src = load(path, &args.imu_topic)?;
         let idx = sample_indices(&src.imu, args.points_per_sequence, args.seed.wrapping_add(k as u64));
         if idx.is_empty() {
             anyhow::bail!("{}: no finite IMU sample", path.display());

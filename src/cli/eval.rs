@@ -108,163 +108,191 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         super::corrector::check_model_files(m, None)?;
     }
     let mut rows = Vec::new();
+    let mut failed: Vec<String> = Vec::new();
     for (bag, name) in args.bags.iter().zip(names) {
-        let (mut rec, report) = read_recording(bag, &topics)?;
-        if let Some(why) = report.stamp_problem() {
-            anyhow::bail!("{}: {why}", bag.display());
-        }
-        // Values no IMU measures are dropped, as the node drops them, and said in every row:
-        // one 1e30 rad/s sample would otherwise decide every method's score.
-        let before = rec.imu.len();
-        rec.imu.retain(ImuSample::is_plausible);
-        let implausible = before - rec.imu.len();
-        if implausible > 0 {
-            tracing::warn!("{}: dropped {implausible} IMU samples beyond what any IMU measures", bag.display());
-        }
-        if rec.ground_truth.is_empty() {
-            anyhow::bail!("{}: no ground truth on {}", bag.display(), args.ground_truth_topic);
-        }
-        let rec = if args.start_s.is_some() || args.end_s.is_some() {
-            rec.crop_after_ground_truth_start(args.start_s, args.end_s).with_context(|| {
-                format!(
-                    "{}: fewer than 2 IMU samples between --start-s {} and --end-s {} after the ground truth starts ({:.1} s recorded)",
-                    bag.display(),
-                    args.start_s.unwrap_or(0.0),
-                    args.end_s.map_or("(end)".to_string(), |e| e.to_string()),
-                    rec.imu_seconds()
-                )
-            })?
-        } else {
-            rec
-        };
-        let imu_gaps = imu_gap_note(&rec);
-        if let Some(g) = &imu_gaps {
-            tracing::warn!("{}: {g}", bag.display());
-        }
-        let lag = imu_fsda::eval::ground_truth_lag(&rec, &opts, imu_fsda::eval::GROUND_TRUTH_LAG_SEARCH_S);
-        if let Some(l) = lag {
-            tracing::info!("{name}: ground truth lags the IMU by {:.1} ms (rate correlation {:.3})", l.lag_s * 1e3, l.correlation);
-        }
-        // A clock offset is scored as recorded (it is part of what the user has), and said.
-        let lag_note = lag.filter(imu_fsda::eval::GroundTruthLag::is_misaligned).map(|l| {
-            let note =
-                format!("ground truth lags the IMU by {:.1} ms (rate correlation {:.2}): scored as recorded", l.lag_s * 1e3, l.correlation);
-            tracing::warn!("{}: {note}; check the clocks", bag.display());
-            note
-        });
-        // Ground truth that cannot be this IMU's attitude (a gyro in °/s, another frame,
-        // inverted quaternions) and an accelerometer not in m/s² are scored as recorded and
-        // said on every row: `train` and `adapt` refuse them.
-        // (A clock offset, said above, also makes the frames disagree: not said twice.)
-        let input_notes: Vec<String> = [
-            imu_fsda::train::data::check_ground_truth_follows_gyro(&rec, true).err().filter(|_| lag_note.is_none()),
-            imu_fsda::train::data::check_accel_units(&rec).err(),
-        ]
-        .into_iter()
-        .flatten()
-        .map(|e| {
-            let text = e.to_string();
-            let text = text.strip_prefix(&format!("{}: ", rec.name)).unwrap_or(&text).to_string();
-            tracing::warn!("{}: {text}", bag.display());
-            format!("{text}; scored as recorded")
-        })
-        .collect();
-        // Integrated paths of the methods that evaluated, for the figures.
-        let mut paths: Vec<(String, OrientationPath)> = Vec::new();
-        let mut keep = |name: &str, path: OrientationPath| {
-            if args.plot_dir.is_some() {
-                paths.push((name.to_string(), path));
+        let rows_before = rows.len();
+        // One bag that cannot be read or scored is a row saying why when there are others:
+        // their rows are kept (before, the first such bag ended the command with nothing).
+        let evaluated = (|| -> anyhow::Result<()> {
+            let (mut rec, report) = read_recording(bag, &topics)?;
+            if let Some(why) = report.stamp_problem() {
+                anyhow::bail!("{}: {why}", bag.display());
             }
-        };
-        // Every method's and model's gyro stream (or why it has none), then one scoring loop.
-        let mut streams: Vec<(String, Stream)> = Vec::new();
-        for &m in &methods {
-            let got = match m.apply(&rec, &detector) {
-                Ok(g) => Ok(g),
-                Err(imu_fsda::eval::EvalError::Method { why, .. }) => Err(why),
-                Err(e) => Err(e.to_string()),
-            };
-            streams.push((m.name().into(), got));
-        }
-        let imu = imu_for_bag(&args.imus, bag);
-        for (model, &per_imu) in args.models.iter().zip(&per_imu) {
-            let imu = imu.filter(|_| per_imu);
-            let (gyro, meta) = correct_with_torchscript(model, &rec.imu, imu).with_context(|| format!("model {}", model.display()))?;
-            let calib = imu.map_or(String::new(), |n| match meta.imu_correction_gains.get(n).filter(|_| meta.adapted_from.is_none()) {
-                Some(g) => format!(", as on IMU {n} (correction gain {g:.3})"),
-                None => format!(", Ĉ_ω of {n}"),
-            });
-            let mut note = format!("{:?}, N = {}{calib}", meta.mode, meta.window_n);
-            if let Some(why) = imu_fsda::model::rate_mismatch(meta.rate_hz, rec.nominal_imu_rate_hz(), meta.window_n) {
-                tracing::warn!("{name}: {why}");
-                add_note(&mut note, &why);
-            }
-            streams.push((meta.name.clone(), Ok((gyro, note))));
-        }
-        for (method, got) in streams {
-            let (gyro, note) = match got {
-                Ok(g) => g,
-                Err(why) => {
-                    rows.push(Row { bag: name.clone(), method, errors: None, note: why });
-                    continue;
-                }
-            };
-            let mut note = note;
-            if report.skipped() > 0 {
-                add_note(&mut note, &format!("skipped {} input samples", report.skipped()));
-            }
-            if let Some(gaps) = &imu_gaps {
-                add_note(&mut note, gaps);
-            }
+            // Values no IMU measures are dropped, as the node drops them, and said in every row:
+            // one 1e30 rad/s sample would otherwise decide every method's score.
+            let before = rec.imu.len();
+            rec.imu.retain(ImuSample::is_plausible);
+            let implausible = before - rec.imu.len();
             if implausible > 0 {
-                add_note(
-                    &mut note,
-                    &format!(
-                        "dropped {implausible} implausible IMU samples (|ω| > {:e} rad/s or |a| > {:e} m/s²)",
-                        imu_fsda::core::IMPLAUSIBLE_RATE_RAD_S,
-                        imu_fsda::core::IMPLAUSIBLE_ACCEL_M_S2
-                    ),
+                tracing::warn!("{}: dropped {implausible} IMU samples beyond what any IMU measures", bag.display());
+            }
+            if rec.ground_truth.is_empty() {
+                let (present, _) = imu_fsda::bag::bag_info(bag);
+                let present: Vec<String> = present.iter().map(|t| format!("{} [{}]", t.topic, t.type_name)).collect();
+                anyhow::bail!(
+                    "{}: no ground truth on {} (topics: {}); pass --ground-truth-topic",
+                    bag.display(),
+                    args.ground_truth_topic,
+                    present.join(", ")
                 );
             }
-            if let Some(lag) = &lag_note {
-                add_note(&mut note, lag);
-            }
-            for n in &input_notes {
-                add_note(&mut note, n);
-            }
-            match evaluate_with_path(&rec, &gyro, &opts) {
-                Ok((e, path)) => {
-                    keep(&method, path);
-                    if e.samples_in_gaps > 0 {
-                        // A recording with mocap at its ends only (outdoors) is scored on a fraction.
-                        let share = 100.0 * e.samples_in_gaps as f64 / (e.samples_in_gaps + e.evaluated_samples) as f64;
-                        add_note(&mut note, &format!("{share:.1} % of the span in ground-truth gaps, not scored"));
-                    }
-                    rows.push(Row { bag: name.clone(), method: method.clone(), errors: Some(e), note });
-                }
-                Err(e) => rows.push(Row { bag: name.clone(), method: method.clone(), errors: None, note: e.to_string() }),
-            }
-            if args.oracle_bias {
-                let bound = format!("{method} − oracle bias");
-                let row = mean_rate_error(&rec, &gyro, &opts).and_then(|b| {
-                    let fixed: Vec<Vector3<f64>> = gyro.iter().map(|g| g - b).collect();
-                    let (e, _) = evaluate_with_path(&rec, &fixed, &opts)?;
-                    let note = format!("oracle, reads the ground truth: constant [{:.5}, {:.5}, {:.5}] rad/s removed", b.x, b.y, b.z);
-                    Ok(Row { bag: name.clone(), method: bound.clone(), errors: Some(e), note })
-                });
-                rows.push(row.unwrap_or_else(|e| Row { bag: name.clone(), method: bound, errors: None, note: e.to_string() }));
-            }
-        }
-        if let Some(dir) = &args.plot_dir {
-            if paths.is_empty() {
-                tracing::warn!("{name}: no method evaluated, no figure");
+            let rec = if args.start_s.is_some() || args.end_s.is_some() {
+                rec.crop_after_ground_truth_start(args.start_s, args.end_s).with_context(|| {
+                    format!(
+                        "{}: fewer than 2 IMU samples between --start-s {} and --end-s {} after the ground truth starts ({:.1} s recorded)",
+                        bag.display(),
+                        args.start_s.unwrap_or(0.0),
+                        args.end_s.map_or("(end)".to_string(), |e| e.to_string()),
+                        rec.imu_seconds()
+                    )
+                })?
             } else {
-                imu_fsda::core::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-                let files = imu_fsda::figures::orientation_figures(dir, &name, &rec, &paths).with_context(|| format!("{name}: figures"))?;
-                for f in files {
-                    tracing::info!("wrote {}", f.display());
+                rec
+            };
+            let imu_gaps = imu_gap_note(&rec);
+            if let Some(g) = &imu_gaps {
+                tracing::warn!("{}: {g}", bag.display());
+            }
+            let lag = imu_fsda::eval::ground_truth_lag(&rec, &opts, imu_fsda::eval::GROUND_TRUTH_LAG_SEARCH_S);
+            if let Some(l) = lag {
+                tracing::info!("{name}: ground truth lags the IMU by {:.1} ms (rate correlation {:.3})", l.lag_s * 1e3, l.correlation);
+            }
+            // A clock offset is scored as recorded (it is part of what the user has), and said.
+            let lag_note = lag.filter(imu_fsda::eval::GroundTruthLag::is_misaligned).map(|l| {
+                let note = format!(
+                    "ground truth lags the IMU by {:.1} ms (rate correlation {:.2}): scored as recorded",
+                    l.lag_s * 1e3,
+                    l.correlation
+                );
+                tracing::warn!("{}: {note}; check the clocks", bag.display());
+                note
+            });
+            // Ground truth that cannot be this IMU's attitude (a gyro in °/s, another frame,
+            // inverted quaternions) and an accelerometer not in m/s² are scored as recorded and
+            // said on every row: `train` and `adapt` refuse them.
+            // (A clock offset, said above, also makes the frames disagree: not said twice.)
+            let input_notes: Vec<String> = [
+                imu_fsda::train::data::check_ground_truth_follows_gyro(&rec, true).err().filter(|_| lag_note.is_none()),
+                imu_fsda::train::data::check_accel_units(&rec).err(),
+            ]
+            .into_iter()
+            .flatten()
+            .map(|e| {
+                let text = e.to_string();
+                let text = text.strip_prefix(&format!("{}: ", rec.name)).unwrap_or(&text).to_string();
+                tracing::warn!("{}: {text}", bag.display());
+                format!("{text}; scored as recorded")
+            })
+            .collect();
+            // Integrated paths of the methods that evaluated, for the figures.
+            let mut paths: Vec<(String, OrientationPath)> = Vec::new();
+            let mut keep = |name: &str, path: OrientationPath| {
+                if args.plot_dir.is_some() {
+                    paths.push((name.to_string(), path));
+                }
+            };
+            // Every method's and model's gyro stream (or why it has none), then one scoring loop.
+            let mut streams: Vec<(String, Stream)> = Vec::new();
+            for &m in &methods {
+                let got = match m.apply(&rec, &detector) {
+                    Ok(g) => Ok(g),
+                    Err(imu_fsda::eval::EvalError::Method { why, .. }) => Err(why),
+                    Err(e) => Err(e.to_string()),
+                };
+                streams.push((m.name().into(), got));
+            }
+            let imu = imu_for_bag(&args.imus, bag);
+            for (model, &per_imu) in args.models.iter().zip(&per_imu) {
+                let imu = imu.filter(|_| per_imu);
+                let (gyro, meta) = correct_with_torchscript(model, &rec.imu, imu).with_context(|| format!("model {}", model.display()))?;
+                let calib = imu.map_or(String::new(), |n| match meta.imu_correction_gains.get(n).filter(|_| meta.adapted_from.is_none()) {
+                    Some(g) => format!(", as on IMU {n} (correction gain {g:.3})"),
+                    None => format!(", Ĉ_ω of {n}"),
+                });
+                let mut note = format!("{:?}, N = {}{calib}", meta.mode, meta.window_n);
+                if let Some(why) = imu_fsda::model::rate_mismatch(meta.rate_hz, rec.nominal_imu_rate_hz(), meta.window_n) {
+                    tracing::warn!("{name}: {why}");
+                    add_note(&mut note, &why);
+                }
+                streams.push((meta.name.clone(), Ok((gyro, note))));
+            }
+            for (method, got) in streams {
+                let (gyro, note) = match got {
+                    Ok(g) => g,
+                    Err(why) => {
+                        rows.push(Row { bag: name.clone(), method, errors: None, note: why });
+                        continue;
+                    }
+                };
+                let mut note = note;
+                if report.skipped() > 0 {
+                    add_note(&mut note, &format!("skipped {} input samples", report.skipped()));
+                }
+                if let Some(gaps) = &imu_gaps {
+                    add_note(&mut note, gaps);
+                }
+                if implausible > 0 {
+                    add_note(
+                        &mut note,
+                        &format!(
+                            "dropped {implausible} implausible IMU samples (|ω| > {:e} rad/s or |a| > {:e} m/s²)",
+                            imu_fsda::core::IMPLAUSIBLE_RATE_RAD_S,
+                            imu_fsda::core::IMPLAUSIBLE_ACCEL_M_S2
+                        ),
+                    );
+                }
+                if let Some(lag) = &lag_note {
+                    add_note(&mut note, lag);
+                }
+                for n in &input_notes {
+                    add_note(&mut note, n);
+                }
+                match evaluate_with_path(&rec, &gyro, &opts) {
+                    Ok((e, path)) => {
+                        keep(&method, path);
+                        if e.samples_in_gaps > 0 {
+                            // A recording with mocap at its ends only (outdoors) is scored on a fraction.
+                            let share = 100.0 * e.samples_in_gaps as f64 / (e.samples_in_gaps + e.evaluated_samples) as f64;
+                            add_note(&mut note, &format!("{share:.1} % of the span in ground-truth gaps, not scored"));
+                        }
+                        rows.push(Row { bag: name.clone(), method: method.clone(), errors: Some(e), note });
+                    }
+                    Err(e) => rows.push(Row { bag: name.clone(), method: method.clone(), errors: None, note: e.to_string() }),
+                }
+                if args.oracle_bias {
+                    let bound = format!("{method} − oracle bias");
+                    let row = mean_rate_error(&rec, &gyro, &opts).and_then(|b| {
+                        let fixed: Vec<Vector3<f64>> = gyro.iter().map(|g| g - b).collect();
+                        let (e, _) = evaluate_with_path(&rec, &fixed, &opts)?;
+                        let note = format!("oracle, reads the ground truth: constant [{:.5}, {:.5}, {:.5}] rad/s removed", b.x, b.y, b.z);
+                        Ok(Row { bag: name.clone(), method: bound.clone(), errors: Some(e), note })
+                    });
+                    rows.push(row.unwrap_or_else(|e| Row { bag: name.clone(), method: bound, errors: None, note: e.to_string() }));
                 }
             }
+            if let Some(dir) = &args.plot_dir {
+                if paths.is_empty() {
+                    tracing::warn!("{name}: no method evaluated, no figure");
+                } else {
+                    imu_fsda::core::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+                    let files =
+                        imu_fsda::figures::orientation_figures(dir, &name, &rec, &paths).with_context(|| format!("{name}: figures"))?;
+                    for f in files {
+                        tracing::info!("wrote {}", f.display());
+                    }
+                }
+            }
+            Ok(())
+        })();
+        if let Err(e) = evaluated {
+            if args.bags.len() == 1 {
+                return Err(e);
+            }
+            let why = super::error_text(&e);
+            tracing::error!("{why}");
+            rows.truncate(rows_before);
+            rows.push(Row { bag: name.clone(), method: "–".into(), errors: None, note: format!("not evaluated: {why}") });
+            failed.push(bag.display().to_string());
         }
     }
     let table = markdown_table(&rows);
@@ -276,6 +304,13 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if let Some(p) = &args.markdown {
         std::fs::write(p, &table).with_context(|| format!("writing {}", p.display()))?;
     }
+    anyhow::ensure!(
+        failed.is_empty(),
+        "{} of {} bags could not be evaluated ({}); their rows say why",
+        failed.len(),
+        args.bags.len(),
+        failed.join(", ")
+    );
     Ok(())
 }
 

@@ -110,7 +110,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     let stats = rt.block_on(run_node_with_adaptation(&args.config.node_name, params, env, pipeline, status, limits, adapt))?;
     let c = &stats.counters;
     eprintln!(
-        "imu-fsda node: received {}, published {}, dropped {} (non-finite {}, implausible {}, duplicate {}, backwards {}), gaps {}, clock jumps back {}, latency p50 {:.0} µs p99 {:.0} µs",
+        "imu-fsda node: received {}, published {}, dropped {} (non-finite {}, implausible {}, duplicate {}, backwards {}), gaps {}, clock jumps back {}, decode errors {}, latency p50 {:.0} µs p99 {:.0} µs",
         c.received,
         c.processed,
         c.dropped(),
@@ -120,6 +120,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         c.dropped_backwards_stamp,
         c.gaps,
         c.clock_jumps,
+        stats.decode_errors,
         stats.latency.quantile_us(0.5),
         stats.latency.quantile_us(0.99)
     );
@@ -128,7 +129,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
             "{}",
             serde_json::json!({
                 "counters": c, "latency_p50_us": stats.latency.quantile_us(0.5), "latency_p99_us": stats.latency.quantile_us(0.99),
-                "latency_max_us": stats.latency.max_us(), "latency_samples": stats.latency.count(), "frame_changes": stats.frame_changes,
+                "latency_max_us": stats.latency.max_us(), "latency_samples": stats.latency.count(), "frame_changes": stats.frame_changes, "decode_errors": stats.decode_errors,
                 "model": stats.model, "adaptation": stats.adapt_status, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
                 "latency_by_adaptation_state": stats.split_latency.summary_json(),
             })

@@ -153,12 +153,20 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
             x if x == Vector3Stamped::TYPE_NAME => mk!(Vec3, Vector3Stamped),
             x if x == DiagnosticArray::TYPE_NAME => mk!(Diag, DiagnosticArray),
             other => {
+                // Asked for by name, it is an error; among all of a bag's topics, a note.
+                if args.topics.contains(&t.topic) {
+                    anyhow::bail!(
+                        "--topic {}: its type {other} is not one play publishes (sensor_msgs Imu and Temperature, geometry_msgs PoseStamped and Vector3Stamped, nav_msgs Odometry, diagnostic_msgs DiagnosticArray)",
+                        t.topic
+                    );
+                }
                 tracing::warn!("{}: type {other} is not played", t.topic);
                 continue;
             }
         };
         pubs.insert(t.topic.clone(), p);
     }
+    anyhow::ensure!(!pubs.is_empty(), "{}: none of its topics has a type play publishes", args.input.display());
     let clock_pub = if args.clock {
         let topic = node
             .create_topic(

@@ -183,6 +183,15 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             args.input.display()
         );
     }
+    if pipeline.rate_off_nominal() {
+        tracing::warn!(
+            "{}: the input rate ({:.1} Hz at the end) is off the nominal {:.1} Hz by more than {:.0} %: a model runs at the rate it was trained at (its window spans another time)",
+            args.input.display(),
+            stats.input_rate_hz,
+            pipeline.nominal_rate_hz().unwrap_or(f64::NAN),
+            params.pipeline.rate_tolerance * 100.0
+        );
+    }
     let c = &stats.counters;
     if c.received >= 2 && 2 * (c.dropped_duplicate_stamp + c.dropped_backwards_stamp) > c.received {
         tracing::warn!(

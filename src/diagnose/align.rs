@@ -11,7 +11,7 @@ use std::path::Path;
 use nalgebra::UnitQuaternion;
 
 use super::DiagnoseError;
-use crate::bag::{read_recording, BagReader, RecordingTopics, IMU_TOPIC};
+use crate::bag::{read_recording, BagReader, RecordingTopics};
 use crate::core::{ImuSample, Recording};
 use crate::msg::{Imu, RosMessage};
 
@@ -62,10 +62,10 @@ impl Aligned {
 
 /// The per-sample white-noise variances stated by the first IMU message's covariance
 /// diagonals (mean of the three), `None` when they are absent (zero, negative or unknown).
-pub fn covariance_variances(path: &Path) -> Result<Option<(f64, f64)>, DiagnoseError> {
+pub fn covariance_variances(path: &Path, imu_topic: &str) -> Result<Option<(f64, f64)>, DiagnoseError> {
     for m in BagReader::open(path)? {
         let m = m?;
-        if *m.topic == *IMU_TOPIC && *m.type_name == *Imu::TYPE_NAME {
+        if *m.topic == *imu_topic && *m.type_name == *Imu::TYPE_NAME {
             let imu = Imu::decode(&m.data).map_err(|e| DiagnoseError::Input(format!("{}: first IMU message: {e}", path.display())))?;
             let g =
                 (imu.angular_velocity_covariance.0[0] + imu.angular_velocity_covariance.0[4] + imu.angular_velocity_covariance.0[8]) / 3.0;
@@ -191,18 +191,22 @@ fn coarse_lag(sim_t: &[f64], sim_norm: &[f64], real_t: &[f64], real_norm: &[f64]
     best.1
 }
 
-/// Load both bags and align the real stream to the sim stamps.
+/// Load both bags (on the default topics) and align the real stream to the sim stamps.
 pub fn load(sim_path: &Path, real_path: &Path) -> Result<Aligned, DiagnoseError> {
-    let topics = RecordingTopics::default();
-    let (sim, sim_report) = read_recording(sim_path, &topics)?;
-    let (real, real_report) = read_recording(real_path, &topics)?;
+    load_on(sim_path, real_path, &RecordingTopics::default())
+}
+
+/// [`load`] with the topics both bags are read on.
+pub fn load_on(sim_path: &Path, real_path: &Path, topics: &RecordingTopics) -> Result<Aligned, DiagnoseError> {
+    let (sim, sim_report) = read_recording(sim_path, topics)?;
+    let (real, real_report) = read_recording(real_path, topics)?;
     let mut notes = Vec::new();
     for (name, r) in [("sim", &sim_report), ("real", &real_report)] {
         if r.skipped() > 0 {
             notes.push(format!("{name} bag: {r}"));
         }
     }
-    align(sim, real, covariance_variances(sim_path)?, notes)
+    align(sim, real, covariance_variances(sim_path, &topics.imu)?, notes)
 }
 
 /// Align two recordings (see the module docs).
