@@ -99,8 +99,10 @@ pub struct Time {
 
 impl Time {
     /// From ROS time in ns (negative stamps are clamped to 0, which ROS cannot express).
+    /// Clamped to what the message holds (`sec` is an int32: 1970 to 2038), not wrapped.
     pub fn from_ns(ns: i64) -> Self {
-        let ns = ns.max(0);
+        const MAX_NS: i64 = i32::MAX as i64 * 1_000_000_000 + 999_999_999;
+        let ns = ns.clamp(0, MAX_NS);
         Time { sec: (ns / 1_000_000_000) as i32, nanosec: (ns % 1_000_000_000) as u32 }
     }
     pub fn to_ns(self) -> i64 {
@@ -512,6 +514,14 @@ mod tests {
 
     fn header() -> Header {
         Header { stamp: Time { sec: 1403636579, nanosec: 758555648 }, frame_id: "imu_link".into() }
+    }
+
+    /// Beyond what an int32 second holds, a stamp is clamped, never wrapped to 1901.
+    #[test]
+    fn time_from_ns_clamps() {
+        assert_eq!(Time::from_ns(1_403_636_579_758_555_648).to_ns(), 1_403_636_579_758_555_648);
+        assert_eq!(Time::from_ns(-5), Time { sec: 0, nanosec: 0 });
+        assert_eq!(Time::from_ns(i64::MAX), Time { sec: i32::MAX, nanosec: 999_999_999 });
     }
 
     #[test]

@@ -99,6 +99,15 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         let imu = Some(params.imu_calibration.clone()).filter(|s| !s.is_empty());
         (c, Some(AdaptSetup { handle, model: PathBuf::from(&params.model), imu }))
     } else {
+        // Said at start: a client calling a service that is not there waits without an answer.
+        let why = if params.model.is_empty() {
+            "no model is loaded"
+        } else if params.ground_truth_topic.is_empty() {
+            "ground_truth_topic is empty"
+        } else {
+            "--naive-full-window"
+        };
+        tracing::warn!("the ~/adapt service is not offered: {why}");
         (corrector, None)
     };
     let pipeline = Pipeline::new(corrector, params.pipeline.clone());
