@@ -348,8 +348,7 @@ pub struct Pipeline {
     counters: Counters,
     first_dts: [i64; 8],
     n_first_dts: usize,
-    /// Consecutive samples dropped as backwards whose own stamps advance: (last stamp, count).
-    backwards_run: Option<(i64, u32)>,
+    backwards_run: BackwardsRun,
     /// Consecutive intervals longer than a gap: a few in a row are a rate, not a hole.
     consecutive_gaps: u32,
     /// Whether the nominal period came from the first intervals (not the model or config).
@@ -361,6 +360,29 @@ pub struct Pipeline {
 /// was far in the future) and followed, as after a gap. Before, one stamp three hours ahead
 /// stopped the output for good: every later sample was "backwards".
 pub const CLOCK_JUMP_SAMPLES: u32 = 20;
+
+/// Consecutive stamps refused as not after the last accepted one, counted while they advance
+/// among themselves: [`CLOCK_JUMP_SAMPLES`] of them say the source's clock went back.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct BackwardsRun(Option<(i64, u32)>);
+
+impl BackwardsRun {
+    /// For a stamp not after the last accepted: true when it completes a run (follow the
+    /// source's new clock), false when it is to be refused.
+    pub fn follows(&mut self, stamp_ns: i64) -> bool {
+        let n = match self.0 {
+            Some((t, n)) if stamp_ns > t => n + 1,
+            _ => 1,
+        };
+        self.0 = (n < CLOCK_JUMP_SAMPLES).then_some((stamp_ns, n));
+        self.0.is_none()
+    }
+
+    /// A stamp was accepted: the run, if any, is over.
+    pub fn end(&mut self) {
+        self.0 = None;
+    }
+}
 
 /// Intervals longer than a gap in a row after which the input's rate is taken as changed.
 pub const RATE_FROM_GAPS: u32 = 8;
@@ -381,7 +403,7 @@ impl Pipeline {
             counters: Counters::default(),
             first_dts: [0; 8],
             n_first_dts: 0,
-            backwards_run: None,
+            backwards_run: BackwardsRun::default(),
             consecutive_gaps: 0,
             period_learned: false,
         }
@@ -441,18 +463,11 @@ impl Pipeline {
                 self.counters.dropped_duplicate_stamp += 1;
                 return Err(Dropped::DuplicateStamp);
             }
-            if dt_ns < 0 {
-                let run = match self.backwards_run {
-                    Some((t, n)) if s.stamp_ns > t => n + 1,
-                    _ => 1,
-                };
-                if run < CLOCK_JUMP_SAMPLES {
-                    self.backwards_run = Some((s.stamp_ns, run));
-                    self.counters.dropped_backwards_stamp += 1;
-                    return Err(Dropped::BackwardsStamp);
-                }
+            if dt_ns < 0 && !self.backwards_run.follows(s.stamp_ns) {
+                self.counters.dropped_backwards_stamp += 1;
+                return Err(Dropped::BackwardsStamp);
             }
-            self.backwards_run = None;
+            self.backwards_run.end();
             let jumped_back = dt_ns < 0;
             if !jumped_back {
                 self.learn_period(dt_ns);

@@ -188,13 +188,12 @@ pub struct Buffers {
     pub seconds: f64,
     pub imu: VecDeque<SeqSample>,
     pub ground_truth: VecDeque<PoseSample>,
-    /// Consecutive poses refused as not after the last whose own stamps advance.
-    ground_truth_backwards_run: Option<(i64, u32)>,
+    ground_truth_backwards_run: crate::infer::BackwardsRun,
 }
 
 impl Buffers {
     pub fn new(seconds: f64) -> Self {
-        Buffers { seconds, imu: VecDeque::new(), ground_truth: VecDeque::new(), ground_truth_backwards_run: None }
+        Buffers { seconds, imu: VecDeque::new(), ground_truth: VecDeque::new(), ground_truth_backwards_run: Default::default() }
     }
 
     fn horizon(&self, newest: i64) -> i64 {
@@ -220,17 +219,12 @@ impl Buffers {
     /// buffer starting again. Before, one pose hours ahead blocked adaptation until restart.
     pub fn push_ground_truth(&mut self, p: PoseSample) -> bool {
         if self.ground_truth.back().is_some_and(|l| p.stamp_ns <= l.stamp_ns) {
-            let run = match self.ground_truth_backwards_run {
-                Some((t, n)) if p.stamp_ns > t => n + 1,
-                _ => 1,
-            };
-            if run < crate::infer::CLOCK_JUMP_SAMPLES {
-                self.ground_truth_backwards_run = Some((p.stamp_ns, run));
+            if !self.ground_truth_backwards_run.follows(p.stamp_ns) {
                 return false;
             }
             self.ground_truth.clear();
         }
-        self.ground_truth_backwards_run = None;
+        self.ground_truth_backwards_run.end();
         let h = self.horizon(p.stamp_ns);
         self.ground_truth.push_back(p);
         while self.ground_truth.front().is_some_and(|x| x.stamp_ns < h) {
