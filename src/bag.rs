@@ -64,10 +64,11 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BagError + '_ {
     move |source| BagError::Io { path: path.to_path_buf(), source }
 }
 
-/// Writes a ROS 2 MCAP bag. The bag is written as `<path>.partial` and renamed to `path` by
-/// [`BagWriter::finish`], so a run that fails or is killed half-way never replaces an earlier
-/// bag of that name, nor leaves a truncated one where a finished one is expected. A writer
-/// dropped unfinished (an error) closes `<path>.partial` as a readable bag of what it holds.
+/// Writes a ROS 2 MCAP bag. The bag is written as `<path>.<pid>.partial` and renamed to `path`
+/// by [`BagWriter::finish`], so a run that fails or is killed half-way never replaces an
+/// earlier bag of that name, nor leaves a truncated one where a finished one is expected, and
+/// two runs writing one path never write one file (the last to finish wins, whole). A writer
+/// dropped unfinished (an error) closes its `.partial` as a readable bag of what it holds.
 pub struct BagWriter {
     path: PathBuf,
     partial: PathBuf,
@@ -86,12 +87,22 @@ pub struct Channel {
 
 impl BagWriter {
     pub fn create(path: impl AsRef<Path>) -> Result<Self, BagError> {
-        let path = path.as_ref().to_path_buf();
+        let mut path = path.as_ref().to_path_buf();
+        if path.is_dir() || path.file_name().is_none() {
+            return Err(BagError::NotMcap { path, what: "is a folder: name the bag file to write".into() });
+        }
+        // A link is followed: the bag replaces what it points to, as writing through it did.
+        if path.is_symlink() {
+            if let Ok(target) = std::fs::canonicalize(&path) {
+                path = target;
+            }
+        }
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             crate::core::create_dir_all(dir).map_err(io_err(&path))?;
         }
-        let partial = partial_path(&path);
-        let file = File::create(&partial).map_err(io_err(&partial))?;
+        let partial = partial_path(&path, std::process::id());
+        // Never over an existing file (an earlier run's .partial given back as an input).
+        let file = File::create_new(&partial).map_err(io_err(&partial))?;
         let writer = mcap::WriteOptions::new()
             .profile("ros2")
             .library(concat!("imu-fsda ", env!("CARGO_PKG_VERSION")))
@@ -177,20 +188,19 @@ impl Drop for BagWriter {
             let closed = w.finish().is_ok();
             drop(w);
             tracing::warn!(
-                "{} was not finished; the {} messages written are in {}{}",
+                "{} was not finished; what was written of it before the failure is in {}{}",
                 self.path.display(),
-                self.sequence,
                 self.partial.display(),
-                if closed { "" } else { " (without its summary)" }
+                if closed { "" } else { " (without its summary: read up to its last whole chunk)" }
             );
         }
     }
 }
 
-/// Where a bag is written until it is finished: `<path>.partial`, beside it.
-pub fn partial_path(path: &Path) -> PathBuf {
+/// Where process `pid` writes a bag until it is finished: `<path>.<pid>.partial`, beside it.
+pub fn partial_path(path: &Path, pid: u32) -> PathBuf {
     let mut p = path.as_os_str().to_owned();
-    p.push(".partial");
+    p.push(format!(".{pid}.partial"));
     PathBuf::from(p)
 }
 
@@ -497,6 +507,20 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
         tracing::warn!("{}: {}", path.display(), report);
     }
     Ok((rec, report))
+}
+
+/// Whether a bag's messages are written in log-time order (up to any damage; a missing or
+/// unreadable file counts as ordered: its error is for the reader to say).
+pub fn is_in_log_time_order(path: impl AsRef<Path>) -> bool {
+    let Ok(reader) = BagReader::open(path) else { return true };
+    let mut latest = 0u64;
+    for m in reader.map_while(Result::ok) {
+        if m.log_time_ns < latest {
+            return false;
+        }
+        latest = m.log_time_ns;
+    }
+    true
 }
 
 /// Orders one topic's messages by log time (a stable sort: equal log times keep the file's

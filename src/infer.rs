@@ -353,6 +353,10 @@ pub struct Pipeline {
     consecutive_gaps: u32,
     /// Whether the nominal period came from the first intervals (not the model or config).
     period_learned: bool,
+    /// The period gaps are measured in while a stream runs slower than a fixed nominal (the
+    /// model's): else every sample of a 20-Hz stream into a 200-Hz model was a gap, the model
+    /// never warmed up and the attitude was never integrated.
+    slow_period_ns: Option<f64>,
 }
 
 /// Consecutive samples, advancing among themselves but behind the last accepted stamp, after
@@ -406,6 +410,7 @@ impl Pipeline {
             backwards_run: BackwardsRun::default(),
             consecutive_gaps: 0,
             period_learned: false,
+            slow_period_ns: None,
         }
     }
 
@@ -472,7 +477,7 @@ impl Pipeline {
             if !jumped_back {
                 self.learn_period(dt_ns);
             }
-            let is_gap = jumped_back || self.nominal_period_ns.is_some_and(|p| dt_ns as f64 > self.cfg.gap_periods * p);
+            let is_gap = jumped_back || self.gap_limit_ns().is_some_and(|l| dt_ns as f64 > l);
             if jumped_back {
                 after_gap = true;
                 self.counters.clock_jumps += 1;
@@ -553,6 +558,11 @@ impl Pipeline {
 
     /// Learn the nominal period from the first intervals (median of 8) if not given, then
     /// track the smoothed period to report rate changes.
+    /// An interval longer than this is a gap, ns.
+    fn gap_limit_ns(&self) -> Option<f64> {
+        self.slow_period_ns.or(self.nominal_period_ns).map(|p| self.cfg.gap_periods * p)
+    }
+
     fn learn_period(&mut self, dt_ns: i64) {
         match self.nominal_period_ns {
             None => {
@@ -570,7 +580,7 @@ impl Pipeline {
             Some(p) => {
                 // A gap is not a rate change, but gaps in a row are: a stream slower than the
                 // nominal (20 Hz into a 200-Hz model) made every sample a gap, unreported.
-                if (dt_ns as f64) < self.cfg.gap_periods * p {
+                if self.gap_limit_ns().is_some_and(|l| (dt_ns as f64) < l) {
                     self.smoothed_period_ns += 0.02 * (dt_ns as f64 - self.smoothed_period_ns);
                     self.consecutive_gaps = 0;
                 } else {
@@ -584,11 +594,22 @@ impl Pipeline {
                     self.counters.rate_changes += 1;
                     return;
                 }
-                let off = (self.smoothed_period_ns / p - 1.0).abs() > self.cfg.rate_tolerance || self.consecutive_gaps >= RATE_FROM_GAPS;
+                if self.consecutive_gaps >= RATE_FROM_GAPS {
+                    // The nominal is the model's: keep it (and say the rate is off), but measure
+                    // gaps in the stream's own period.
+                    self.slow_period_ns = Some(dt_ns as f64);
+                    self.smoothed_period_ns = dt_ns as f64;
+                    self.consecutive_gaps = 0;
+                }
+                let off = (self.smoothed_period_ns / p - 1.0).abs() > self.cfg.rate_tolerance || self.slow_period_ns.is_some();
                 if off && !self.rate_off {
                     self.counters.rate_changes += 1;
                 }
                 self.rate_off = off;
+                // Back at the nominal rate: gaps are the nominal's again.
+                if self.slow_period_ns.is_some() && (self.smoothed_period_ns / p - 1.0).abs() <= self.cfg.rate_tolerance {
+                    self.slow_period_ns = None;
+                }
             }
         }
     }
@@ -700,10 +721,18 @@ mod tests {
             Box::new(BiasCorrector { bias: Vector3::zeros() }),
             PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..Default::default() },
         );
-        for s in &slow {
-            let _ = p.push(s);
-        }
+        let out: Vec<CorrectedImu> = slow.iter().map(|s| p.push(s).unwrap()).collect();
         assert!(p.rate_off_nominal() && p.counters().rate_changes == 1, "{:?}", p.counters());
+        // Gaps are then measured in the stream's own period: corrected and integrated again.
+        assert!(out[20..].iter().all(|c| !c.after_gap && c.orientation.is_some()), "{:?}", p.counters());
+        assert_eq!(p.counters().gaps, RATE_FROM_GAPS as u64 - 1, "the last interval of the run sets the rate");
+        // Back at the model's rate, a hole is a gap again.
+        let mut back = stream(400, 5_000_000);
+        let t0 = slow.last().unwrap().stamp_ns + 50_000_000;
+        back.iter_mut().for_each(|s| s.stamp_ns += t0);
+        back[399].stamp_ns += 100_000_000;
+        let out: Vec<CorrectedImu> = back.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!(!p.rate_off_nominal() && out[399].after_gap, "{:?}", p.counters());
         let mut burst = stream(20, 500_000);
         let t0 = burst.last().unwrap().stamp_ns;
         burst.extend(stream(400, 5_000_000).into_iter().map(|mut s| {

@@ -586,8 +586,8 @@ fn a_replay_that_ends_early_keeps_what_it_replayed() {
 
     // Stopped or killed once the output is open (its `.partial` exists), mid-loop.
     let run_until_partial = |output: &Path, signal: i32| -> std::process::Output {
-        let partial = imu_fsda::bag::partial_path(output);
         let child = replay(&bag, output).spawn().unwrap();
+        let partial = imu_fsda::bag::partial_path(output, child.id());
         let t0 = std::time::Instant::now();
         while !partial.exists() {
             assert!(t0.elapsed().as_secs() < 60, "the replay never opened its output");
@@ -603,11 +603,13 @@ fn a_replay_that_ends_early_keeps_what_it_replayed() {
     assert!(err.contains("interrupted") && err.contains(&*out_term.to_string_lossy()), "{err}");
     let kept = topic_count(&out_term, "/imu/denoised");
     assert!(kept < total, "{kept} of {total}: the replay was not stopped");
-    assert!(!imu_fsda::bag::partial_path(&out_term).exists());
+    let partials =
+        || std::fs::read_dir(dir.path()).unwrap().filter(|e| e.as_ref().unwrap().path().to_string_lossy().ends_with(".partial")).count();
+    assert_eq!(partials(), 0);
 
     let earlier = std::fs::read(&out_term).unwrap();
     let o = run_until_partial(&out_term, libc::SIGKILL);
     assert_eq!(std::os::unix::process::ExitStatusExt::signal(&o.status), Some(libc::SIGKILL));
     assert!(std::fs::read(&out_term).unwrap() == earlier, "a killed replay changed the earlier output");
-    assert!(imu_fsda::bag::partial_path(&out_term).exists());
+    assert_eq!(partials(), 1);
 }

@@ -109,8 +109,12 @@ pub mod interrupts {
 
     extern "C" fn on_signal(signal: libc::c_int) {
         REQUESTED.store(true, Ordering::SeqCst);
-        // SAFETY: signal() is async-signal-safe; it restores the default for the next one.
+        // Said at once (a user who sees nothing presses again, which ends it there).
+        const SAID: &[u8] = b"\nstopping cleanly at the next message or epoch (a second Ctrl-C stops at once)\n";
+        // SAFETY: write() and signal() are async-signal-safe; the message is static. signal()
+        // restores the default for the next one.
         unsafe {
+            libc::write(2, SAID.as_ptr().cast(), SAID.len());
             libc::signal(signal, libc::SIG_DFL);
         }
     }

@@ -94,9 +94,30 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     // Input rate over each diagnostics period, in the bag's time (log time, receipt).
     let mut rate_from: Option<(u64, u64)> = None;
     // A damaged input or Ctrl-C ends the loop; what was replayed before it is kept.
-    let (mut damage, mut read, mut out_of_order) = (None, 0u64, 0u64);
+    let (mut damage, mut read) = (None, 0u64);
+    // MCAP lets a recorder write out of log-time order; the node would have received in log-time
+    // order (in file order, most samples were dropped as backwards). Such a bag is read whole.
+    let messages: Box<dyn Iterator<Item = Result<imu_fsda::bag::BagMessage, imu_fsda::bag::BagError>>> =
+        if imu_fsda::bag::is_in_log_time_order(&args.input) {
+            Box::new(BagReader::open(&args.input)?)
+        } else {
+            tracing::warn!("{}: written out of log-time order; read whole and replayed in log-time order", args.input.display());
+            let mut all = Vec::new();
+            let mut error = None;
+            for m in BagReader::open(&args.input)? {
+                match m {
+                    Ok(m) => all.push(m),
+                    Err(e) => {
+                        error = Some(e);
+                        break;
+                    }
+                }
+            }
+            all.sort_by_key(|m| m.log_time_ns);
+            Box::new(all.into_iter().map(Ok).chain(error.map(Err)))
+        };
     super::interrupts::catch();
-    for m in BagReader::open(&args.input)? {
+    for m in messages {
         if super::interrupts::requested() {
             break;
         }
@@ -117,10 +138,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             }
         };
         writer.write_raw(ch, m.log_time_ns as i64, &m.data)?;
-        if m.log_time_ns < last_log {
-            out_of_order += 1;
-        }
-        last_log = last_log.max(m.log_time_ns);
+        last_log = m.log_time_ns;
         if *m.topic != *input_topic {
             continue;
         }
@@ -175,13 +193,6 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     }
     if super::interrupts::requested() {
         return Err(super::interrupts::Interrupted(kept()).into());
-    }
-    if out_of_order > 0 {
-        // The live node sees messages as they arrive; a replay feeds them in the file's order.
-        tracing::warn!(
-            "{}: {out_of_order} messages are written out of log-time order; replayed in the file's order (eval, adapt and train read in log-time order)",
-            args.input.display()
-        );
     }
     if pipeline.rate_off_nominal() {
         tracing::warn!(

@@ -52,7 +52,8 @@ pub enum DataError {
     NoScoredIncrement { name: String, increment: i64, longest: usize, needed: usize, share: f64, nearest_ms: f64 },
     #[error(
         "{name}: the ground truth turns {ratio:.3}× as far as the gyro over 0.25 s (median over {increments} increments of \
-         clear motion; 1 is expected): the gyro is not in rad/s, or the poses are not this IMU's"
+         clear motion; 1 is expected): the gyro is not in rad/s, the poses are not this IMU's, or their clocks differ by more \
+         than the 10 s searched"
     )]
     RotationScale { name: String, ratio: f64, increments: usize },
     #[error(
@@ -62,7 +63,8 @@ pub enum DataError {
     OtherFrame { name: String, angle_deg: f64, residual_deg: f64, identity_deg: f64 },
     #[error(
         "{name}: the ground truth's rotation axes do not follow the gyro's (RMS {residual_deg:.1}° apart over {increments} \
-         0.25-s increments, even after the best constant rotation): inverted quaternions (body-from-world) or another body's poses?"
+         0.25-s increments, even after the best constant rotation): inverted quaternions (body-from-world), another body's poses, \
+         or clocks more than the 10 s searched apart?"
     )]
     NotFollowing { name: String, residual_deg: f64, increments: usize },
     #[error("{name}: crop start_s {start} s is past the end of the ground-truth-covered data ({seconds:.1} s)")]
