@@ -79,6 +79,8 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         );
     }
     super::refuse_overwriting_input(&args.output, &[&args.input])?;
+    // From the moment the output exists, a signal finishes it.
+    super::interrupts::catch();
     let mut writer = BagWriter::create(&args.output)?;
     let out_ch = writer.channel::<Imu>(&params.output_topic)?;
     let corr_ch = writer.channel::<Vector3Stamped>(&params.correction_topic)?;
@@ -116,7 +118,6 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             all.sort_by_key(|m| m.log_time_ns);
             Box::new(all.into_iter().map(Ok).chain(error.map(Err)))
         };
-    super::interrupts::catch();
     for m in messages {
         if super::interrupts::requested() {
             break;
