@@ -101,8 +101,16 @@ impl BagWriter {
             crate::core::create_dir_all(dir).map_err(io_err(&path))?;
         }
         let partial = partial_path(&path, std::process::id());
-        // Never over an existing file (an earlier run's .partial given back as an input).
-        let file = File::create_new(&partial).map_err(io_err(&partial))?;
+        // Never truncated in place: a leftover of this pid (a writer of this process that
+        // failed, or a dead process long ago) is unlinked first, so a reader of it keeps its data.
+        let file = match File::create_new(&partial) {
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                std::fs::remove_file(&partial).map_err(io_err(&partial))?;
+                File::create_new(&partial)
+            }
+            other => other,
+        }
+        .map_err(io_err(&partial))?;
         let writer = mcap::WriteOptions::new()
             .profile("ros2")
             .library(concat!("imu-fsda ", env!("CARGO_PKG_VERSION")))
@@ -675,6 +683,32 @@ mod tests {
         let imu = info.iter().find(|t| t.topic == IMU_TOPIC).unwrap();
         assert_eq!(imu.count, 500);
         assert!((imu.rate_hz() - 200.0).abs() < 1e-6);
+    }
+
+    /// A bag is written beside its path and renamed when finished: an unfinished writer leaves
+    /// the earlier bag as it was and its own readable `.partial`, which a later writer of this
+    /// process replaces without touching the file another reader may hold.
+    #[test]
+    fn a_bag_appears_whole_or_not_at_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("b.mcap");
+        write_recording(&path, &recording()).unwrap();
+        let earlier = std::fs::read(&path).unwrap();
+        {
+            let mut w = BagWriter::create(&path).unwrap();
+            let ch = w.channel::<Imu>(IMU_TOPIC).unwrap();
+            w.write(ch, 1, &Imu::from_sample(&recording().imu[0], IMU_FRAME)).unwrap();
+        }
+        assert!(std::fs::read(&path).unwrap() == earlier);
+        let partial = partial_path(&path, std::process::id());
+        let held = File::open(&partial).unwrap();
+        assert_eq!(BagReader::open(&partial).unwrap().count(), 1);
+        let rec = Recording { imu: recording().imu[..10].to_vec(), ..Default::default() };
+        write_recording(&path, &rec).unwrap();
+        assert!(!partial.exists());
+        assert_eq!(read_recording(&path, &RecordingTopics::default()).unwrap().0.imu.len(), 10);
+        assert!(held.metadata().unwrap().len() > 0, "the old .partial was unlinked, not truncated");
+        assert!(matches!(BagWriter::create(dir.path()), Err(BagError::NotMcap { .. })));
     }
 
     /// Messages written out of log-time order (allowed by MCAP) are read in log-time order,
