@@ -279,6 +279,8 @@ impl Iterator for BagReader {
 /// errors for them are "Bad magic number" or a compression-stream error): a rosbag2 folder, an
 /// SQLite3 `.db3` bag, a bag compressed whole (`--compression-mode file`).
 fn not_mcap(path: &Path) -> Option<String> {
+    const CONVERT: &str =
+        "only MCAP is read; convert it with `ros2 bag convert` to storage_id mcap, or record with `ros2 bag record -s mcap`";
     if path.is_dir() {
         let inside: Vec<PathBuf> = std::fs::read_dir(path).ok()?.filter_map(|e| e.ok().map(|e| e.path())).collect();
         let with = |ext: &str| inside.iter().filter(|p| p.to_string_lossy().ends_with(ext)).cloned().collect::<Vec<_>>();
@@ -289,9 +291,7 @@ fn not_mcap(path: &Path) -> Option<String> {
                 if mcaps.len() > 1 { "s one at a time" } else { "" },
                 m.display()
             ),
-            (None, Some(_)) => {
-                "a rosbag2 folder in SQLite3 (.db3) storage: only MCAP is read; convert it with `ros2 bag convert` to storage_id mcap, or record with `ros2 bag record -s mcap`".into()
-            }
+            (None, Some(_)) => format!("a rosbag2 folder in SQLite3 (.db3) storage: {CONVERT}"),
             _ => "a folder, not an MCAP bag".into(),
         });
     }
@@ -299,7 +299,7 @@ fn not_mcap(path: &Path) -> Option<String> {
     let n = std::io::Read::read(&mut File::open(path).ok()?, &mut head).ok()?;
     let head = &head[..n];
     if head.starts_with(b"SQLite format 3\0") {
-        Some("an SQLite3 (.db3) rosbag2 file: only MCAP is read; convert it with `ros2 bag convert` to storage_id mcap, or record with `ros2 bag record -s mcap`".into())
+        Some(format!("an SQLite3 (.db3) rosbag2 file: {CONVERT}"))
     } else if head.starts_with(&[0x28, 0xb5, 0x2f, 0xfd]) {
         Some("a zstd-compressed file (rosbag2 --compression-mode file): decompress it first (`zstd -d`), then read the .mcap".into())
     } else {
@@ -315,6 +315,8 @@ pub struct TopicInfo {
     pub count: u64,
     pub first_ns: u64,
     pub last_ns: u64,
+    /// Messages of this topic written after one (of any topic) with a later log time.
+    pub out_of_log_time_order: u64,
 }
 
 impl TopicInfo {
@@ -334,6 +336,7 @@ pub fn bag_info(path: impl AsRef<Path>) -> (Vec<TopicInfo>, Option<BagError>) {
         Ok(r) => r,
         Err(e) => return (Vec::new(), Some(e)),
     };
+    let mut latest = 0u64;
     for m in reader {
         match m {
             Ok(m) => {
@@ -347,6 +350,8 @@ pub fn bag_info(path: impl AsRef<Path>) -> (Vec<TopicInfo>, Option<BagError>) {
                 e.count += 1;
                 e.first_ns = e.first_ns.min(m.log_time_ns);
                 e.last_ns = e.last_ns.max(m.log_time_ns);
+                e.out_of_log_time_order += u64::from(m.log_time_ns < latest);
+                latest = latest.max(m.log_time_ns);
             }
             Err(e) => return (topics.into_values().collect(), Some(e)),
         }
@@ -515,20 +520,6 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
         tracing::warn!("{}: {}", path.display(), report);
     }
     Ok((rec, report))
-}
-
-/// Whether a bag's messages are written in log-time order (up to any damage; a missing or
-/// unreadable file counts as ordered: its error is for the reader to say).
-pub fn is_in_log_time_order(path: impl AsRef<Path>) -> bool {
-    let Ok(reader) = BagReader::open(path) else { return true };
-    let mut latest = 0u64;
-    for m in reader.map_while(Result::ok) {
-        if m.log_time_ns < latest {
-            return false;
-        }
-        latest = m.log_time_ns;
-    }
-    true
 }
 
 /// Orders one topic's messages by log time (a stable sort: equal log times keep the file's

@@ -477,25 +477,22 @@ impl Pipeline {
             if !jumped_back {
                 self.learn_period(dt_ns);
             }
-            let is_gap = jumped_back || self.gap_limit_ns().is_some_and(|l| dt_ns as f64 > l);
-            if jumped_back {
+            if jumped_back || self.gap_limit_ns().is_some_and(|l| dt_ns as f64 > l) {
                 after_gap = true;
-                self.counters.clock_jumps += 1;
+                if jumped_back {
+                    self.counters.clock_jumps += 1;
+                } else {
+                    self.counters.gaps += 1;
+                }
                 self.counters.resets += 1;
                 self.corrector.reset();
                 self.since_reset = 0;
-                // How long the source was lost is not known: a second's worth of gap.
-                self.attitude.covariance += Matrix3::identity() * self.cfg.gap_variance_per_second;
-            } else if is_gap {
-                after_gap = true;
-                self.counters.gaps += 1;
-                self.counters.resets += 1;
-                self.corrector.reset();
-                self.since_reset = 0;
-                // Hold the attitude over the gap: integrating a stale rate would invent motion.
-                self.attitude.covariance += Matrix3::identity() * (self.cfg.gap_variance_per_second * dt_ns as f64 * 1e-9);
-                if self.attitude.world_from_body.is_some() {
-                    self.attitude.grow(dt_ns as f64 * 1e-9, 0.0, self.cfg.bias_stddev);
+                // Hold the attitude over the hole: integrating a stale rate would invent motion.
+                // A clock that went back says nothing of how long: a second's worth of gap.
+                let held_s = if jumped_back { 1.0 } else { dt_ns as f64 * 1e-9 };
+                self.attitude.covariance += Matrix3::identity() * (self.cfg.gap_variance_per_second * held_s);
+                if !jumped_back && self.attitude.world_from_body.is_some() {
+                    self.attitude.grow(held_s, 0.0, self.cfg.bias_stddev);
                 }
             } else if let Some(q) = self.attitude.world_from_body {
                 let dt = dt_ns as f64 * 1e-9;
@@ -586,20 +583,19 @@ impl Pipeline {
                 } else {
                     self.consecutive_gaps += 1;
                 }
-                if self.period_learned && self.consecutive_gaps >= RATE_FROM_GAPS {
-                    // Learnt from a start-up burst: learn it again from what follows.
-                    self.nominal_period_ns = None;
-                    self.n_first_dts = 0;
-                    self.consecutive_gaps = 0;
-                    self.counters.rate_changes += 1;
-                    return;
-                }
                 if self.consecutive_gaps >= RATE_FROM_GAPS {
+                    self.consecutive_gaps = 0;
+                    if self.period_learned {
+                        // Learnt from a start-up burst: learn it again from what follows.
+                        self.nominal_period_ns = None;
+                        self.n_first_dts = 0;
+                        self.counters.rate_changes += 1;
+                        return;
+                    }
                     // The nominal is the model's: keep it (and say the rate is off), but measure
                     // gaps in the stream's own period.
                     self.slow_period_ns = Some(dt_ns as f64);
                     self.smoothed_period_ns = dt_ns as f64;
-                    self.consecutive_gaps = 0;
                 }
                 let off = (self.smoothed_period_ns / p - 1.0).abs() > self.cfg.rate_tolerance || self.slow_period_ns.is_some();
                 if off && !self.rate_off {

@@ -121,7 +121,7 @@ pub mod interrupts {
 
     pub fn catch() {
         for signal in [libc::SIGINT, libc::SIGTERM] {
-            // SAFETY: the handler only stores to an atomic and calls signal().
+            // SAFETY: the handler only stores to an atomic and calls write() and signal().
             unsafe {
                 libc::signal(signal, on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t);
             }

@@ -100,7 +100,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     // MCAP lets a recorder write out of log-time order; the node would have received in log-time
     // order (in file order, most samples were dropped as backwards). Such a bag is read whole.
     let messages: Box<dyn Iterator<Item = Result<imu_fsda::bag::BagMessage, imu_fsda::bag::BagError>>> =
-        if imu_fsda::bag::is_in_log_time_order(&args.input) {
+        if topics.iter().all(|t| t.out_of_log_time_order == 0) {
             Box::new(BagReader::open(&args.input)?)
         } else {
             tracing::warn!("{}: written out of log-time order; read whole and replayed in log-time order", args.input.display());
