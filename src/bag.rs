@@ -359,6 +359,34 @@ pub fn bag_info(path: impl AsRef<Path>) -> (Vec<TopicInfo>, Option<BagError>) {
     (topics.into_values().collect(), None)
 }
 
+/// The messages of a bag in log-time order (the order a subscriber would have received them),
+/// given its [`bag_info`]: streamed when the file is in that order already, read whole and
+/// sorted when a recorder wrote it otherwise (MCAP allows it). An error ends the iteration
+/// after the messages read before it.
+pub fn messages_in_log_time_order(
+    path: &Path,
+    topics: &[TopicInfo],
+) -> Result<Box<dyn Iterator<Item = Result<BagMessage, BagError>>>, BagError> {
+    if topics.iter().all(|t| t.out_of_log_time_order == 0) {
+        return Ok(Box::new(BagReader::open(path)?));
+    }
+    tracing::warn!("{}: written out of log-time order; read whole and taken in log-time order", path.display());
+    let mut all = Vec::new();
+    let mut error = None;
+    for m in BagReader::open(path)? {
+        match m {
+            Ok(m) => all.push(m),
+            Err(e) => {
+                error = Some(e);
+                break;
+            }
+        }
+    }
+    // Stable: messages with one log time keep their file order.
+    all.sort_by_key(|m| m.log_time_ns);
+    Ok(Box::new(all.into_iter().map(Ok).chain(error.map(Err))))
+}
+
 /// What [`read_recording`] skipped, by reason. Every skip is counted, never silent.
 #[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
 pub struct LoadReport {

@@ -211,21 +211,34 @@ pub fn ground_truth_lag(rec: &Recording, opts: &EvalOptions, max_lag_s: f64) -> 
         return None;
     }
     let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), opts.max_gap_ns);
-    let mut gyro_norm = vec![f64::NAN; n];
-    let mut gt_rate = vec![f64::NAN; n];
+    let mut gyro_mean = vec![None; n];
+    let mut gt_rate_vec = vec![None; n];
     for k in HALF..n - HALF {
         // Centred on t_k like the ground truth's rate, each sample taken as the rate at its
         // stamp: so EuRoC, TUM-VI and the simulator measure within ±1.2 ms. (The 4 samples a
         // forward integration uses, ω_n over [t_n, t_n+1], would put all of them at −2.5 ms.)
         let span = &rec.imu[k - HALF..=k + HALF];
-        gyro_norm[k] = span.iter().map(|s| s.gyro.norm()).sum::<f64>() / span.len() as f64;
+        gyro_mean[k] = Some(span.iter().map(|s| s.gyro).sum::<nalgebra::Vector3<f64>>() / span.len() as f64);
         if let (Some(a), Some(b)) = (gt[k - HALF], gt[k + HALF]) {
             let dt = (rec.imu[k + HALF].stamp_ns - rec.imu[k - HALF].stamp_ns) as f64 * 1e-9;
             if dt > 0.0 {
-                gt_rate[k] = log(&(a.inverse() * b)).norm() / dt;
+                gt_rate_vec[k] = Some(log(&(a.inverse() * b)) / dt);
             }
         }
     }
+    // A gyro bias comparable to the motion (a consumer IMU on a slowly turning car) skews the
+    // norm's peak by tens of ms: the mean difference of the rates is taken off first. It does not
+    // depend on the lag, and a frame mix-up only leaves the mean rotation rate's share in it.
+    let (mut diff, mut count) = (nalgebra::Vector3::zeros(), 0usize);
+    for (g, r) in gyro_mean.iter().zip(&gt_rate_vec) {
+        if let (Some(g), Some(r)) = (g, r) {
+            diff += g - r;
+            count += 1;
+        }
+    }
+    let bias = if count > 0 { diff / count as f64 } else { nalgebra::Vector3::zeros() };
+    let gyro_norm: Vec<f64> = gyro_mean.iter().map(|g| g.map_or(f64::NAN, |g| (g - bias).norm())).collect();
+    let gt_rate: Vec<f64> = gt_rate_vec.iter().map(|r| r.map_or(f64::NAN, |r| r.norm())).collect();
     let period = rec.imu_seconds() / (n - 1) as f64;
     let max_lag = ((max_lag_s / period).round() as usize).min(n / 2) as i64;
     // A clock offset beyond the search would otherwise go unsaid (the best lag inside it is
@@ -235,16 +248,33 @@ pub fn ground_truth_lag(rec: &Recording, opts: &EvalOptions, max_lag_s: f64) -> 
     let (coarse_gyro, coarse_gt) = (block_means(&gyro_norm, block), block_means(&gt_rate, block));
     let coarse_max = ((COARSE_LAG_SEARCH_S / (block as f64 * period)).round() as usize).min(coarse_gyro.len() / 2) as i64;
     let coarse_min_pairs = (MIN_LAG_PAIRS / block).max(20);
-    let coarse_best = (-coarse_max..=coarse_max)
+    // The coarse peak moves the search only when it is clearly better than anything within
+    // reach: periodic motion (a trot, a pendulum) correlates almost as well one period away,
+    // and a gyro bias can tip that balance.
+    let coarse: Vec<(i64, f64)> = (-coarse_max..=coarse_max)
         .filter_map(|l| lag_correlation(&coarse_gyro, &coarse_gt, l, coarse_min_pairs).map(|c| (l * block as i64, c)))
-        .max_by(|a, b| a.1.total_cmp(&b.1));
-    let (from, to) = match coarse_best {
-        Some((l, c)) if l.abs() > max_lag && c >= GROUND_TRUTH_LAG_MIN_CORRELATION => (l - 2 * block as i64, l + 2 * block as i64),
+        .collect();
+    let best_of = |far: bool| coarse.iter().filter(|(l, _)| (l.abs() > max_lag) == far).max_by(|a, b| a.1.total_cmp(&b.1)).copied();
+    let near = best_of(false).map_or(f64::NEG_INFINITY, |(_, c)| c);
+    let (from, to) = match best_of(true) {
+        Some((l, c)) if c >= GROUND_TRUTH_LAG_MIN_CORRELATION && (near < GROUND_TRUTH_LAG_MIN_CORRELATION || c > near + COARSE_MARGIN) => {
+            (l - 2 * block as i64, l + 2 * block as i64)
+        }
         _ => (-max_lag, max_lag),
     };
     let lags: Vec<i64> = (from..=to).collect();
     let corr: Vec<Option<f64>> = lags.iter().map(|&l| lag_correlation(&gyro_norm, &gt_rate, l, MIN_LAG_PAIRS)).collect();
-    let (best, c) = corr.iter().enumerate().filter_map(|(i, c)| c.map(|c| (i, c))).max_by(|a, b| a.1.total_cmp(&b.1))?;
+    let top = corr.iter().filter_map(|c| *c).fold(f64::NEG_INFINITY, f64::max);
+    // Of the peaks as good as the best (within PEAK_TIE), the one nearest zero lag: one period
+    // of a periodic motion away correlates about as well, and a clock is more likely right.
+    let is_peak = |i: usize| {
+        let c = corr[i].unwrap_or(f64::NEG_INFINITY);
+        let left = i.checked_sub(1).and_then(|j| corr[j]).unwrap_or(f64::NEG_INFINITY);
+        let right = corr.get(i + 1).copied().flatten().unwrap_or(f64::NEG_INFINITY);
+        c >= left && c >= right && c >= top - PEAK_TIE
+    };
+    let best = (0..corr.len()).filter(|&i| is_peak(i)).min_by_key(|&i| lags[i].unsigned_abs())?;
+    let c = corr[best]?;
     // Sub-sample peak: the parabola through the best lag and its neighbours.
     let shift = match (best.checked_sub(1).and_then(|i| corr[i]), corr.get(best + 1).copied().flatten()) {
         (Some(l), Some(r)) if l - 2.0 * c + r < 0.0 => (0.5 * (l - r) / (l - 2.0 * c + r)).clamp(-0.5, 0.5),
@@ -256,6 +286,11 @@ pub fn ground_truth_lag(rec: &Recording, opts: &EvalOptions, max_lag_s: f64) -> 
 /// Block length (s) and reach (s, either way) of [`ground_truth_lag`]'s coarse search.
 const COARSE_BLOCK_S: f64 = 0.05;
 const COARSE_LAG_SEARCH_S: f64 = 10.0;
+/// How much better than the best lag within reach the coarse search's peak beyond it must
+/// correlate to be taken.
+const COARSE_MARGIN: f64 = 0.1;
+/// Correlation within which two peaks count as equally good.
+const PEAK_TIE: f64 = 0.02;
 
 /// Means of consecutive blocks of `len` values, over the finite ones (NaN where none is).
 fn block_means(x: &[f64], len: usize) -> Vec<f64> {

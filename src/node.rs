@@ -510,7 +510,7 @@ pub async fn run_node(
     model_status: String,
     limits: RunLimits,
 ) -> Result<NodeStats, NodeError> {
-    run_node_with_adaptation(node_name, params, env, pipeline, model_status, limits, None).await
+    run_node_with_adaptation(node_name, params, env, pipeline, model_status, limits, AdaptService::Off).await
 }
 
 /// What the adaptation service needs: the handle on the pipeline's [`SwappableCorrector`]
@@ -522,7 +522,22 @@ pub struct AdaptSetup {
     pub imu: Option<String>,
 }
 
-/// [`run_node`] with the `~/adapt` service (when `adapt` is given and `ground_truth_topic` is set).
+/// Whether the node offers `~/adapt`.
+pub enum AdaptService {
+    /// Not offered (no ground-truth topic: adaptation is not configured).
+    Off,
+    /// Offered, but every call is answered at once with success = false and this reason (a
+    /// ground-truth topic is set but there is no model to adapt): a client gets an answer
+    /// instead of waiting for a service that is not there.
+    Unavailable(String),
+    /// Offered and working.
+    On(AdaptSetup),
+}
+
+/// The reply to a call still running when the node stops.
+const ABANDONED_REPLY: &str = "the node is shutting down: the adaptation was abandoned; no model was saved or swapped in";
+
+/// [`run_node`] with the `~/adapt` service (see [`AdaptService`]; nothing without `ground_truth_topic`).
 pub async fn run_node_with_adaptation(
     node_name: &str,
     params: NodeParams,
@@ -530,7 +545,7 @@ pub async fn run_node_with_adaptation(
     pipeline: Pipeline,
     model_status: String,
     limits: RunLimits,
-    adapt: Option<AdaptSetup>,
+    adapt: AdaptService,
 ) -> Result<NodeStats, NodeError> {
     let context = env.context()?;
     let mut options = NodeOptions::new().enable_rosout(false);
@@ -562,7 +577,12 @@ pub async fn run_node_with_adaptation(
     let out_pub = node.create_publisher::<Imu>(&output_topic, Some(reliable_qos.clone())).map_err(dds)?;
     let corr_pub = node.create_publisher::<Vector3Stamped>(&correction_topic, Some(reliable_qos.clone())).map_err(dds)?;
     let diag_pub = node.create_publisher::<DiagnosticArray>(&diag_topic, Some(reliable_qos)).map_err(dds)?;
-    let adapt = adapt.filter(|_| !params.ground_truth_topic.is_empty());
+    let (adapt, unavailable) = match adapt {
+        _ if params.ground_truth_topic.is_empty() => (None, None),
+        AdaptService::Off => (None, None),
+        AdaptService::Unavailable(why) => (None, Some(why)),
+        AdaptService::On(setup) => (Some(setup), None),
+    };
     let buffers = adapt.as_ref().map(|_| Arc::new(Mutex::new(Buffers::new(params.adapt_buffer_seconds))));
     let mut gt_source: Option<GroundTruthSub> = None;
     let mut server: Option<ros2_client::service::Server<TriggerRequest, TriggerResponse>> = None;
@@ -586,6 +606,8 @@ pub async fn run_node_with_adaptation(
                 })
             }
         });
+    }
+    if adapt.is_some() || unavailable.is_some() {
         let service_qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 10 });
         let srv_name = topic_name(&format!("/{node_name}/adapt"))?;
         server = Some(
@@ -606,7 +628,11 @@ pub async fn run_node_with_adaptation(
         window: pipeline.window(),
         model_status,
         warming_up: true,
-        adapt_status: if adapt.is_some() { "idle".into() } else { String::new() },
+        adapt_status: match (&adapt, &unavailable) {
+            (Some(_), _) => "idle".into(),
+            (None, Some(why)) => format!("unavailable: {why}"),
+            (None, None) => String::new(),
+        },
         ..Default::default()
     }));
     tracing::info!(input = %params.input_topic, output = %params.output_topic, domain = env.domain_id, localhost_only = env.localhost_only, "node {node_name} up");
@@ -620,6 +646,8 @@ pub async fn run_node_with_adaptation(
     // Set while an adaptation job runs (by the service before it spawns the job, cleared by
     // the job's thread as it ends): the process loop files its latencies under it.
     let adapting = Arc::new(AtomicBool::new(false));
+    // The request a running adaptation will answer: answered at shutdown if it is still open.
+    let open_request: Mutex<Option<ros2_client::RmwRequestId>> = Mutex::new(None);
     let tap = buffers.as_ref().map(|b| AdaptTap { buffers: b.clone(), adapting: adapting.clone() });
     let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits, tap);
     let gt_task = async {
@@ -629,8 +657,9 @@ pub async fn run_node_with_adaptation(
         }
     };
     let service_task = async {
-        match (&server, &buffers, &adapt) {
-            (Some(srv), Some(b), Some(a)) => service_loop(srv, b, a, &params, stats.clone(), adapting.clone()).await,
+        match (&server, &buffers, &adapt, &unavailable) {
+            (Some(srv), Some(b), Some(a), _) => service_loop(srv, b, a, &params, stats.clone(), adapting.clone(), &open_request).await,
+            (Some(srv), _, None, Some(why)) => refusing_service_loop(srv, why).await,
             _ => std::future::pending().await,
         }
     };
@@ -670,6 +699,12 @@ pub async fn run_node_with_adaptation(
         _ = gt_task => {}
         _ = service_task => {}
         _ = shutdown => tracing::info!("shutting down"),
+    }
+    let open = open_request.lock().expect("request lock").take();
+    if let (Some(srv), Some(id)) = (&server, open) {
+        respond(srv, id, false, ABANDONED_REPLY.into()).await;
+        // A moment for the reliable reply to leave before the writer goes.
+        tokio::time::sleep(Duration::from_millis(100)).await;
     }
     // Stop the spinner before the node is dropped so peers hear it leave.
     node.stop_spinner();
@@ -844,6 +879,7 @@ async fn service_loop(
     params: &NodeParams,
     stats: Arc<Mutex<NodeStats>>,
     adapting: Arc<AtomicBool>,
+    open_request: &Mutex<Option<ros2_client::RmwRequestId>>,
 ) {
     let mut running: Option<(ros2_client::RmwRequestId, tokio::sync::oneshot::Receiver<JobResult>, Instant)> = None;
     loop {
@@ -900,10 +936,12 @@ async fn service_loop(
                 }
                 stats.lock().expect("stats lock").adapt_status = "running".into();
                 tracing::info!("adaptation started");
+                *open_request.lock().expect("request lock") = Some(id);
                 running = Some((id, rx, Instant::now()));
             }
             res = finished => {
                 let Some((id, _, started)) = running.take() else { continue };
+                *open_request.lock().expect("request lock") = None;
                 // Normally cleared by the job's thread; also when that thread died.
                 adapting.store(false, Ordering::Relaxed);
                 let res = res.unwrap_or(JobResult { success: false, message: "the adaptation thread died".into(), report: None, model_name: None });
@@ -923,6 +961,16 @@ async fn service_loop(
                 tracing::info!("adaptation finished: {}", res.message);
                 respond(server, id, res.success, res.message).await;
             }
+        }
+    }
+}
+
+/// `~/adapt` with nothing to adapt: every call is answered at once with the reason.
+async fn refusing_service_loop(server: &ros2_client::service::Server<TriggerRequest, TriggerResponse>, why: &str) {
+    loop {
+        match server.async_receive_request().await {
+            Ok((id, _)) => respond(server, id, false, format!("cannot adapt: {why}")).await,
+            Err(e) => tracing::warn!("~/adapt request: {e:?}"),
         }
     }
 }

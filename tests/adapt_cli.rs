@@ -102,6 +102,29 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     assert_eq!(std::fs::read_to_string(&summary).unwrap(), "{\"epochs\": 3}");
     std::fs::remove_file(&summary).unwrap();
 
+    // Outputs that are not this command's to replace, refused before any work: a trained model,
+    // a folder in the way of one file, a model whose metadata is `<name>.adapt.json`.
+    let trained = d.join("bad/trained.pt");
+    std::fs::create_dir_all(d.join("bad/folder.ot")).unwrap();
+    for ext in ["pt", "ot", "json"] {
+        std::fs::copy(model.with_extension(ext), trained.with_extension(ext)).unwrap();
+        std::fs::copy(model.with_extension(ext), d.join(format!("bad/robot.adapt.{ext}"))).unwrap();
+    }
+    let trained_json = std::fs::read(trained.with_extension("json")).unwrap();
+    for (o, needle) in [
+        (trained.clone(), "is a trained model"),
+        (d.join("bad/folder.pt"), "is a folder"),
+        (d.join("bad/robot.pt"), "the metadata of a model named robot.adapt"),
+        (d.join("bad/"), "a folder; name the model file"),
+        (d.join("bad/x.mcap"), "<name>.pt (not .mcap)"),
+    ] {
+        let out = run(&["adapt", "--model", m, "--bag", c, "-o", o.to_str().unwrap(), "--steps", "1"]);
+        assert!(!out.status.success() && stderr(&out).contains(needle), "-o {}: {}", o.display(), stderr(&out));
+    }
+    assert_eq!(std::fs::read(trained.with_extension("json")).unwrap(), trained_json);
+    assert!(!d.join("bad/folder.pt").exists() && !d.join("bad/robot.json").exists());
+    expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--ground-truth-topic", "/imu/data"], "is the IMU topic");
+
     // Settings the inner loop cannot run with: a panic inside tch before.
     let cfg = d.join("adapt.yaml");
     for (yaml, needle) in [
@@ -132,6 +155,21 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     let b = d.join("one_pose.mcap");
     write_recording(&b, &one_pose).unwrap();
     expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "1 pose(s)");
+
+    // A support set of 60 s whose ground truth covers 10 s of it: too little.
+    let mut holed = rec.clone();
+    let (t10, t60) = (holed.imu[0].stamp_ns + 10_000_000_000, holed.imu[0].stamp_ns + 60_000_000_000);
+    holed.ground_truth.retain(|p| p.stamp_ns < t10 || p.stamp_ns > t60);
+    let b = d.join("holed.mcap");
+    write_recording(&b, &holed).unwrap();
+    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "support: 9.99");
+
+    // Quaternions stored inverted (world in body): named as such, not as another frame.
+    let mut inverted = rec.clone();
+    inverted.ground_truth.iter_mut().for_each(|p| p.world_from_body = p.world_from_body.inverse());
+    let b = d.join("inverted.mcap");
+    write_recording(&b, &inverted).unwrap();
+    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "quaternions are inverted");
 
     // Ground truth stamped 60 ms late: a clock error, refused before any step.
     let mut late = rec.clone();
@@ -209,4 +247,71 @@ fn calibration_head_learns_a_bias_the_embedding_cannot() {
     let after = report["query_after"]["aoe_deg"].as_f64().unwrap();
     eprintln!("biased car / zero-correction model, calibration head: query AOE {before:.3}° → {after:.3}°");
     assert!(after < 0.3 * before, "{before} → {after}");
+}
+
+/// An uncalibrated consumer gyro (the simulator's datasheet biases, ~0.04–0.07 rad/s) on a car
+/// that mostly yaws and on a trotting quadruped: its bias is neither a frame rotation (it was
+/// read as an 18.9° tilt) nor a clock offset (a 1-s trot period was read as a 1.06-s lag).
+/// The adaptation runs; a real 20° mount rotation on the same biased gyro is still found.
+#[test]
+fn a_consumer_gyro_bias_is_neither_another_frame_nor_a_lag() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    for profile in ["car", "quadruped"] {
+        let bag = d.join(format!("{profile}.mcap"));
+        let o = run(&[
+            "simulate",
+            "--profile",
+            profile,
+            "--grade",
+            "mpu-9250",
+            "--datasheet-errors",
+            "--seconds",
+            "100",
+            "--output",
+            bag.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let (rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
+        let model = random_model(d, &rec);
+        let out = d.join(format!("{profile}-adapted.pt"));
+        let o = run(&[
+            "adapt",
+            "--model",
+            model.to_str().unwrap(),
+            "--bag",
+            bag.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--steps",
+            "3",
+            "--support-seconds",
+            "50",
+        ]);
+        let e = stderr(&o);
+        assert!(e.contains("adapted on 50.0 s"), "{profile}: {e}");
+        let frame: f64 = e.split("frame check: ").nth(1).and_then(|r| r.split('°').next()).and_then(|v| v.parse().ok()).unwrap_or(0.0);
+        assert!(frame < 2.0, "{profile}: frame check {frame}°: {e}");
+
+        let rx = UnitQuaternion::from_euler_angles(0.35, 0.0, 0.0);
+        let mut rotated = rec.clone();
+        rotated.ground_truth.iter_mut().for_each(|p| p.world_from_body *= rx.inverse());
+        let b = d.join(format!("{profile}-rotated.mcap"));
+        write_recording(&b, &rotated).unwrap();
+        let o = run(&[
+            "adapt",
+            "--model",
+            model.to_str().unwrap(),
+            "--bag",
+            b.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--support-seconds",
+            "50",
+        ]);
+        let e = stderr(&o);
+        let angle: f64 =
+            e.split("a constant rotation of ").nth(1).and_then(|r| r.split('°').next()).and_then(|v| v.parse().ok()).unwrap_or(f64::NAN);
+        assert!((angle - 20.05).abs() < 1.0, "{profile}: the 20° rotation read as {angle}°: {e}");
+    }
 }

@@ -54,10 +54,14 @@ fn skip_or_fail(why: &str) {
 /// where v6 is already at 1.16° over 60–95 s, every rate tried is rejected (40 steps at
 /// 1e-2, 3e-3, 1e-3, 3e-4: 2.55, 2.16, 1.73, 1.32°).
 fn write_params(dir: &Path, adapted_dir: &Path) -> PathBuf {
-    let p = dir.join("params.yaml");
+    write_params_with(dir, adapted_dir, "params.yaml", 60, 20.0)
+}
+
+fn write_params_with(dir: &Path, adapted_dir: &Path, file: &str, steps: usize, max_seconds: f64) -> PathBuf {
+    let p = dir.join(file);
     let yaml = format!(
         "{NODE_NAME}:\n  ros__parameters:\n    ground_truth_topic: /ground_truth/pose\n    ground_truth_type: geometry_msgs/msg/PoseStamped\n    \
-         adapt_buffer_seconds: 120.0\n    adapt_support_seconds: 60.0\n    adapted_model_dir: {}\n    adapt:\n      steps: 60\n      inner_lr: 0.001\n      max_seconds: 20.0\n",
+         adapt_buffer_seconds: 120.0\n    adapt_support_seconds: 60.0\n    adapted_model_dir: {}\n    adapt:\n      steps: {steps}\n      inner_lr: 0.001\n      max_seconds: {max_seconds:?}\n",
         adapted_dir.display()
     );
     std::fs::write(&p, yaml).unwrap();
@@ -81,7 +85,7 @@ NODE_ARGS=(); while [ "$1" != "--" ]; do NODE_ARGS+=("$1"); shift; done; shift
 timeout -k 2 90 "$IMU_FSDA_BIN" node --node-name "$NODE_NAME" --stats-json "${NODE_ARGS[@]}" \
     >"$OUT/node.out" 2>"$OUT/node.err" </dev/null &
 NODE=$!
-timeout -k 2 90 "$PEER_PY" "$PEER" "$@" --out "$OUT/peer.json" >"$OUT/peer.out" 2>"$OUT/peer.err" </dev/null
+NODE_PID=$NODE timeout -k 2 90 "$PEER_PY" "$PEER" "$@" --out "$OUT/peer.json" >"$OUT/peer.out" 2>"$OUT/peer.err" </dev/null
 PEER_RC=$?
 kill -TERM "$NODE" 2>/dev/null
 wait "$NODE"
@@ -328,4 +332,74 @@ fn adapt_service_over_dds() {
     let ok_model = r.peer["diagnostics"].as_array().unwrap().iter().filter_map(diag_values).any(|v| value(v, "model") == name);
     assert!(ok_model, "restart: /diagnostics never named the adapted model\n{}", r.logs);
     eprintln!("dds_adapt: restart on {name}: 400 in, 400 out, wall {:.1} s; total {:.1} s", r.wall_s, t0.elapsed().as_secs_f64());
+}
+
+/// `~/adapt` answers every call, also when it cannot adapt: with no model loaded (at once,
+/// saying why), and when the node is stopped while an adaptation runs (the open call is
+/// answered as abandoned before the node leaves; nothing is saved).
+#[test]
+fn adapt_service_answers_when_it_cannot_adapt() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let pre = match prerequisites() {
+        Ok(p) => p,
+        Err(why) => return skip_or_fail(&why),
+    };
+    let seq = match common::euroc_sequence("V2_02_medium", &[]) {
+        Ok(s) => s,
+        Err(why) => return skip_or_fail(&why),
+    };
+    let model = manifest_dir().join("models/fsda-f.pt");
+    let dir = tempfile::tempdir().unwrap();
+    let adapted_dir = dir.path().join("adapted");
+    std::fs::create_dir_all(&adapted_dir).unwrap();
+    let imu_csv = seq.join("imu0/data.csv");
+    let gt_csv = seq.join("state_groundtruth_estimate0/data.csv");
+    let csv_args = ["--csv", imu_csv.to_str().unwrap(), "--gt-csv", gt_csv.to_str().unwrap(), "--gt-from-s", "1"];
+
+    // ---- no model: a ground-truth topic, so the service is there, and it says why it cannot.
+    let params = write_params(dir.path(), &adapted_dir);
+    let mut peer_args = csv_args.to_vec();
+    peer_args.extend(["--count", "2000", "--requests", "3", "--after-s", "1", "--no-ground-truth-reader"]);
+    let o = run(
+        &pre,
+        dir.path(),
+        "no_model",
+        &["--params", params.to_str().unwrap(), "--model", ""],
+        "adapt_peer.py",
+        &peer_args,
+        RESTART_RUN_TIMEOUT,
+    );
+    let logs = &o.logs;
+    assert_eq!(o.rc, vec![0, 0], "no model: peer / node exit codes\n{logs}");
+    let replies = o.peer["replies"].as_array().unwrap();
+    assert_eq!(replies.len(), 1, "no model: one call, one reply\n{logs}");
+    let no_model_msg = replies[0]["message"].as_str().unwrap_or("").to_string();
+    assert!(replies[0]["success"] == false && no_model_msg.contains("no model is loaded"), "no model: reply {}\n{logs}", replies[0]);
+    let status = o.node_stats["adaptation"].as_str().unwrap_or("");
+    assert!(status.starts_with("unavailable: no model"), "no model: stats adaptation = {status:?}");
+
+    // ---- stopped while adapting: a long inner loop, SIGTERM 2 s after the call.
+    let params = write_params_with(dir.path(), &adapted_dir, "params_long.yaml", 1_000_000, 60.0);
+    let mut peer_args = csv_args.to_vec();
+    peer_args.extend(["--requests", "90", "--term-node-after-s", "2", "--reply-timeout-s", "15", "--stall-timeout-s", "2"]);
+    let o = run(
+        &pre,
+        dir.path(),
+        "stopped",
+        &["--params", params.to_str().unwrap(), "--model", model.to_str().unwrap()],
+        "adapt_peer.py",
+        &peer_args,
+        ADAPT_RUN_TIMEOUT,
+    );
+    let logs = &o.logs;
+    assert!(o.peer["node_terminated_s"].is_number(), "stopped: the peer did not stop the node\n{logs}");
+    assert_eq!(o.rc[1], 0, "stopped: node exit code\n{logs}");
+    let replies = o.peer["replies"].as_array().unwrap();
+    assert_eq!(replies.len(), 1, "stopped: the open call got no reply\n{logs}");
+    let msg = replies[0]["message"].as_str().unwrap_or("");
+    assert!(replies[0]["success"] == false && msg.contains("abandoned"), "stopped: reply {}\n{logs}", replies[0]);
+    assert!(o.node_stats["adaptation"].as_str().unwrap_or("").starts_with("abandoned"), "stopped: stats {}", o.node_stats["adaptation"]);
+    let saved: Vec<PathBuf> = std::fs::read_dir(&adapted_dir).unwrap().map(|e| e.unwrap().path()).collect();
+    assert!(saved.is_empty(), "stopped: an abandoned adaptation wrote {saved:?}");
+    eprintln!("dds_adapt: no model → {no_model_msg:?}; stopped while adapting → {msg:?}");
 }

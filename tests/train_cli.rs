@@ -406,7 +406,7 @@ fn bad_inputs_are_refused_before_training() {
     let mut inverted = flight.clone();
     inverted.ground_truth.iter_mut().for_each(|p| p.world_from_body = p.world_from_body.inverse());
     let err = train_fails_on(d, &inverted, "gt_inverted", "");
-    assert!(err.contains("do not follow the gyro's"), "{err}");
+    assert!(err.contains("quaternions are inverted"), "{err}");
 
     let far = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 3_600_000_000_000), temperature: vec![] };
     let err = train_fails_on(d, &far, "no_overlap", "");
@@ -472,12 +472,18 @@ fn real_recordings_pass_the_ground_truth_checks() {
         for entry in std::fs::read_dir(data.join(set)).unwrap() {
             let path = entry.unwrap().path();
             let (_, rec, _) = imu_fsda::dataset::load_sequence(&path).unwrap();
-            let (ratio, n, frame) = imu_fsda::train::data::rotation_agreement(&rec).unwrap();
+            let (ratio, n, frame, inverted) = imu_fsda::train::data::rotation_agreement(&rec).unwrap();
             let f = frame.unwrap();
             eprintln!(
-                "{}: ratio {ratio:.3} over {n}; frame {:.2}°, residual {:.2}° (identity {:.2}°)",
-                rec.name, f.angle_deg, f.residual_deg, f.residual_identity_deg
+                "{}: ratio {:.3} over {n}; frame {:.2}°, residual {:.2}° (identity {:.2}°), bias {:?} rad/s",
+                rec.name,
+                ratio.unwrap_or(f64::NAN),
+                f.angle_deg,
+                f.residual_deg,
+                f.residual_identity_deg,
+                f.gyro_bias_rad_s
             );
+            assert!(!inverted, "{}", rec.name);
             imu_fsda::train::data::check_ground_truth_follows_gyro(&rec, true).unwrap();
         }
     }

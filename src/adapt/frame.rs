@@ -23,16 +23,21 @@ pub struct FrameCheck {
     /// Both singular values beyond the first are large enough: the full rotation is
     /// observable (else only the tilt between the dominant motion axes).
     pub fully_observable: bool,
-    /// RMS angle between `φ_gt` and `R_x φ_imu`, degrees (how well a constant rotation explains the data).
+    /// RMS angle between `φ_gt` and `R_x (φ_imu − b T)`, degrees (how well a constant rotation
+    /// explains the data).
     pub residual_deg: f64,
-    /// RMS angle between `φ_gt` and `φ_imu` without the rotation, degrees.
+    /// RMS angle between `φ_gt` and `φ_imu − b₀ T` without the rotation (`b₀` the bias that fits
+    /// best without it), degrees.
     pub residual_identity_deg: f64,
+    /// The constant gyro bias `b` fitted with `R_x`, rad/s (absent in older reports).
+    #[serde(default)]
+    pub gyro_bias_rad_s: [f64; 3],
 }
 
 impl FrameCheck {
     /// The ground truth is in another frame: the rotation exceeds `tolerance_deg` **and**
     /// explains the mismatch (it at least halves the residual). A gyro with large errors of its
-    /// own (an uncalibrated bias over 0.25 s increments) also makes Wahba's fit return some
+    /// own (a scale error, noise over 0.25 s increments) also makes Wahba's fit return some
     /// rotation, but one that barely lowers the residual: that is the gyro, not the frame.
     pub fn is_other_frame(&self, tolerance_deg: f64) -> bool {
         self.angle_deg > tolerance_deg && self.residual_deg < 0.5 * self.residual_identity_deg
@@ -44,25 +49,47 @@ impl FrameCheck {
     }
 }
 
-/// Rotation vectors of consecutive `window`-sample increments, (ground truth's, raw gyro's),
-/// wherever the ground truth covers both ends. `gt[k]` is the ground-truth attitude at `imu[k]`
-/// (None where there is none).
-pub fn increments(imu: &[ImuSample], gt: &[Option<UnitQuaternion<f64>>], window: usize) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+/// One increment of `window` samples: the ground truth's rotation and the raw gyro's.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Increment {
+    /// `Log(R_aᵀ R_b)`: the ground truth's rotation over the increment, in its body frame.
+    pub gt: Vector3<f64>,
+    /// `−Log(R_b R_aᵀ)`: the same rotation if the quaternions were stored inverted (world in
+    /// body); then this, not `gt`, is what the gyro measures.
+    pub gt_if_inverted: Vector3<f64>,
+    /// The gyro's integrated rotation, body frame.
+    pub imu: Vector3<f64>,
+    /// Duration, s.
+    pub seconds: f64,
+}
+
+/// Consecutive `window`-sample increments wherever the ground truth covers both ends. `gt[k]`
+/// is the ground-truth attitude at `imu[k]` (None where there is none).
+pub fn increments(imu: &[ImuSample], gt: &[Option<UnitQuaternion<f64>>], window: usize) -> Vec<Increment> {
     let window = window.max(2);
-    let mut pairs = Vec::new();
+    let mut out = Vec::new();
+    // A window across a hole in the IMU stream is no increment of the gyro's (its rotation over
+    // the hole is unknown): skipped, as the ground truth's gaps are.
+    let longest_ns = (2.0 * window as f64 * 1e9 / crate::core::nominal_rate_hz(imu).max(1e-9)) as i64;
     let mut k = 0;
     while k + window < imu.len() {
-        if let (Some(a), Some(b)) = (gt[k], gt[k + window]) {
+        let spans_hole = imu[k + window].stamp_ns - imu[k].stamp_ns > longest_ns;
+        if let (Some(a), Some(b), false) = (gt[k], gt[k + window], spans_hole) {
             let mut d = UnitQuaternion::identity();
             for n in k..k + window {
                 let dt = (imu[n + 1].stamp_ns - imu[n].stamp_ns) as f64 * 1e-9;
                 d *= exp(&(imu[n].gyro * dt));
             }
-            pairs.push((log(&(a.inverse() * b)), log(&d)));
+            out.push(Increment {
+                gt: log(&(a.inverse() * b)),
+                gt_if_inverted: -log(&(b * a.inverse())),
+                imu: log(&d),
+                seconds: (imu[k + window].stamp_ns - imu[k].stamp_ns) as f64 * 1e-9,
+            });
         }
         k += window;
     }
-    pairs
+    out
 }
 
 /// The frame check on increments of `window` samples ([`increments`]).
@@ -70,16 +97,81 @@ pub fn check_frame(imu: &[ImuSample], gt: &[Option<UnitQuaternion<f64>>], window
     check_frame_on(&increments(imu, gt, window), min_angle_rad)
 }
 
-/// The frame check on increment pairs (ground truth's, gyro's), using those where both turn by
-/// at least `min_angle_rad`.
-pub fn check_frame_on(all: &[(Vector3<f64>, Vector3<f64>)], min_angle_rad: f64) -> Option<FrameCheck> {
-    let pairs: Vec<&(Vector3<f64>, Vector3<f64>)> =
-        all.iter().filter(|(g, i)| g.norm() >= min_angle_rad && i.norm() >= min_angle_rad).collect();
+/// The frame check on increments, the rotation fitted on those where both turn by at least
+/// `min_angle_rad`, jointly with a constant gyro bias fitted on all of them: an uncalibrated
+/// consumer gyro's bias (0.05 rad/s is common) otherwise reads as a tilt of the frame when the
+/// motion is mostly about one axis (a car), and the fitted rotation would be wrong.
+pub fn check_frame_on(all: &[Increment], min_angle_rad: f64) -> Option<FrameCheck> {
+    check_frame_with(all, min_angle_rad, |p| p.gt)
+}
+
+/// Whether the ground truth's quaternions are stored inverted (world in body): the increments
+/// read that way follow the gyro (after any constant rotation and bias) at most half as far
+/// off as the increments read as stored. Unlike another frame, no constant rotation fixes it.
+pub fn inverted_quaternions(all: &[Increment], min_angle_rad: f64) -> bool {
+    match (check_frame_with(all, min_angle_rad, |p| p.gt), check_frame_with(all, min_angle_rad, |p| p.gt_if_inverted)) {
+        (Some(stored), Some(inverted)) => inverted.residual_deg < 0.5 * stored.residual_deg,
+        _ => false,
+    }
+}
+
+fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Increment) -> Vector3<f64>) -> Option<FrameCheck> {
+    let sum_t2: f64 = all.iter().map(|p| p.seconds * p.seconds).sum();
+    if sum_t2 <= 0.0 {
+        return None;
+    }
+    // The bias that fits best for a given R (least squares on φ_imu − b T − Rᵀ φ_gt).
+    let bias_for = |r: &UnitQuaternion<f64>| -> Vector3<f64> {
+        all.iter().map(|p| (p.imu - r.inverse() * gt_of(p)) * p.seconds).sum::<Vector3<f64>>() / sum_t2
+    };
+    let selected = |b: &Vector3<f64>| -> Vec<(Vector3<f64>, Vector3<f64>)> {
+        all.iter()
+            .map(|p| (gt_of(p), p.imu - b * p.seconds))
+            .filter(|(g, i)| g.norm() >= min_angle_rad && i.norm() >= min_angle_rad)
+            .collect()
+    };
+    // Alternate: R for the bias, the bias for R (each step lowers the same squared error).
+    let mut bias = Vector3::zeros();
+    let mut fit = None;
+    for _ in 0..50 {
+        let pairs = selected(&bias);
+        let (q, fully_observable) = wahba(&pairs)?;
+        let next = bias_for(&q);
+        let moved = (next - bias).norm();
+        bias = next;
+        fit = Some((q, fully_observable));
+        if moved < 1e-9 {
+            break;
+        }
+    }
+    let (q, fully_observable) = fit?;
+    let pairs = selected(&bias);
+    let bias_identity = bias_for(&UnitQuaternion::identity());
+    let rms = |pairs: &[(Vector3<f64>, Vector3<f64>)], f: &dyn Fn(&Vector3<f64>) -> Vector3<f64>| {
+        let s: f64 = pairs.iter().map(|(g, i)| g.angle(&f(i)).powi(2)).sum();
+        (s / pairs.len().max(1) as f64).sqrt().to_degrees()
+    };
+    let identity_pairs = selected(&bias_identity);
+    Some(FrameCheck {
+        gt_from_imu: [q.w, q.i, q.j, q.k],
+        angle_deg: q.angle().to_degrees(),
+        increments: pairs.len(),
+        fully_observable,
+        residual_deg: rms(&pairs, &|i| q * i),
+        residual_identity_deg: rms(&identity_pairs, &|i| *i),
+        gyro_bias_rad_s: [bias.x, bias.y, bias.z],
+    })
+}
+
+/// Wahba's problem on (ground truth's, gyro's) rotation vectors: the rotation `R` minimising
+/// `Σ |φ_gt − R φ_imu|²`, and whether it is fully observable (else the smallest rotation taking
+/// the dominant gyro axis onto the ground truth's). `None` with fewer than 3 pairs.
+fn wahba(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuaternion<f64>, bool)> {
     if pairs.len() < 3 {
         return None;
     }
     let mut b = Matrix3::zeros();
-    for (g, i) in &pairs {
+    for (g, i) in pairs {
         b += g * i.transpose();
     }
     let svd = b.svd(true, true);
@@ -91,29 +183,21 @@ pub fn check_frame_on(all: &[(Vector3<f64>, Vector3<f64>)], min_angle_rad: f64) 
     let fully_observable = s[idx[1]] > 0.05 * s[idx[0]];
     let rot = if fully_observable {
         let d = (u.determinant() * v_t.determinant()).signum();
-        let m = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d));
         // Put the sign on the smallest singular direction.
         let mut fix = Matrix3::identity();
-        fix[(idx[2], idx[2])] = m[(2, 2)];
+        fix[(idx[2], idx[2])] = d;
         Rotation3::from_matrix_unchecked(u * fix * v_t)
     } else {
         let ug = u.column(idx[0]).into_owned();
         let vi = v_t.row(idx[0]).transpose();
-        Rotation3::rotation_between(&vi, &ug).unwrap_or_else(Rotation3::identity)
+        // Opposite axes (a frame flipped upside down) have no unique smallest rotation: a half
+        // turn about an axis across them.
+        Rotation3::rotation_between(&vi, &ug).unwrap_or_else(|| {
+            let across = vi.cross(&Vector3::x()).try_normalize(1e-6).unwrap_or_else(|| vi.cross(&Vector3::y()).normalize());
+            Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(across), std::f64::consts::PI)
+        })
     };
-    let q = UnitQuaternion::from_rotation_matrix(&rot);
-    let rms = |f: &dyn Fn(&Vector3<f64>) -> Vector3<f64>| {
-        let s: f64 = pairs.iter().map(|(g, i)| g.angle(&f(i)).powi(2)).sum();
-        (s / pairs.len() as f64).sqrt().to_degrees()
-    };
-    Some(FrameCheck {
-        gt_from_imu: [q.w, q.i, q.j, q.k],
-        angle_deg: q.angle().to_degrees(),
-        increments: pairs.len(),
-        fully_observable,
-        residual_deg: rms(&|i| q * i),
-        residual_identity_deg: rms(&|i| *i),
-    })
+    Some((UnitQuaternion::from_rotation_matrix(&rot), fully_observable))
 }
 
 #[cfg(test)]
@@ -164,6 +248,49 @@ mod tests {
         let gt: Vec<_> = att.iter().map(|q| Some(*q)).collect();
         let c = check_frame(&imu, &gt, 40, 0.05).unwrap();
         assert!(!c.is_other_frame(5.0), "{c:?}");
+    }
+
+    /// A consumer gyro's bias on a car that mostly yaws: no rotation is reported, and a real
+    /// one is found to within 0.2° despite the bias (the bias is fitted with it).
+    #[test]
+    fn a_bias_on_mostly_one_axis_is_not_a_tilt() {
+        let (mut imu, att) = motion(30_000, 1);
+        // A little pitch and roll, as a car on a road has.
+        let mut q = UnitQuaternion::identity();
+        let mut att2 = Vec::new();
+        for (k, s) in imu.iter_mut().enumerate() {
+            let t = k as f64 * 0.005;
+            s.gyro.x = 0.05 * (2.3 * t).sin();
+            s.gyro.y = 0.04 * (1.7 * t).cos();
+            att2.push(q);
+            q *= exp(&(s.gyro * 0.005));
+        }
+        drop(att);
+        let bias = Vector3::new(0.04, 0.01, 0.064);
+        let biased: Vec<ImuSample> = imu.iter().map(|s| ImuSample { gyro: s.gyro + bias, ..*s }).collect();
+        let same: Vec<_> = att2.iter().map(|q| Some(*q)).collect();
+        let c = check_frame(&biased, &same, 50, 0.05).unwrap();
+        assert!(c.angle_deg < 1.0 && !c.is_other_frame(5.0), "{c:?}");
+        let b = Vector3::from(c.gyro_bias_rad_s);
+        assert!((b - bias).norm() < 2e-3, "bias {b:?}");
+        let rx = UnitQuaternion::from_euler_angles(0.2, -0.3, 0.5);
+        let rotated: Vec<_> = att2.iter().map(|q| Some(q * rx.inverse())).collect();
+        let c = check_frame(&biased, &rotated, 50, 0.05).unwrap();
+        assert!(c.is_other_frame(5.0), "{c:?}");
+        assert!(c.rotation().angle_to(&rx).to_degrees() < 0.2 || !c.fully_observable, "{c:?} vs {rx:?}");
+    }
+
+    /// Inverted quaternions (world in body) are told from another frame.
+    #[test]
+    fn inverted_quaternions_are_told_from_another_frame() {
+        let (imu, att) = motion(20_000, 3);
+        let inverted: Vec<_> = att.iter().map(|q| Some(q.inverse())).collect();
+        assert!(inverted_quaternions(&increments(&imu, &inverted, 40), 0.05));
+        let rx = UnitQuaternion::from_euler_angles(0.1, -0.4, 1.2);
+        let rotated: Vec<_> = att.iter().map(|q| Some(q * rx.inverse())).collect();
+        assert!(!inverted_quaternions(&increments(&imu, &rotated, 40), 0.05));
+        let same: Vec<_> = att.iter().map(|q| Some(*q)).collect();
+        assert!(!inverted_quaternions(&increments(&imu, &same, 40), 0.05));
     }
 
     #[test]

@@ -127,6 +127,14 @@ impl AdaptConfig {
         if self.windows == 0 {
             return Err("adapt.windows must be ≥ 1".into());
         }
+        // One batch of windows × samples × channels in memory, with its gradients.
+        const MAX_BATCH_SAMPLES: usize = 1 << 24;
+        if self.windows.saturating_mul(self.window_samples) > MAX_BATCH_SAMPLES {
+            return Err(format!(
+                "adapt.windows × adapt.window_samples = {} × {}: at most {MAX_BATCH_SAMPLES} samples in one batch",
+                self.windows, self.window_samples
+            ));
+        }
         let min_window = self.loss.min_window_samples() as usize;
         if self.window_samples <= min_window {
             return Err(format!(
@@ -370,14 +378,29 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     let mut support = support.clone();
     let mut query = query.clone();
     let s_task0 = to_task(&support, "support", cfg)?;
-    if s_task0.seconds() < cfg.min_support_seconds {
+    // Seconds with ground truth, not the span: gaps in it are not data to adapt on.
+    if s_task0.covered_seconds() < cfg.min_support_seconds {
         return Err(AdaptError::TooLittleData {
             what: "support",
             detail: format!(
-                "{:.3} s of IMU with ground truth ({} samples), at least {:.0} s needed",
+                "{:.3} s of IMU with ground truth ({:.3} s span, {} samples), at least {:.0} s needed",
+                s_task0.covered_seconds(),
                 s_task0.seconds(),
                 s_task0.len(),
                 cfg.min_support_seconds
+            ),
+        });
+    }
+    // The query's length first: on a few seconds the clock check can find a false peak.
+    let q_task0 = to_task(&query, "query", cfg)?;
+    if q_task0.covered_seconds() < cfg.min_query_seconds {
+        return Err(AdaptError::TooLittleData {
+            what: "query",
+            detail: format!(
+                "{:.3} s of IMU with ground truth ({:.3} s span), at least {:.0} s needed",
+                q_task0.covered_seconds(),
+                q_task0.seconds(),
+                cfg.min_query_seconds
             ),
         });
     }
@@ -413,13 +436,7 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
         }
     }
     let s_task = if frame_applied { to_task(&support, "support", cfg)? } else { s_task0 };
-    let q_task = to_task(&query, "query", cfg)?;
-    if q_task.seconds() < cfg.min_query_seconds {
-        return Err(AdaptError::TooLittleData {
-            what: "query",
-            detail: format!("{:.3} s of IMU with ground truth, at least {:.0} s needed", q_task.seconds(), cfg.min_query_seconds),
-        });
-    }
+    let q_task = if frame_applied { to_task(&query, "query", cfg)? } else { q_task0 };
     let eopts = EvalOptions { max_gap_ns: (cfg.max_interpolation_gap_ms * 1e6) as i64 };
     let query_raw = evaluate_raw(&q_task, &eopts)?;
     let start_correction_gain = loaded.correction_gain();
@@ -534,7 +551,9 @@ pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name:
         "few-shot adapted from {} on {} ({:.1} s support, {} steps); judged on {} ({:.1} s)",
         report.model, report.support, report.support_seconds, report.steps, report.query, report.query_seconds
     ));
-    let mut metrics: BTreeMap<String, f64> = adapted.metadata.metrics.clone();
+    // The starting model's figures (its test scores, its per-IMU gains) do not describe the
+    // adapted one: only what the adaptation measured is kept.
+    let mut metrics: BTreeMap<String, f64> = BTreeMap::new();
     metrics.insert("adapt.query_raw_aoe_deg".into(), report.query_raw.aoe_deg);
     metrics.insert("adapt.query_aoe_before_deg".into(), report.query_before.aoe_deg);
     metrics.insert("adapt.query_aoe_after_deg".into(), report.query_after.aoe_deg);
@@ -542,16 +561,21 @@ pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name:
     metrics.insert("adapt.query_seconds".into(), report.query_seconds);
     metrics.insert("adapt.steps".into(), report.steps as f64);
     metrics.insert("adapt.step_seconds".into(), report.step_seconds);
+    let json = serde_json::to_string_pretty(report).map_err(|e| AdaptError::Other(e.to_string()))?;
     let paths = export_model(
         dir,
         name,
         &adapted.vs,
         &adapted.net,
-        &ExportInfo { training_data, metrics, code_revision: None, adapted_from: Some(report.model.clone()), ..Default::default() },
+        &ExportInfo {
+            training_data,
+            metrics,
+            code_revision: None,
+            adapted_from: Some(report.model.clone()),
+            side_files: vec![("adapt.json".into(), json + "\n")],
+            ..Default::default()
+        },
     )?;
-    let side = dir.join(format!("{name}.adapt.json"));
-    let json = serde_json::to_string_pretty(report).map_err(|e| AdaptError::Other(e.to_string()))?;
-    std::fs::write(&side, json + "\n").map_err(|e| AdaptError::Other(format!("writing {}: {e}", side.display())))?;
     Ok(paths)
 }
 

@@ -41,9 +41,10 @@ pub struct AdaptArgs {
     /// Update rule of the inner loop: adam (default) or sgd (the paper's plain gradient step).
     #[arg(long, value_enum)]
     pub optimizer: Option<imu_fsda::adapt::Optimizer>,
-    /// Ground truth in another frame than the IMU: error (default), apply (re-express it), ignore.
-    #[arg(long, value_enum, default_value_t = FramePolicy::Error)]
-    pub frame: FramePolicy,
+    /// Ground truth in another frame than the IMU: error (the default, or the config's
+    /// `frame_policy`), apply (re-express it), ignore.
+    #[arg(long, value_enum)]
+    pub frame: Option<FramePolicy>,
     /// Adapt the Embedding only (the paper's strategy), not the calibration head (Ĉ_ω and the
     /// Generator's output bias, adapted by default: docs/adaptation.md).
     #[arg(long)]
@@ -63,10 +64,55 @@ pub struct AdaptArgs {
 }
 
 fn output_name(out: &Path) -> anyhow::Result<(PathBuf, String)> {
+    // `-o robots/` or an existing folder: the model's own name is wanted, not a file beside it.
+    if out.is_dir() || out.as_os_str().to_string_lossy().ends_with('/') {
+        anyhow::bail!("-o {}: a folder; name the model file, e.g. {}", out.display(), out.join("my-robot.pt").display());
+    }
+    if let Some(ext) = out.extension().map(|e| e.to_string_lossy()).filter(|e| e != "pt") {
+        anyhow::bail!("-o {}: the adapted model is a TorchScript file, <name>.pt (not .{ext})", out.display());
+    }
     let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
     let name = out.file_stem().map(|s| s.to_string_lossy().into_owned()).filter(|s| !s.is_empty());
     let name = name.with_context(|| format!("-o {}: no file name", out.display()))?;
     Ok((dir, name))
+}
+
+/// What may be replaced at `-o`: nothing, or an earlier adapted model and its report. A trained
+/// model, another model's metadata under the report's name (`-o x.pt` beside a model `x.adapt`),
+/// or a folder in the way is refused before any work.
+fn check_output(dir: &Path, name: &str) -> anyhow::Result<()> {
+    for ext in ["pt", "ot", "json", "adapt.json"] {
+        let p = dir.join(format!("{name}.{ext}"));
+        if p.is_dir() {
+            anyhow::bail!("{} is a folder: the adapted model cannot be written there; choose another -o", p.display());
+        }
+    }
+    // An existing <name>.json that is not a model's metadata is some other record (a training
+    // summary `<model>.train.json` beside `-o <model>.train.pt`): not this command's to replace.
+    let out_json = dir.join(format!("{name}.json"));
+    if out_json.exists() {
+        match load_metadata(&out_json) {
+            Err(_) => anyhow::bail!(
+                "{} exists and is not a model's metadata: writing the adapted model there would replace it; choose another -o",
+                out_json.display()
+            ),
+            Ok(m) if m.adapted_from.is_none() => anyhow::bail!(
+                "{} is a trained model ({}), not an earlier adaptation: adapt does not replace it; choose another -o",
+                out_json.display(),
+                m.name
+            ),
+            Ok(_) => {}
+        }
+    }
+    let report = dir.join(format!("{name}.adapt.json"));
+    if report.exists() && load_metadata(&report).is_ok() {
+        anyhow::bail!(
+            "{} is the metadata of a model named {name}.adapt: the adaptation report of -o {name}.pt would replace it; choose another -o",
+            report.display()
+        );
+    }
+    imu_fsda::core::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    Ok(())
 }
 
 pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
@@ -85,7 +131,9 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     if let Some(o) = args.optimizer {
         cfg.optimizer = o;
     }
-    cfg.frame_policy = args.frame;
+    if let Some(f) = args.frame {
+        cfg.frame_policy = f;
+    }
     if args.embedding_only {
         cfg.calibration = false;
     }
@@ -97,19 +145,15 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     for ext in ["pt", "ot", "json", "adapt.json"] {
         super::refuse_overwriting_input(&dir.join(format!("{name}.{ext}")), &inputs)?;
     }
-    // An existing <name>.json that is not a model's metadata is some other record (a training
-    // summary `<model>.train.json` beside `-o <model>.train.pt`): not this command's to replace.
-    let out_json = dir.join(format!("{name}.json"));
-    if out_json.exists() && load_metadata(&out_json).is_err() {
-        anyhow::bail!(
-            "{} exists and is not a model's metadata: writing the adapted model there would replace it; choose another -o",
-            out_json.display()
-        );
-    }
+    check_output(&dir, &name)?;
     let loaded = load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading model {}", args.model.display()))?;
     loaded.select_imu(args.imu.as_deref())?;
+    super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let (rec, report) = read_recording(&args.bag, &topics).with_context(|| format!("reading {}", args.bag.display()))?;
+    if let Some(problem) = report.stamp_problem() {
+        anyhow::bail!("{}: {problem}", args.bag.display());
+    }
     anyhow::ensure!(
         report.imu_non_finite == 0 && report.ground_truth_invalid == 0,
         "{}: {} non-finite IMU samples, {} invalid poses: fix the bag first",
@@ -135,7 +179,12 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
             _ => "no ground truth".into(),
         }
     );
+    // Ctrl-C: the adaptation runs to its end (seconds), then nothing is written.
+    super::interrupts::catch();
     let outcome = adapt(&loaded, &support, &query, &cfg)?;
+    if super::interrupts::requested() {
+        return Err(super::interrupts::Interrupted("nothing written".into()).into());
+    }
     let r = &outcome.report;
     if args.json {
         out!("{}", serde_json::to_string_pretty(r)?)?;

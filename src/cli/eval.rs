@@ -95,6 +95,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     super::refuse_shared_outputs(&outputs)?;
     let names = bag_names(&args.bags);
     let opts = EvalOptions { max_gap_ns: (args.max_gap_ms * 1e6) as i64 };
+    super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let detector = RestDetector::default();
     // Which models know IMUs by name (one Ĉ_ω or a correction gain per IMU; the others ignore
@@ -214,7 +215,20 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                     tracing::warn!("{name}: {why}");
                     add_note(&mut note, &why);
                 }
-                streams.push((meta.name.clone(), Ok((gyro, note))));
+                // Two models of one name (a renamed copy, two adaptations) are told apart by file.
+                let label = if streams.iter().any(|(n, _)| *n == meta.name) {
+                    model.file_stem().map_or(meta.name.clone(), |s| s.to_string_lossy().into_owned())
+                } else {
+                    meta.name.clone()
+                };
+                let non_finite = gyro.iter().filter(|g| !g.iter().all(|v| v.is_finite())).count();
+                if non_finite > 0 {
+                    let why = format!("the model's output is not finite at {non_finite} of {} samples: not scored", gyro.len());
+                    tracing::error!("{name}: {}: {why}", model.display());
+                    streams.push((label, Err(why)));
+                    continue;
+                }
+                streams.push((label, Ok((gyro, note))));
             }
             for (method, got) in streams {
                 let (gyro, note) = match got {

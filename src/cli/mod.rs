@@ -206,6 +206,17 @@ pub fn refuse_overwriting_input(output: &std::path::Path, inputs: &[&std::path::
     Ok(())
 }
 
+/// Refuses a ground-truth topic that is the IMU topic itself: its orientation (when it has
+/// one) is the driver's own estimate, integrated from this very gyro, not a reference.
+pub fn refuse_imu_as_ground_truth(imu_topic: &str, ground_truth_topic: &str) -> anyhow::Result<()> {
+    if imu_topic == ground_truth_topic {
+        anyhow::bail!(
+            "--ground-truth-topic {ground_truth_topic} is the IMU topic: the ground truth must come from another source (motion capture, a reference IMU or an INS on its own topic)"
+        );
+    }
+    Ok(())
+}
+
 /// Refuses two outputs of one command that are the same file: the second would silently
 /// replace the first.
 pub fn refuse_shared_outputs(outputs: &[(&str, &std::path::Path)]) -> anyhow::Result<()> {

@@ -6,7 +6,7 @@ use std::time::Duration;
 use anyhow::Context;
 use imu_fsda::adapt::swap::SwappableCorrector;
 use imu_fsda::infer::Pipeline;
-use imu_fsda::node::{run_node_with_adaptation, AdaptSetup, NodeParams, RosEnvironment, RunLimits};
+use imu_fsda::node::{run_node_with_adaptation, AdaptService, AdaptSetup, NodeParams, RosEnvironment, RunLimits};
 
 use super::corrector::load_corrector;
 
@@ -93,22 +93,25 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     };
     // With a model and a ground-truth topic, the corrector can be swapped for an adapted one
     // (`~/adapt`); catch-up history: 20 s at 200 Hz.
-    let (corrector, adapt) = if !args.naive_full_window && !params.model.is_empty() && !params.ground_truth_topic.is_empty() {
+    let (corrector, adapt) = if params.ground_truth_topic.is_empty() {
+        // Said at start: a client calling a service that is not there waits without an answer.
+        tracing::warn!("the ~/adapt service is not offered: ground_truth_topic is empty");
+        (corrector, AdaptService::Off)
+    } else if params.model.is_empty() || args.naive_full_window {
+        // Offered all the same, so that a call gets this answer instead of no answer.
+        let why = if params.model.is_empty() {
+            "no model is loaded (parameter `model` or --model): there is nothing to adapt"
+        } else {
+            "the node runs with --naive-full-window, which cannot swap models"
+        };
+        tracing::warn!("~/adapt will refuse every call: {why}");
+        (corrector, AdaptService::Unavailable(why.into()))
+    } else {
+        // The corrector can be swapped for an adapted one; catch-up history: 20 s at 200 Hz.
         let (swappable, handle) = SwappableCorrector::new(corrector, 4000);
         let c: Box<dyn imu_fsda::infer::GyroCorrector> = Box::new(swappable);
         let imu = Some(params.imu_calibration.clone()).filter(|s| !s.is_empty());
-        (c, Some(AdaptSetup { handle, model: PathBuf::from(&params.model), imu }))
-    } else {
-        // Said at start: a client calling a service that is not there waits without an answer.
-        let why = if params.model.is_empty() {
-            "no model is loaded"
-        } else if params.ground_truth_topic.is_empty() {
-            "ground_truth_topic is empty"
-        } else {
-            "--naive-full-window"
-        };
-        tracing::warn!("the ~/adapt service is not offered: {why}");
-        (corrector, None)
+        (c, AdaptService::On(AdaptSetup { handle, model: PathBuf::from(&params.model), imu }))
     };
     let pipeline = Pipeline::new(corrector, params.pipeline.clone());
     let limits = RunLimits { max_messages: args.max_messages, idle_exit: args.idle_exit_s };

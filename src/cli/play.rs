@@ -7,7 +7,6 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use imu_fsda::bag::BagReader;
 use imu_fsda::msg::{DiagnosticArray, Imu, Odometry, PoseStamped, RosMessage, Temperature, Time, Vector3Stamped};
 use imu_fsda::node::{ros_type_name, LatencyHistogram, RosEnvironment};
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile};
@@ -238,7 +237,8 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     // Ctrl-C / SIGTERM stops at the next message (or within 0.1 s of a wait) and still says
     // what was played and measured.
     super::interrupts::catch();
-    for m in BagReader::open(&args.input)? {
+    // In log-time order, as it was received when recorded (and as the schedule assumes).
+    for m in imu_fsda::bag::messages_in_log_time_order(&args.input, &topics)? {
         if super::interrupts::requested() {
             break;
         }

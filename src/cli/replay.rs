@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use imu_fsda::bag::{BagReader, BagWriter};
+use imu_fsda::bag::BagWriter;
 use imu_fsda::infer::Pipeline;
 use imu_fsda::msg::{DiagnosticArray, Imu, RosMessage, Time, Vector3Stamped};
 use imu_fsda::node::{diagnostics_message, fill_denoised, NodeStats};
@@ -98,26 +98,8 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     // A damaged input or Ctrl-C ends the loop; what was replayed before it is kept.
     let (mut damage, mut read) = (None, 0u64);
     // MCAP lets a recorder write out of log-time order; the node would have received in log-time
-    // order (in file order, most samples were dropped as backwards). Such a bag is read whole.
-    let messages: Box<dyn Iterator<Item = Result<imu_fsda::bag::BagMessage, imu_fsda::bag::BagError>>> =
-        if topics.iter().all(|t| t.out_of_log_time_order == 0) {
-            Box::new(BagReader::open(&args.input)?)
-        } else {
-            tracing::warn!("{}: written out of log-time order; read whole and replayed in log-time order", args.input.display());
-            let mut all = Vec::new();
-            let mut error = None;
-            for m in BagReader::open(&args.input)? {
-                match m {
-                    Ok(m) => all.push(m),
-                    Err(e) => {
-                        error = Some(e);
-                        break;
-                    }
-                }
-            }
-            all.sort_by_key(|m| m.log_time_ns);
-            Box::new(all.into_iter().map(Ok).chain(error.map(Err)))
-        };
+    // order (in file order, most samples were dropped as backwards).
+    let messages = imu_fsda::bag::messages_in_log_time_order(&args.input, &topics)?;
     for m in messages {
         if super::interrupts::requested() {
             break;

@@ -42,13 +42,20 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         args.name.clone().unwrap_or_else(|| args.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or("model".into()));
     // The name becomes file names: <name>.pt, <name>.runs/ (an empty one wrote dotfiles).
     if name.is_empty() || name.contains(['/', '\\']) || name.starts_with('.') {
-        anyhow::bail!("--name {name:?}: a model name is a file stem, not empty, without a path separator or a leading dot");
+        let from = if args.name.is_some() { "--name" } else { "the config's file name (give --name)" };
+        anyhow::bail!("model name {name:?} from {from}: a model name is a file stem, not empty, without a path separator or a leading dot");
+    }
+    if args.jobs == Some(0) {
+        anyhow::bail!("--jobs 0: at least one run at a time");
     }
     // The overrides are checked here, before `train.seeds` starts a child per seed that would
     // each report the same error.
     fit::with_overrides(&cfg, None, args.epochs).with_context(|| args.config.display().to_string())?;
     // The output folder is made now, not at the first checkpoint minutes into the run.
     imu_fsda::core::create_dir_all(&args.out_dir).with_context(|| format!("--out-dir {}", args.out_dir.display()))?;
+    // Two runs writing one <name> (two terminals, the default name) would each replace the
+    // other's files; the second is refused while the first runs.
+    let _lock = RunLock::acquire(&args.out_dir, &name)?;
     if args.seed.is_none() && cfg.train.seeds.len() > 1 {
         if args.resume.is_some() {
             anyhow::bail!(
@@ -115,7 +122,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         out!("validation {:<24} AOE raw {:8.3}°  model {:8.3}°{gained}", v.name, v.raw.aoe_deg, at_export(v))?;
     }
     for (imu, g) in &s.correction_gains {
-        out!("correction gain {imu}: {g:.3} (train.correction_gains: the test rows below apply it)")?;
+        out!("correction gain {imu}: {g:.3} (train.correction_gains: the test rows of recordings from that IMU apply it)")?;
     }
     for v in &s.monitor {
         out!("monitor    {:<24} AOE raw {:8.3}°  model {:8.3}°", v.name, v.raw.aoe_deg, at_export(v))?;
@@ -285,4 +292,55 @@ fn last_error(log: &std::path::Path) -> String {
     let text = std::fs::read_to_string(log).unwrap_or_default();
     let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
     lines.iter().rev().find(|l| l.starts_with("Error")).or(lines.last()).map_or("no output".into(), |l| l.trim().to_string())
+}
+
+/// `<out>/<name>.lock`, holding the pid of the run writing `<name>`; removed when the run ends.
+/// One left by a killed run (its pid gone) is taken over.
+struct RunLock {
+    path: std::path::PathBuf,
+}
+
+impl RunLock {
+    fn acquire(out_dir: &std::path::Path, name: &str) -> anyhow::Result<Self> {
+        let path = out_dir.join(format!("{name}.lock"));
+        let me = std::process::id();
+        for _ in 0..2 {
+            match std::fs::OpenOptions::new().write(true).create_new(true).open(&path) {
+                Ok(mut f) => {
+                    use std::io::Write as _;
+                    writeln!(f, "{me}").with_context(|| format!("writing {}", path.display()))?;
+                    return Ok(Self { path });
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    let holder = std::fs::read_to_string(&path).ok().and_then(|s| s.trim().parse::<i32>().ok());
+                    // SAFETY: kill with signal 0 only asks whether the process exists.
+                    let alive = holder.is_some_and(|pid| {
+                        pid > 0
+                            && (unsafe { libc::kill(pid, 0) } == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM))
+                    });
+                    if alive {
+                        anyhow::bail!(
+                            "another run (pid {}) is writing {} in {}: wait for it, or give this one its own --name or --out-dir",
+                            holder.unwrap_or_default(),
+                            name,
+                            out_dir.display()
+                        );
+                    }
+                    tracing::warn!("{}: left by a run that is gone (pid {holder:?}); taken over", path.display());
+                    let _ = std::fs::remove_file(&path);
+                }
+                Err(e) => return Err(e).with_context(|| format!("creating {}", path.display())),
+            }
+        }
+        anyhow::bail!("{}: could not be taken over", path.display())
+    }
+}
+
+impl Drop for RunLock {
+    fn drop(&mut self) {
+        let mine = std::fs::read_to_string(&self.path).ok().and_then(|s| s.trim().parse::<u32>().ok()) == Some(std::process::id());
+        if mine {
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
 }

@@ -165,6 +165,9 @@ pub struct ExportInfo {
     pub adapted_from: Option<String>,
     /// [`ModelMetadata::imu_correction_gains`].
     pub imu_correction_gains: BTreeMap<String, f64>,
+    /// Text files written with the model as one set (`<name>.<suffix>`, contents), e.g. an
+    /// adaptation report: all of them or none replace what was there.
+    pub side_files: Vec<(String, String)>,
 }
 
 /// The three paths of a model `name` in `dir`.
@@ -238,8 +241,11 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
     crate::core::create_dir_all(dir).map_err(io_err(dir))?;
     let paths = ExportPaths::new(dir, name);
     let module = trace(&net.inference())?;
-    write_atomically(&paths.torchscript, |tmp| Ok(module.save(tmp)?))?;
-    write_atomically(&paths.weights, |tmp| Ok(vs.save(tmp)?))?;
+    // Every file is written beside its final name first and the set renamed only when all are
+    // written: a failure (disk full, a folder in the way, Ctrl-C) leaves the earlier model whole.
+    let mut staged = Staged::default();
+    staged.write(&paths.torchscript, |tmp| Ok(module.save(tmp)?))?;
+    staged.write(&paths.weights, |tmp| Ok(vs.save(tmp)?))?;
     let (mean, std) = net.normalization();
     let cfg = net.config().clone();
     let per_imu = !cfg.imu_calibrations.is_empty();
@@ -266,8 +272,49 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         created_unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0),
         files: ExportFiles { torchscript: file_name(&paths.torchscript), weights: file_name(&paths.weights) },
     };
-    write_metadata(&paths.metadata, &metadata)?;
+    let json = serde_json::to_string_pretty(&metadata)
+        .map_err(|e| ModelError::CorruptFile { path: paths.metadata.clone(), reason: e.to_string() })?;
+    staged.write(&paths.metadata, |tmp| std::fs::write(tmp, json + "\n").map_err(io_err(tmp)))?;
+    for (suffix, text) in &info.side_files {
+        staged.write(&dir.join(format!("{name}.{suffix}")), |tmp| std::fs::write(tmp, text).map_err(io_err(tmp)))?;
+    }
+    staged.commit()?;
     Ok(paths)
+}
+
+/// Files written to `<path>.tmp` and renamed together by [`Staged::commit`]; dropped without
+/// a commit, the temporaries are removed.
+#[derive(Default)]
+struct Staged {
+    files: Vec<(PathBuf, PathBuf)>,
+}
+
+impl Staged {
+    fn write(&mut self, path: &Path, write: impl FnOnce(&Path) -> Result<(), ModelError>) -> Result<(), ModelError> {
+        if path.is_dir() {
+            return Err(ModelError::Io { path: path.to_path_buf(), source: std::io::Error::other("is a directory") });
+        }
+        let mut tmp = path.as_os_str().to_owned();
+        tmp.push(".tmp");
+        let tmp = PathBuf::from(tmp);
+        self.files.push((tmp.clone(), path.to_path_buf()));
+        write(&tmp)
+    }
+
+    fn commit(mut self) -> Result<(), ModelError> {
+        for (tmp, path) in std::mem::take(&mut self.files) {
+            std::fs::rename(&tmp, &path).map_err(io_err(&path))?;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        for (tmp, _) in &self.files {
+            let _ = std::fs::remove_file(tmp);
+        }
+    }
 }
 
 /// Writes (or rewrites, e.g. to add metrics) a metadata file.
@@ -280,6 +327,8 @@ pub fn write_metadata(path: &Path, metadata: &ModelMetadata) -> Result<(), Model
 fn require_file(path: &Path) -> Result<(), ModelError> {
     if path.is_file() {
         Ok(())
+    } else if path.is_dir() {
+        Err(ModelError::Io { path: path.to_path_buf(), source: std::io::Error::other("a folder, not a model file") })
     } else {
         Err(ModelError::MissingFile { path: path.to_path_buf() })
     }

@@ -125,9 +125,25 @@ impl CnnConfig {
         if self.kernel_sizes.iter().chain(&self.dilations).chain(&self.hidden_channels).any(|&v| v < 1) {
             return bad("kernel sizes, dilations and widths must be ≥ 1".into());
         }
+        // Far beyond any IMU model; larger values are typos that would ask libtorch for
+        // gigabytes and abort instead of failing here.
+        if let Some(v) = self.hidden_channels.iter().find(|&&v| v > MAX_WIDTH) {
+            return bad(format!("a width of {v} channels (at most {MAX_WIDTH})"));
+        }
+        if self.kernel_sizes.iter().any(|&k| k > MAX_KERNEL) || self.receptive_field() > MAX_RECEPTIVE_FIELD {
+            return bad(format!(
+                "kernel sizes {:?} with dilations {:?}: at most {MAX_KERNEL} taps and a receptive field of {MAX_RECEPTIVE_FIELD} samples",
+                self.kernel_sizes, self.dilations
+            ));
+        }
         Ok(())
     }
 }
+
+/// Bounds of a network's shape ([`CnnConfig`], the Embedding).
+const MAX_WIDTH: i64 = 4096;
+const MAX_KERNEL: i64 = 1024;
+const MAX_RECEPTIVE_FIELD: i64 = 1 << 20;
 
 impl Default for CnnConfig {
     fn default() -> Self {
@@ -312,6 +328,9 @@ impl Config {
             Mode::Fsda | Mode::FsdaF => {
                 if self.embedding.dim < 1 || self.embedding.hidden.iter().any(|&w| w < 1) {
                     return Err(ModelError::InvalidConfig("embedding widths must be ≥ 1".into()));
+                }
+                if self.embedding.dim > MAX_WIDTH || self.embedding.hidden.iter().any(|&w| w > MAX_WIDTH) {
+                    return Err(ModelError::InvalidConfig(format!("embedding widths must be at most {MAX_WIDTH}")));
                 }
                 self.generator.validate("generator")?;
                 self.restructor.validate("restructor")

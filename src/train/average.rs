@@ -81,6 +81,7 @@ mod tests {
                 best: None,
                 train_seconds: 0.0,
                 recording_drift: None,
+                pair_token: None,
             };
             save(dir.path(), name, &vs, &Adam::new(&vs), None, None, &meta).unwrap()
         };

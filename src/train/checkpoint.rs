@@ -39,7 +39,15 @@ pub struct CheckpointMeta {
     /// With `train.recording_drift`: the memory of each task's mean gyro error.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub recording_drift: Option<super::drift::DriftMemory>,
+    /// A number drawn at each save and written into both files (`ckpt.pair` in the `.ot`), so
+    /// that a `.ckpt.ot` of another run or another save is refused, not resumed from. Set by
+    /// [`save`]; absent in older checkpoints (not checked).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pair_token: Option<i64>,
 }
+
+/// The `.ot` entry holding [`CheckpointMeta::pair_token`].
+const PAIR_KEY: &str = "ckpt.pair";
 
 pub fn paths(out_dir: &Path, name: &str) -> (PathBuf, PathBuf) {
     (out_dir.join(format!("{name}.ckpt.ot")), out_dir.join(format!("{name}.ckpt.json")))
@@ -57,6 +65,8 @@ pub fn save(
 ) -> anyhow::Result<PathBuf> {
     anyhow::Context::with_context(crate::core::create_dir_all(out_dir), || format!("creating {}", out_dir.display()))?;
     let (ot, json) = paths(out_dir, name);
+    let token = rand::random::<i64>();
+    let meta = CheckpointMeta { pair_token: Some(token), ..meta.clone() };
     let mut named: Vec<(String, Tensor)> = vs.variables().into_iter().map(|(n, t)| (format!("vs.{n}"), t)).collect();
     named.extend(adam.state());
     if let Some(best) = best {
@@ -65,11 +75,12 @@ pub fn save(
     if let Some(ema) = ema {
         named.extend(ema.iter().map(|(n, t)| (format!("ema.{n}"), t.shallow_clone())));
     }
+    named.push((PAIR_KEY.to_string(), Tensor::from_slice(&[token])));
     let tmp = ot.with_extension("ot.tmp");
     Tensor::save_multi(&named, &tmp)?;
     std::fs::rename(&tmp, &ot)?;
     let tmp = json.with_extension("json.tmp");
-    std::fs::write(&tmp, serde_json::to_string_pretty(meta)?)?;
+    std::fs::write(&tmp, serde_json::to_string_pretty(&meta)?)?;
     std::fs::rename(&tmp, &json)?;
     Ok(json)
 }
@@ -93,10 +104,20 @@ pub fn load(path: &Path) -> anyhow::Result<Loaded> {
     if meta.format_version != 1 {
         anyhow::bail!("{}: checkpoint format {} (expected 1)", json.display(), meta.format_version);
     }
-    let tensors = Tensor::load_multi(&ot)
+    let mut tensors: BTreeMap<String, Tensor> = Tensor::load_multi(&ot)
         .map_err(|e| anyhow::anyhow!("{}: {}", ot.display(), crate::model::torch_message(&e)))?
         .into_iter()
         .collect();
+    let in_ot = tensors.remove(PAIR_KEY).and_then(|t| Vec::<i64>::try_from(&t).ok()).and_then(|v| v.first().copied());
+    if let Some(token) = meta.pair_token {
+        if in_ot != Some(token) {
+            anyhow::bail!(
+                "{} was not saved with {} (another run's, or an older or newer save of this one): the two files of a checkpoint go together",
+                ot.display(),
+                json.display()
+            );
+        }
+    }
     Ok(Loaded { meta, tensors })
 }
 
@@ -172,5 +193,49 @@ impl Ema {
         let out = f();
         restore_snapshot(vs, &current)?;
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn meta(epoch: usize) -> CheckpointMeta {
+        CheckpointMeta {
+            format_version: 1,
+            epoch,
+            adam_step: epoch as i64,
+            seed: 0,
+            config: TrainConfig::parse("model: {mode: fsda}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 9}\n").unwrap(),
+            history: vec![],
+            validation: vec![],
+            monitor: vec![],
+            best: None,
+            train_seconds: 0.0,
+            recording_drift: None,
+            pair_token: None,
+        }
+    }
+
+    /// A checkpoint's `.ot` replaced by another one of the same shapes (another run's, or a
+    /// save of this run that the `.json` does not describe) is refused; the true pair loads.
+    #[test]
+    fn a_weights_file_from_another_save_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, w: f32, epoch: usize| {
+            let vs = VarStore::new(tch::Device::Cpu);
+            let _ = vs.root().var_copy("w", &Tensor::from_slice(&[w, w]));
+            save(dir.path(), name, &vs, &Adam::new(&vs), None, None, &meta(epoch)).unwrap()
+        };
+        let a = write("a", 1.0, 3);
+        let b = write("b", 2.0, 6);
+        let loaded = load(&a).unwrap();
+        assert_eq!(loaded.meta.epoch, 3);
+        assert!(!loaded.tensors.contains_key(PAIR_KEY), "the token is not a variable");
+        assert_eq!(Vec::<f32>::try_from(&loaded.tensors["vs.w"]).unwrap(), vec![1.0, 1.0]);
+        std::fs::copy(dir.path().join("b.ckpt.ot"), dir.path().join("a.ckpt.ot")).unwrap();
+        let e = load(&a).err().expect("a mismatched pair loads").to_string();
+        assert!(e.contains("was not saved with") && e.contains("a.ckpt.json"), "{e}");
+        assert!(load(&b).is_ok());
     }
 }

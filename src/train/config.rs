@@ -65,6 +65,9 @@ pub fn file_stem(path: &str) -> String {
 }
 
 /// `euroc/MH_01_easy` → `euroc`: the dataset of a source path (its first component).
+/// The IMU name of bags given without a dataset folder ([`SourceConfig::imu_name`]).
+pub const BAG_IMU: &str = "bags";
+
 pub fn first_path_component(path: &str) -> &str {
     let s = path.trim_start_matches("./");
     s.split(['/', '\\']).next().unwrap_or(s)
@@ -72,12 +75,19 @@ pub fn first_path_component(path: &str) -> &str {
 
 impl SourceConfig {
     /// The IMU's name: `imu`, else the first component of the sequence or bag path (`sim` for
-    /// a simulation).
+    /// a simulation); a bag given by an absolute path or with no folder is [`BAG_IMU`].
     pub fn imu_name(&self) -> String {
         if let Some(imu) = &self.imu {
             return imu.clone();
         }
-        first_path_component(&self.path()).to_string()
+        let path = self.path();
+        let first = first_path_component(&path);
+        if self.bag.is_some() && (first.is_empty() || first == path.trim_start_matches("./")) {
+            // No dataset folder names its IMU: not the file's own name (every bag its own IMU,
+            // each with a gain of its own no other recording can use), nor "" (an absolute path).
+            return BAG_IMU.to_string();
+        }
+        first.to_string()
     }
 
     /// The source as a dataset path: the sequence or bag, or `sim/<config stem>`, whose first
@@ -584,6 +594,9 @@ impl TrainConfig {
                 if [s.sequence.is_some(), s.bag.is_some(), s.simulate.is_some()].iter().filter(|x| **x).count() != 1 {
                     return Err(format!("dataset.{what}[{i}]: give exactly one of `sequence`, `bag` or `simulate`"));
                 }
+                if let Some(v) = [s.start_s, s.end_s].into_iter().flatten().find(|v| !(v.is_finite() && *v >= 0.0)) {
+                    return Err(format!("dataset.{what}[{i}]: start_s / end_s {v}: seconds from the first sample with ground truth, ≥ 0"));
+                }
                 if let (Some(a), Some(b)) = (s.start_s, s.end_s) {
                     if !is_after(a, b) {
                         return Err(format!("dataset.{what}[{i}]: end_s {b} must be after start_s {a}"));
@@ -654,6 +667,9 @@ impl TrainConfig {
         }
         if !non_negative(t.maml.unadapted_query_weight) || !non_negative(t.maml.unadapted_support_weight) {
             return Err("train.maml.unadapted_query_weight and unadapted_support_weight must be ≥ 0".into());
+        }
+        if t.select_best && self.dataset.validation.is_empty() {
+            return Err("train.select_best chooses the epoch by dataset.validation, which is empty".into());
         }
         if t.correction_gains && self.dataset.validation.is_empty() {
             return Err("train.correction_gains fits on dataset.validation, which is empty".into());

@@ -67,6 +67,11 @@ pub enum DataError {
          or clocks more than the 10 s searched apart?"
     )]
     NotFollowing { name: String, residual_deg: f64, increments: usize },
+    #[error(
+        "{name}: the ground truth's quaternions are inverted (world in body, not body in world): read inverted they follow \
+         the gyro's rotation, as stored they do not; conjugate them (x, y, z → −x, −y, −z)"
+    )]
+    InvertedQuaternions { name: String },
     #[error("{name}: crop start_s {start} s is past the end of the ground-truth-covered data ({seconds:.1} s)")]
     EmptyCrop { name: String, start: f64, seconds: f64 },
     #[error(
@@ -129,6 +134,11 @@ impl Task {
     pub fn seconds(&self) -> f64 {
         self.rec.imu_seconds()
     }
+
+    /// Seconds with valid ground truth (gaps left out).
+    pub fn covered_seconds(&self) -> f64 {
+        self.seconds() * self.valid_fraction
+    }
 }
 
 /// A batch of windows, `[B, W, …]`.
@@ -179,6 +189,11 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
         }
     });
     rec.name = name.clone();
+    // Stamps most of which repeat (a driver stamping bursts on arrival) would be trained on as
+    // a quarter of the data at a quarter of the rate: refused, as `eval` refuses them.
+    if let Some(problem) = report.stamp_problem() {
+        return Err(DataError::Load { source_name: described, msg: problem });
+    }
     if report.imu_non_finite > 0 {
         return Err(DataError::NonFinite { name, what: "non-finite (NaN/inf) IMU samples", count: report.imu_non_finite });
     }
@@ -190,6 +205,19 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
         });
     }
     if rec.ground_truth.is_empty() {
+        if let Some(bag) = &src.bag {
+            // Say which topic was searched and what the bag has, as `eval` does.
+            let topic = src.ground_truth_topic.clone().unwrap_or_else(|| GROUND_TRUTH_TOPIC.into());
+            let (topics, _) = crate::bag::bag_info(resolve(root, bag));
+            let present: Vec<String> = topics.iter().map(|t| format!("{} [{}]", t.topic, t.type_name)).collect();
+            return Err(DataError::Load {
+                source_name: described,
+                msg: format!(
+                    "no ground truth on {topic} (the bag's topics: {}); set `ground_truth_topic:` on this source",
+                    present.join(", ")
+                ),
+            });
+        }
         return Err(DataError::NoGroundTruth(name));
     }
     check_clock(&rec)?;
@@ -201,8 +229,9 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
 
 /// How the ground truth's rotation compares with the gyro's over 0.25-s increments: the median
 /// ratio of their angles where either turns by over 0.1 rad (6°, beyond any gyro bias over
-/// 0.25 s), the number of such increments, and the frame check on them.
-pub fn rotation_agreement(rec: &Recording) -> Option<(f64, usize, Option<crate::adapt::frame::FrameCheck>)> {
+/// 0.25 s), the number of such increments, the frame check on them, and whether the quaternions
+/// read inverted follow the gyro better ([`crate::adapt::frame::inverted_quaternions`]).
+pub fn rotation_agreement(rec: &Recording) -> Option<(Option<f64>, usize, Option<crate::adapt::frame::FrameCheck>, bool)> {
     let rate = rec.nominal_imu_rate_hz();
     if rate <= 0.0 {
         return None;
@@ -211,13 +240,14 @@ pub fn rotation_agreement(rec: &Recording) -> Option<(f64, usize, Option<crate::
     let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), crate::eval::EvalOptions::default().max_gap_ns);
     let pairs = crate::adapt::frame::increments(&rec.imu, &gt, window);
     let mut ratios: Vec<f64> =
-        pairs.iter().map(|(g, i)| (g.norm(), i.norm())).filter(|(g, i)| g.max(*i) > 0.1).map(|(g, i)| g / i.max(1e-9)).collect();
-    if ratios.is_empty() {
-        return None;
-    }
-    let mid = ratios.len() / 2;
-    let median = *ratios.select_nth_unstable_by(mid, f64::total_cmp).1;
-    Some((median, ratios.len(), crate::adapt::frame::check_frame_on(&pairs, 0.05)))
+        pairs.iter().map(|p| (p.gt.norm(), p.imu.norm())).filter(|(g, i)| g.max(*i) > 0.1).map(|(g, i)| g / i.max(1e-9)).collect();
+    // A slow motion (a car turning at under 0.4 rad/s) has no such increment: no ratio, but the
+    // frame checks still run on the smaller ones.
+    let median = (!ratios.is_empty()).then(|| {
+        let mid = ratios.len() / 2;
+        *ratios.select_nth_unstable_by(mid, f64::total_cmp).1
+    });
+    Some((median, ratios.len(), crate::adapt::frame::check_frame_on(&pairs, 0.05), crate::adapt::frame::inverted_quaternions(&pairs, 0.05)))
 }
 
 /// Refuses ground truth that does not describe this IMU's rotation: a gyro in °/s, a pose that
@@ -226,11 +256,14 @@ pub fn rotation_agreement(rec: &Recording) -> Option<(f64, usize, Option<crate::
 /// `other_frame`: whether ground truth in another constant frame is refused here (`adapt`
 /// has its own policy for it: refuse or re-express).
 pub fn check_ground_truth_follows_gyro(rec: &Recording, other_frame: bool) -> Result<(), DataError> {
-    let Some((ratio, increments, frame)) = rotation_agreement(rec) else { return Ok(()) };
-    if increments >= 10 && !(0.5..=2.0).contains(&ratio) {
+    let Some((ratio, increments, frame, inverted)) = rotation_agreement(rec) else { return Ok(()) };
+    if let Some(ratio) = ratio.filter(|r| increments >= 10 && !(0.5..=2.0).contains(r)) {
         return Err(DataError::RotationScale { name: rec.name.clone(), ratio, increments });
     }
     if let Some(f) = frame.filter(|f| f.increments >= 10) {
+        if inverted {
+            return Err(DataError::InvertedQuaternions { name: rec.name.clone() });
+        }
         if f.is_other_frame(5.0) {
             if !other_frame {
                 return Ok(());
@@ -446,8 +479,26 @@ pub fn task_from_recording(
     let b = (a..=last).rev().find(|&i| in_crop(i)).unwrap_or(a);
     let imu = rec.imu[a..=b].to_vec();
     let gt = &gt[a..=b];
-    let valid = &valid[a..=b];
+    let mut valid = valid[a..=b].to_vec();
     let n = imu.len();
+    // A hole in the IMU stream (a dropout of more than the node's gap rule) is no interval to
+    // integrate over: the samples either side are masked like a ground-truth gap, and said.
+    let period_ns = 1e9 / crate::core::nominal_rate_hz(&imu).max(1e-9);
+    let limit_ns = (crate::infer::PipelineConfig::default().gap_periods * period_ns) as i64;
+    let holes: Vec<usize> = (1..n).filter(|&k| imu[k].stamp_ns - imu[k - 1].stamp_ns > limit_ns).collect();
+    if let Some(longest) = holes.iter().map(|&k| imu[k].stamp_ns - imu[k - 1].stamp_ns).max() {
+        tracing::warn!(
+            "{}: {} gap(s) in the IMU stream (longest {:.3} s): the increments across them are left out of the loss",
+            rec.name,
+            holes.len(),
+            longest as f64 * 1e-9
+        );
+        for &k in &holes {
+            valid[k - 1] = false;
+            valid[k] = false;
+        }
+    }
+    let valid = &valid[..];
     let cropped = Recording { name: rec.name.clone(), imu, ground_truth: rec.ground_truth, temperature: Vec::new() };
 
     let flat: Vec<f32> =

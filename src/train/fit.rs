@@ -118,10 +118,39 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
         );
         train.push(task);
     }
-    let load_eval = |list: &[super::config::SourceConfig]| -> anyhow::Result<Vec<Task>> {
-        list.iter().map(|src| Ok(data::load_task(&d.root, src, d, None)?)).collect()
+    // Evaluation recordings at another rate would be scored, and chosen on (select_best,
+    // train.seeds), with a model that cannot run them.
+    let window = cfg.model.receptive_field();
+    let load_eval = |list: &[super::config::SourceConfig], what: &str| -> anyhow::Result<Vec<Task>> {
+        let tasks = list.iter().map(|src| Ok(data::load_task(&d.root, src, d, None)?)).collect::<anyhow::Result<Vec<Task>>>()?;
+        for task in &tasks {
+            if let Some(why) = crate::model::rate_mismatch(cfg.model.rate_hz, task.rec.nominal_imu_rate_hz(), window) {
+                anyhow::bail!("{what} {}: {why}; resample it to model.rate_hz or leave it out", task.name);
+            }
+        }
+        Ok(tasks)
     };
-    Ok(Datasets { train, validation: load_eval(&d.validation)?, test: load_eval(&d.test)?, monitor: load_eval(&d.monitor)? })
+    let data = Datasets {
+        train,
+        validation: load_eval(&d.validation, "validation")?,
+        test: load_eval(&d.test, "test")?,
+        monitor: load_eval(&d.monitor, "monitor")?,
+    };
+    // Results are filed by recording name (metrics `val.<name>.*`, `test.<name>.*`): two of one
+    // name in a list would keep one's figures only.
+    for (what, list) in [("train", &data.train), ("validation", &data.validation), ("test", &data.test), ("monitor", &data.monitor)] {
+        let mut seen = std::collections::BTreeMap::new();
+        for t in list.iter() {
+            if let Some(other) = seen.insert(t.name.clone(), t.source.clone()) {
+                anyhow::bail!(
+                    "dataset.{what}: two recordings are named {} ({other} and {}): give one a `name:` of its own",
+                    t.name,
+                    t.source
+                );
+            }
+        }
+    }
+    Ok(data)
 }
 
 /// The evaluation options of a run's config.
@@ -423,11 +452,23 @@ pub fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[Str
 
 /// Copies a trained model's variables (`TrainSettings::init_from`) into `vs`, normalisation
 /// included; its config must be `cfg.model`.
-fn init_from_model(vs: &mut VarStore, cfg: &TrainConfig, metadata_path: &std::path::Path) -> anyhow::Result<()> {
+fn init_from_model(vs: &mut VarStore, cfg: &TrainConfig, model_path: &std::path::Path) -> anyhow::Result<()> {
+    // The model may be named by any of its three files, as everywhere else.
+    let metadata_path = &crate::model::predict::metadata_path(model_path);
     let loaded = crate::model::export::load_net(metadata_path, Device::Cpu)
         .map_err(|e| anyhow::anyhow!("train.init_from {}: {e}", metadata_path.display()))?;
     if loaded.metadata.config != cfg.model {
-        anyhow::bail!("train.init_from {}: the model's config differs from this config's `model`", metadata_path.display());
+        let (a, b) = (serde_json::to_value(&loaded.metadata.config)?, serde_json::to_value(&cfg.model)?);
+        let differing: std::collections::BTreeSet<String> = match (a.as_object(), b.as_object()) {
+            (Some(a), Some(b)) => a.keys().chain(b.keys()).filter(|k| a.get(*k) != b.get(*k)).map(|k| format!("model.{k}")).collect(),
+            _ => Default::default(),
+        };
+        let differing: Vec<String> = differing.into_iter().collect();
+        anyhow::bail!(
+            "train.init_from {}: the model's config differs from this config's `model` in {}",
+            metadata_path.display(),
+            differing.join(", ")
+        );
     }
     vs.copy(&loaded.vs).map_err(|e| anyhow::anyhow!("train.init_from {}: {e}", metadata_path.display()))?;
     tracing::info!(
@@ -784,7 +825,13 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         checkpoint::restore_vars(&vs, &r.tensors, "vs")?;
         adam.load_state(r.meta.adam_step, &r.tensors).map_err(|e| anyhow::anyhow!("--resume: {e}"))?;
         if r.meta.seed != seed {
-            tracing::warn!("resuming with seed {seed}, the checkpoint was trained with {}", r.meta.seed);
+            // The rest of the run would draw another seed's windows and be recorded as that
+            // seed's run throughout.
+            anyhow::bail!(
+                "--resume: the checkpoint was trained with seed {}, not {seed}: resume it with --seed {}",
+                r.meta.seed,
+                r.meta.seed
+            );
         }
         start_epoch = r.meta.epoch;
         history = r.meta.history.clone();
@@ -868,6 +915,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             best,
             train_seconds: seconds,
             recording_drift: drift.cloned(),
+            pair_token: None,
         };
         checkpoint::save(&opts.out_dir, &opts.name, &vs, adam, best_vars, ema.map(|e| &e.avg), &meta)
     };
@@ -1029,7 +1077,13 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     }
 
     let mut test = Vec::new();
+    // A signal after the last epoch: the checkpoint above holds every epoch, and a resume from
+    // it goes straight to the scoring and the export.
+    let stopped_after_training = || opts.stop_requested.is_some_and(|f| f());
     for task in &data.test {
+        if stopped_after_training() {
+            return Err(Stopped { epoch: last_epoch, epochs, checkpoint: ckpt.clone() }.into());
+        }
         let raw = evaluate_raw(task, &eopts)?;
         let gain = gain_of(task);
         // One forward; scored with the gain, and without it when that differs.
@@ -1139,15 +1193,8 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             }
         })
         .collect();
-    let files = export_model(
-        &opts.out_dir,
-        &opts.name,
-        &vs,
-        &net,
-        &ExportInfo { training_data, metrics, code_revision, adapted_from: None, imu_correction_gains: gains.clone() },
-    )
-    .with_context(|| format!("exporting {} to {}", opts.name, opts.out_dir.display()))?;
-
+    let files = crate::model::export::ExportPaths::new(&opts.out_dir, &opts.name);
+    let imu_correction_gains = gains.clone();
     let summary = TrainSummary {
         name: opts.name.clone(),
         mode,
@@ -1181,8 +1228,26 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         model_json: files.metadata.display().to_string(),
         config: cfg.clone(),
     };
-    let path = summary_path(&opts.out_dir, &opts.name);
-    std::fs::write(&path, serde_json::to_string_pretty(&summary)?).with_context(|| format!("writing {}", path.display()))?;
+    if stopped_after_training() {
+        return Err(Stopped { epoch: last_epoch, epochs, checkpoint: ckpt.clone() }.into());
+    }
+    // The summary is written with the model, as one set: a failure leaves the earlier pair whole.
+    let summary_json = serde_json::to_string_pretty(&summary)?;
+    export_model(
+        &opts.out_dir,
+        &opts.name,
+        &vs,
+        &net,
+        &ExportInfo {
+            training_data,
+            metrics,
+            code_revision,
+            adapted_from: None,
+            imu_correction_gains,
+            side_files: vec![("train.json".into(), summary_json)],
+        },
+    )
+    .with_context(|| format!("exporting {} to {}", opts.name, opts.out_dir.display()))?;
     let curves = opts.out_dir.join(format!("{}.curves.png", opts.name));
     match super::curves::training_curves(&summary, &curves) {
         Ok(()) => tracing::info!("curves {}", curves.display()),

@@ -33,6 +33,8 @@ was not matched in time.
 
 import argparse
 import json
+import os
+import signal
 import sys
 import time
 from dataclasses import dataclass
@@ -139,6 +141,10 @@ def main() -> int:
     ap.add_argument("--match-timeout-s", type=float, default=15.0)
     ap.add_argument("--reply-timeout-s", type=float, default=60.0, help="wall time a request may stay unanswered")
     ap.add_argument("--drain-timeout-s", type=float, default=8.0)
+    ap.add_argument("--no-ground-truth-reader", action="store_true",
+                    help="do not wait for a reader of the ground truth (a node with nothing to adapt has none)")
+    ap.add_argument("--term-node-after-s", type=float, default=None,
+                    help="SIGTERM to the process $NODE_PID this many wall seconds after the last group of calls")
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
 
@@ -211,6 +217,8 @@ def main() -> int:
 
     while True:
         m = matched()
+        if args.no_ground_truth_reader:
+            m.pop("ground_truth/pose")
         if all(v >= 1 for v in m.values()):
             break
         if now() > args.match_timeout_s:
@@ -230,6 +238,7 @@ def main() -> int:
     due = time.monotonic()
     slips = 0
     t_pub = time.monotonic()
+    t_last_group = None
     for i, (t, g, a) in enumerate(rows):
         data_t = (t - t_first) / 1e9
         outstanding = len(requests) - len(replies)
@@ -240,6 +249,12 @@ def main() -> int:
                 w_req.write(TriggerRequest(structure_needs_at_least_one_member=0))
             next_group += 1
             outstanding = len(requests) - len(replies)
+            if next_group == len(groups):
+                t_last_group = time.monotonic()
+        if (args.term_node_after_s is not None and t_last_group is not None and "node_terminated_s" not in result
+                and time.monotonic() - t_last_group >= args.term_node_after_s):
+            os.kill(int(os.environ["NODE_PID"]), signal.SIGTERM)
+            result["node_terminated_s"] = now()
         if next_group == len(groups) and outstanding == 0 and stop_after_index is None:
             stop_after_index = i + int(round(args.after_s / max(1e-9, (rows[1][0] - rows[0][0]) / 1e9)))
         if stop_after_index is not None and i >= stop_after_index:
