@@ -73,6 +73,14 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     let o = run(&["replay", c, "--model", out.to_str().unwrap(), "-o", replayed.to_str().unwrap()]);
     assert!(o.status.success(), "replay: {}", stderr(&o));
 
+    // Two models of one internal name (a renamed copy) are told apart by file in eval's table.
+    for ext in ["pt", "ot", "json"] {
+        std::fs::copy(out.with_extension(ext), d.join(format!("copy.{ext}"))).unwrap();
+    }
+    let o = run(&["eval", c, "-m", "raw", "--model", out.to_str().unwrap(), "--model", d.join("copy.pt").to_str().unwrap()]);
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success() && table.contains("| car-adapted |") && table.contains("| copy |"), "{table}{}", stderr(&o));
+
     // Bad input: each a clear error, nothing written.
     let bad_out = d.join("bad/x.pt");
     let bo = bad_out.to_str().unwrap();

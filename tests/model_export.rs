@@ -366,3 +366,38 @@ fn correction_gains_survive_export() {
     ts.select_imu(Some("tumvi")).unwrap();
     assert!(max_abs_diff(&ts.forward(&u).unwrap(), &full) < TOL_RAD_S);
 }
+
+/// The model's files (and a side file) are written as one set: an export that fails half-way
+/// (a folder where the metadata goes) replaces none of an earlier model's files and leaves no
+/// temporaries.
+#[test]
+fn an_export_that_fails_leaves_the_earlier_model_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (vs, net) = random_model(Mode::FsdaF, 3);
+    let info = ExportInfo { side_files: vec![("note.json".into(), "{\"first\": true}\n".into())], ..Default::default() };
+    export::export_model(d, "m", &vs, &net, &info).unwrap();
+    let before: Vec<Vec<u8>> = ["m.pt", "m.ot", "m.json", "m.note.json"].iter().map(|f| std::fs::read(d.join(f)).unwrap()).collect();
+    // A second export of other weights, into a name whose side file is blocked by a folder.
+    let (vs2, net2) = random_model(Mode::FsdaF, 4);
+    std::fs::create_dir(d.join("m.other.json")).unwrap();
+    let info2 = ExportInfo {
+        side_files: vec![("note.json".into(), "{\"first\": false}\n".into()), ("other.json".into(), "{}".into())],
+        ..Default::default()
+    };
+    let err = export::export_model(d, "m", &vs2, &net2, &info2).expect_err("a folder in the way");
+    assert!(err.to_string().contains("m.other.json"), "{err}");
+    let after: Vec<Vec<u8>> = ["m.pt", "m.ot", "m.json", "m.note.json"].iter().map(|f| std::fs::read(d.join(f)).unwrap()).collect();
+    assert!(before == after, "a failed export changed the earlier model's files");
+    let leftovers: Vec<_> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "temporaries left: {leftovers:?}");
+    // Without the obstacle the new set replaces the old one whole.
+    std::fs::remove_dir(d.join("m.other.json")).unwrap();
+    export::export_model(d, "m", &vs2, &net2, &info2).unwrap();
+    assert_eq!(std::fs::read_to_string(d.join("m.note.json")).unwrap(), "{\"first\": false}\n");
+    assert_ne!(std::fs::read(d.join("m.ot")).unwrap(), before[1]);
+}

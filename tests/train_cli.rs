@@ -186,6 +186,28 @@ fn ci_small_learns_exports_and_resumes() {
         assert!(!out.status.success() && err.contains(needle), "{err}");
     }
     assert_eq!(std::fs::read(dir.path().join("ci.ckpt.json")).unwrap(), ckpt);
+    // Nor under another seed (its windows would be another run's, recorded as this one).
+    let out = run(Command::new(bin())
+        .args(["train", "--config"])
+        .arg(&budgeted_cfg)
+        .arg("--out-dir")
+        .arg(dir.path())
+        .args(["--name", "ci", "--no-progress", "--epochs", "70", "--seed", "5", "--resume"])
+        .arg(dir.path().join("ci.ckpt.json")));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("trained with seed 0, not 5"), "{err}");
+    // A second run writing `ci` while one is alive (its lock holds a live pid: this test's) is
+    // refused; the files stay as they are.
+    std::fs::write(dir.path().join("ci.lock"), format!("{}\n", std::process::id())).unwrap();
+    let out = run(Command::new(bin()).args(["train", "--config"]).arg(&budgeted_cfg).arg("--out-dir").arg(dir.path()).args([
+        "--name",
+        "ci",
+        "--no-progress",
+    ]));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("another run (pid"), "{err}");
+    std::fs::remove_file(dir.path().join("ci.lock")).unwrap();
+    assert_eq!(std::fs::read(dir.path().join("ci.ckpt.json")).unwrap(), ckpt);
 
     // A fine-tune from the exported model (`init_from`) with the Generator's BatchNorm frozen
     // starts where that model is, not from scratch, and keeps its running statistics.
@@ -380,6 +402,32 @@ fn bad_inputs_are_refused_before_training() {
     let no_gt = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: vec![], temperature: vec![] };
     let err = train_fails_on(d, &no_gt, "no_gt", "");
     assert!(err.contains("no ground truth"), "{err}");
+
+    // A driver stamping bursts on arrival: 3 of 4 samples repeat a stamp (eval refuses it too).
+    let mut bursts = imu(8000, 0);
+    bursts.iter_mut().enumerate().for_each(|(i, s)| s.stamp_ns = (i / 4) as i64 * 20_000_000);
+    let bursty = Recording { name: "x".into(), imu: bursts, ground_truth: poses(8000, 0), temperature: vec![] };
+    let err = train_fails_on(d, &bursty, "bursts", "");
+    assert!(err.contains("repeat or go back from an earlier header stamp"), "{err}");
+
+    // Two recordings of one name in a list: their results would be filed under one key.
+    let ok_rec = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 0), temperature: vec![] };
+    for sub in ["day1", "day2"] {
+        std::fs::create_dir_all(d.join(sub)).unwrap();
+        write_recording(d.join(sub).join("run_0.mcap"), &ok_rec).unwrap();
+    }
+    let cfg = d.join("same_names.yaml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "model: {{mode: fsda}}\ndataset:\n  root: {}\n  train: [{{bag: day1/run_0.mcap}}]\n  test: [{{bag: day1/run_0.mcap}}, {{bag: day2/run_0.mcap}}]\ntrain: {{epochs: 2, window_samples: 2000, threads: 1}}\n",
+            d.display()
+        ),
+    )
+    .unwrap();
+    let out = run(Command::new(bin()).args(["train", "--no-progress", "--config"]).arg(&cfg).arg("--out-dir").arg(d.join("out")));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("dataset.test: two recordings are named run_0"), "{err}");
 
     let short = Recording { name: "x".into(), imu: imu(1000, 0), ground_truth: poses(1000, 0), temperature: vec![] };
     let err = train_fails_on(d, &short, "short", "");
