@@ -146,6 +146,9 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
         super::refuse_overwriting_input(&dir.join(format!("{name}.{ext}")), &inputs)?;
     }
     check_output(&dir, &name)?;
+    // The node's start-up check (TorchScript against the weights, as run on this IMU): an
+    // edited `.json` would otherwise adapt from another IMU's Ĉ_ω.
+    super::corrector::check_model_files(&args.model, args.imu.as_deref())?;
     let loaded = load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading model {}", args.model.display()))?;
     loaded.select_imu(args.imu.as_deref())?;
     super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;

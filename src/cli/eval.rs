@@ -105,8 +105,19 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         .iter()
         .map(|m| Ok(!load_metadata(&metadata_path(m)).with_context(|| format!("model {}", m.display()))?.imu_names().is_empty()))
         .collect::<anyhow::Result<_>>()?;
-    for m in &args.models {
+    // The start-up check for each IMU the bags will be run as, too: a per-IMU Ĉ_ω edited in
+    // the `.json` is a mismatch only with that IMU selected.
+    let imu_names: std::collections::BTreeSet<&str> =
+        args.imus.iter().map(|rule| rule.split_once('=').map_or(rule.as_str(), |(_, name)| name)).filter(|n| !n.is_empty()).collect();
+    for (m, &per_imu) in args.models.iter().zip(&per_imu) {
         super::corrector::check_model_files(m, None)?;
+        if per_imu {
+            let meta = load_metadata(&metadata_path(m))?;
+            let known = meta.imu_names();
+            for name in imu_names.iter().filter(|n| known.iter().any(|k| k == *n)) {
+                super::corrector::check_model_files(m, Some(name)).with_context(|| format!("run as IMU {name}"))?;
+            }
+        }
     }
     let mut rows = Vec::new();
     let mut failed: Vec<String> = Vec::new();

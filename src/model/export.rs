@@ -347,6 +347,9 @@ pub fn load_metadata(path: &Path) -> Result<ModelMetadata, ModelError> {
     if metadata.mode != metadata.config.mode {
         return mismatch(format!("mode {:?} but config.mode {:?}", metadata.mode, metadata.config.mode));
     }
+    if metadata.rate_hz != metadata.config.rate_hz {
+        return mismatch(format!("rate_hz {} but config.rate_hz {}", metadata.rate_hz, metadata.config.rate_hz));
+    }
     metadata.config.validate()?;
     if metadata.window_n != metadata.config.receptive_field() {
         return mismatch(format!(
