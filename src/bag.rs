@@ -753,6 +753,12 @@ mod tests {
         assert_eq!(back.imu, rec.imu);
         assert_eq!(report.skipped(), 0);
         assert!(report.out_of_log_time_order > 400, "{}", report.out_of_log_time_order);
+        // What replay and play publish: every message, in log-time order.
+        let (topics, damage) = bag_info(&path);
+        assert!(damage.is_none() && topics[0].out_of_log_time_order > 400);
+        let times: Vec<u64> = messages_in_log_time_order(&path, &topics).unwrap().map(|m| m.unwrap().log_time_ns).collect();
+        assert_eq!(times.len(), rec.imu.len());
+        assert!(times.windows(2).all(|w| w[0] <= w[1]), "not in log-time order");
     }
 
     #[test]
