@@ -152,23 +152,32 @@ fn latency_line(stats: &Value) -> String {
     )
 }
 
-#[test]
-fn adapt_service_over_dds() {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let t0 = Instant::now();
-    let pre = match prerequisites() {
-        Ok(p) => p,
-        Err(why) => return skip_or_fail(&why),
-    };
-    let seq = match common::euroc_sequence("V2_02_medium", &[]) {
-        Ok(s) => s,
-        Err(why) => return skip_or_fail(&why),
-    };
+/// What both tests need: the namespace prerequisites, V2_02_medium, the bundled model and a
+/// temp dir with an empty `adapted/`. `None` (after skip_or_fail) when a prerequisite is missing.
+struct Setup {
+    pre: Prereqs,
+    seq: PathBuf,
+    model: PathBuf,
+    dir: tempfile::TempDir,
+    adapted_dir: PathBuf,
+}
+
+fn setup() -> Option<Setup> {
+    let pre = prerequisites().map_err(|why| skip_or_fail(&why)).ok()?;
+    let seq = common::euroc_sequence("V2_02_medium", &[]).map_err(|why| skip_or_fail(&why)).ok()?;
     let model = manifest_dir().join("models/fsda-f.pt");
     assert!(model.is_file(), "the bundled model {} is missing", model.display());
     let dir = tempfile::tempdir().unwrap();
     let adapted_dir = dir.path().join("adapted");
     std::fs::create_dir_all(&adapted_dir).unwrap();
+    Some(Setup { pre, seq, model, dir, adapted_dir })
+}
+
+#[test]
+fn adapt_service_over_dds() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let t0 = Instant::now();
+    let Some(Setup { pre, seq, model, dir, adapted_dir }) = setup() else { return };
     let params = write_params(dir.path(), &adapted_dir);
     let imu_csv = seq.join("imu0/data.csv");
     let gt_csv = seq.join("state_groundtruth_estimate0/data.csv");
@@ -340,18 +349,7 @@ fn adapt_service_over_dds() {
 #[test]
 fn adapt_service_answers_when_it_cannot_adapt() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let pre = match prerequisites() {
-        Ok(p) => p,
-        Err(why) => return skip_or_fail(&why),
-    };
-    let seq = match common::euroc_sequence("V2_02_medium", &[]) {
-        Ok(s) => s,
-        Err(why) => return skip_or_fail(&why),
-    };
-    let model = manifest_dir().join("models/fsda-f.pt");
-    let dir = tempfile::tempdir().unwrap();
-    let adapted_dir = dir.path().join("adapted");
-    std::fs::create_dir_all(&adapted_dir).unwrap();
+    let Some(Setup { pre, seq, model, dir, adapted_dir }) = setup() else { return };
     let imu_csv = seq.join("imu0/data.csv");
     let gt_csv = seq.join("state_groundtruth_estimate0/data.csv");
     let csv_args = ["--csv", imu_csv.to_str().unwrap(), "--gt-csv", gt_csv.to_str().unwrap(), "--gt-from-s", "1"];

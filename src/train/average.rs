@@ -69,20 +69,7 @@ mod tests {
             let vs = VarStore::new(Device::Cpu);
             let _ = vs.root().var_copy("w", &Tensor::from_slice(w));
             let _ = vs.root().var_copy("b", &Tensor::from_slice(&[steps as f32]));
-            let meta = CheckpointMeta {
-                format_version: 1,
-                epoch: steps as usize,
-                adam_step: steps,
-                seed: 0,
-                config: cfg.clone(),
-                history: vec![],
-                validation: vec![],
-                monitor: vec![],
-                best: None,
-                train_seconds: 0.0,
-                recording_drift: None,
-                pair_token: None,
-            };
+            let meta = CheckpointMeta::for_test(cfg.clone(), steps as usize);
             save(dir.path(), name, &vs, &Adam::new(&vs), None, None, &meta).unwrap()
         };
         let a = write("a", &[1.0, -2.0, 0.5], 10);

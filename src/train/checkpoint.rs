@@ -46,6 +46,27 @@ pub struct CheckpointMeta {
     pub pair_token: Option<i64>,
 }
 
+#[cfg(test)]
+impl CheckpointMeta {
+    /// A checkpoint of `epoch` epochs (as many Adam steps) with nothing recorded, for tests.
+    pub(crate) fn for_test(config: TrainConfig, epoch: usize) -> Self {
+        CheckpointMeta {
+            format_version: 1,
+            epoch,
+            adam_step: epoch as i64,
+            seed: 0,
+            config,
+            history: vec![],
+            validation: vec![],
+            monitor: vec![],
+            best: None,
+            train_seconds: 0.0,
+            recording_drift: None,
+            pair_token: None,
+        }
+    }
+}
+
 /// The `.ot` entry holding [`CheckpointMeta::pair_token`].
 const PAIR_KEY: &str = "ckpt.pair";
 
@@ -201,20 +222,10 @@ mod tests {
     use super::*;
 
     fn meta(epoch: usize) -> CheckpointMeta {
-        CheckpointMeta {
-            format_version: 1,
+        CheckpointMeta::for_test(
+            TrainConfig::parse("model: {mode: fsda}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 9}\n").unwrap(),
             epoch,
-            adam_step: epoch as i64,
-            seed: 0,
-            config: TrainConfig::parse("model: {mode: fsda}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 9}\n").unwrap(),
-            history: vec![],
-            validation: vec![],
-            monitor: vec![],
-            best: None,
-            train_seconds: 0.0,
-            recording_drift: None,
-            pair_token: None,
-        }
+        )
     }
 
     /// A checkpoint's `.ot` replaced by another one of the same shapes (another run's, or a
