@@ -406,12 +406,18 @@ impl LoadReport {
     /// When most IMU samples repeat or go back from an earlier header stamp, the stamps are
     /// not the samples' times (a driver that leaves `header.stamp` at zero): what to say.
     pub fn stamp_problem(&self) -> Option<String> {
+        self.stamp_problem_above(0.5)
+    }
+
+    /// [`Self::stamp_problem`] from a share of `fraction` on: training and adaptation, which
+    /// would learn from a stream thinned to what is left, refuse from 10 %.
+    pub fn stamp_problem_above(&self, fraction: f64) -> Option<String> {
         let bad = self.imu_duplicate_stamp + self.imu_backwards_stamp;
-        (self.imu_read >= 2 && 2 * bad > self.imu_read).then(|| {
+        (self.imu_read >= 2 && bad as f64 >= fraction * self.imu_read as f64 && bad > 0).then(|| {
             format!(
                 "{bad} of {} IMU samples repeat or go back from an earlier header stamp ({} repeated, {} backwards): \
-                 header.stamp is not set to the sample's time (a driver leaving it at zero?); the stamps are what every \
-                 command here integrates with",
+                 header.stamp is not set to the sample's time (a driver stamping bursts on arrival, or leaving it at zero?); \
+                 the stamps are what every command here integrates with",
                 self.imu_read, self.imu_duplicate_stamp, self.imu_backwards_stamp
             )
         })

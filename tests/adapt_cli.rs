@@ -80,6 +80,15 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     let o = run(&["eval", c, "-m", "raw", "--model", out.to_str().unwrap(), "--model", d.join("copy.pt").to_str().unwrap()]);
     let table = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success() && table.contains("| car-adapted |") && table.contains("| copy |"), "{table}{}", stderr(&o));
+    // Same name and same file stem (two folders): the paths.
+    std::fs::create_dir_all(d.join("twin")).unwrap();
+    for ext in ["pt", "ot", "json"] {
+        std::fs::copy(out.with_extension(ext), d.join(format!("twin/car-adapted.{ext}"))).unwrap();
+    }
+    let twin = d.join("twin/car-adapted.pt");
+    let o = run(&["eval", c, "-m", "raw", "--model", out.to_str().unwrap(), "--model", twin.to_str().unwrap()]);
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert!(table.contains(&format!("| {} |", twin.display())) && table.contains(&format!("| {} |", out.display())), "{table}");
 
     // Bad input: each a clear error, nothing written.
     let bad_out = d.join("bad/x.pt");
@@ -119,12 +128,15 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
         std::fs::copy(model.with_extension(ext), d.join(format!("bad/robot.adapt.{ext}"))).unwrap();
     }
     let trained_json = std::fs::read(trained.with_extension("json")).unwrap();
+    // A deployed TorchScript file alone (no `.json` to say what it is).
+    std::fs::copy(model.with_extension("pt"), d.join("bad/solo.pt")).unwrap();
     for (o, needle) in [
         (trained.clone(), "is a trained model"),
         (d.join("bad/folder.pt"), "is a folder"),
         (d.join("bad/robot.pt"), "the metadata of a model named robot.adapt"),
         (d.join("bad/"), "a folder; name the model file"),
         (d.join("bad/x.mcap"), "<name>.pt (not .mcap)"),
+        (d.join("bad/solo.pt"), "says it is an earlier adaptation"),
     ] {
         let out = run(&["adapt", "--model", m, "--bag", c, "-o", o.to_str().unwrap(), "--steps", "1"]);
         assert!(!out.status.success() && stderr(&out).contains(needle), "-o {}: {}", o.display(), stderr(&out));

@@ -104,6 +104,17 @@ fn check_output(dir: &Path, name: &str) -> anyhow::Result<()> {
             Ok(_) => {}
         }
     }
+    // A model's `.pt` or `.ot` without its `.json` (a deployed TorchScript file) is not known
+    // to be an earlier adaptation either.
+    if !out_json.exists() {
+        if let Some(p) = ["pt", "ot"].iter().map(|ext| dir.join(format!("{name}.{ext}"))).find(|p| p.exists()) {
+            anyhow::bail!(
+                "{} exists and no {} says it is an earlier adaptation: adapt does not replace it; choose another -o",
+                p.display(),
+                out_json.display()
+            );
+        }
+    }
     let report = dir.join(format!("{name}.adapt.json"));
     if report.exists() && load_metadata(&report).is_ok() {
         anyhow::bail!(
@@ -154,7 +165,7 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let (rec, report) = read_recording(&args.bag, &topics).with_context(|| format!("reading {}", args.bag.display()))?;
-    if let Some(problem) = report.stamp_problem() {
+    if let Some(problem) = report.stamp_problem_above(0.1) {
         anyhow::bail!("{}: {problem}", args.bag.display());
     }
     anyhow::ensure!(
@@ -191,6 +202,11 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     let r = &outcome.report;
     if args.json {
         out!("{}", serde_json::to_string_pretty(r)?)?;
+    }
+    if r.frame.is_none() && cfg.frame_policy != FramePolicy::Ignore {
+        eprintln!(
+            "frame check: not possible (fewer than 3 of the support's 0.25-s increments turn by 0.05 rad): the motion is too gentle to tell another frame or inverted quaternions"
+        );
     }
     if let Some(f) = &r.frame {
         eprintln!(

@@ -69,7 +69,14 @@ fn self_check(path: &Path, imu_name: Option<&str>, corrector: &mut ModelCorrecto
         })
         .collect();
     let (reference, _) = correct_with_torchscript(path, &imu, imu_name)?;
-    let worst = imu.iter().zip(&reference).map(|(s, r)| (corrector.step(&s.gyro, &s.accel) - r).amax()).fold(0.0, f64::max);
+    // NaN-aware: a file that outputs NaN is not "within tolerance" (f64::max drops NaN).
+    let worst = imu.iter().zip(&reference).map(|(s, r)| (corrector.step(&s.gyro, &s.accel) - r).amax()).fold(0.0, |w: f64, d| {
+        if d.is_nan() || w.is_nan() {
+            f64::NAN
+        } else {
+            w.max(d)
+        }
+    });
     corrector.reset();
     anyhow::ensure!(
         worst < SELF_CHECK_TOLERANCE,

@@ -119,6 +119,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             }
         }
     }
+    let labels = model_labels(&args.models)?;
     let mut rows = Vec::new();
     let mut failed: Vec<String> = Vec::new();
     for (bag, name) in args.bags.iter().zip(names) {
@@ -214,7 +215,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 streams.push((m.name().into(), got));
             }
             let imu = imu_for_bag(&args.imus, bag);
-            for (model, &per_imu) in args.models.iter().zip(&per_imu) {
+            for (model_index, (model, &per_imu)) in args.models.iter().zip(&per_imu).enumerate() {
                 let imu = imu.filter(|_| per_imu);
                 let (gyro, meta) = correct_with_torchscript(model, &rec.imu, imu).with_context(|| format!("model {}", model.display()))?;
                 let calib = imu.map_or(String::new(), |n| match meta.imu_correction_gains.get(n).filter(|_| meta.adapted_from.is_none()) {
@@ -226,12 +227,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                     tracing::warn!("{name}: {why}");
                     add_note(&mut note, &why);
                 }
-                // Two models of one name (a renamed copy, two adaptations) are told apart by file.
-                let label = if streams.iter().any(|(n, _)| *n == meta.name) {
-                    model.file_stem().map_or(meta.name.clone(), |s| s.to_string_lossy().into_owned())
-                } else {
-                    meta.name.clone()
-                };
+                let label = labels[model_index].clone();
                 let non_finite = gyro.iter().filter(|g| !g.iter().all(|v| v.is_finite())).count();
                 if non_finite > 0 {
                     let why = format!("the model's output is not finite at {non_finite} of {} samples: not scored", gyro.len());
@@ -435,6 +431,25 @@ fn glob_match(pattern: &str, text: &str) -> bool {
         }
     }
     true
+}
+
+/// Each model's row label: its name, else (two of one name: a renamed copy, two adaptations)
+/// its file stem, else its path.
+fn model_labels(models: &[std::path::PathBuf]) -> anyhow::Result<Vec<String>> {
+    let names: Vec<String> = models.iter().map(|m| Ok(load_metadata(&metadata_path(m))?.name)).collect::<anyhow::Result<_>>()?;
+    let stems: Vec<String> = models.iter().map(|m| m.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned())).collect();
+    let unique = |list: &[String], i: usize| list.iter().filter(|x| **x == list[i]).count() == 1;
+    Ok((0..models.len())
+        .map(|i| {
+            if unique(&names, i) {
+                names[i].clone()
+            } else if unique(&stems, i) && (names[i] == stems[i] || !names.contains(&stems[i])) {
+                stems[i].clone()
+            } else {
+                models[i].display().to_string()
+            }
+        })
+        .collect())
 }
 
 #[cfg(test)]

@@ -320,13 +320,19 @@ impl RunLock {
                     });
                     if alive {
                         anyhow::bail!(
-                            "another run (pid {}) is writing {} in {}: wait for it, or give this one its own --name or --out-dir",
+                            "another run (pid {}) is writing {} in {}: wait for it, or give this one its own --name or --out-dir \
+                             (if no run is writing it, the pid is another program's: delete {})",
                             holder.unwrap_or_default(),
                             name,
-                            out_dir.display()
+                            out_dir.display(),
+                            path.display()
                         );
                     }
-                    tracing::warn!("{}: left by a run that is gone (pid {holder:?}); taken over", path.display());
+                    let who = holder.map_or("an unreadable pid".to_string(), |p| format!("pid {p}"));
+                    let ckpt = out_dir.join(format!("{name}.ckpt.json"));
+                    let resume =
+                        if ckpt.exists() { format!(" (its checkpoint: --resume {} continues it)", ckpt.display()) } else { String::new() };
+                    tracing::warn!("{}: left by a run that is gone ({who}); taken over{resume}", path.display());
                     let _ = std::fs::remove_file(&path);
                 }
                 Err(e) => return Err(e).with_context(|| format!("creating {}", path.display())),

@@ -244,8 +244,11 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
     // Every file is written beside its final name first and the set renamed only when all are
     // written: a failure (disk full, a folder in the way, Ctrl-C) leaves the earlier model whole.
     let mut staged = Staged::default();
-    staged.write(&paths.torchscript, |tmp| Ok(module.save(tmp)?))?;
-    staged.write(&paths.weights, |tmp| Ok(vs.save(tmp)?))?;
+    // libtorch's own message only (its stack trace says nothing to a user).
+    let torch_io =
+        |tmp: &Path, e: tch::TchError| ModelError::Io { path: tmp.to_path_buf(), source: std::io::Error::other(super::torch_message(&e)) };
+    staged.write(&paths.torchscript, |tmp| module.save(tmp).map_err(|e| torch_io(tmp, e)))?;
+    staged.write(&paths.weights, |tmp| vs.save(tmp).map_err(|e| torch_io(tmp, e)))?;
     let (mean, std) = net.normalization();
     let cfg = net.config().clone();
     let per_imu = !cfg.imu_calibrations.is_empty();

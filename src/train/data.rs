@@ -53,7 +53,7 @@ pub enum DataError {
     #[error(
         "{name}: the ground truth turns {ratio:.3}× as far as the gyro over 0.25 s (median over {increments} increments of \
          clear motion; 1 is expected): the gyro is not in rad/s, the poses are not this IMU's, or their clocks differ by more \
-         than the 10 s searched"
+         than the 30 s searched"
     )]
     RotationScale { name: String, ratio: f64, increments: usize },
     #[error(
@@ -64,7 +64,7 @@ pub enum DataError {
     #[error(
         "{name}: the ground truth's rotation axes do not follow the gyro's (RMS {residual_deg:.1}° apart over {increments} \
          0.25-s increments, even after the best constant rotation): inverted quaternions (body-from-world), another body's poses, \
-         or clocks more than the 10 s searched apart?"
+         or clocks more than the 30 s searched apart?"
     )]
     NotFollowing { name: String, residual_deg: f64, increments: usize },
     #[error(
@@ -191,7 +191,7 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
     rec.name = name.clone();
     // Stamps most of which repeat (a driver stamping bursts on arrival) would be trained on as
     // a quarter of the data at a quarter of the rate: refused, as `eval` refuses them.
-    if let Some(problem) = report.stamp_problem() {
+    if let Some(problem) = report.stamp_problem_above(0.1) {
         return Err(DataError::Load { source_name: described, msg: problem });
     }
     if report.imu_non_finite > 0 {
