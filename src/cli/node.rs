@@ -91,8 +91,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     } else {
         load_corrector(&params.model, &params.imu_calibration)?
     };
-    // With a model and a ground-truth topic, the corrector can be swapped for an adapted one
-    // (`~/adapt`); catch-up history: 20 s at 200 Hz.
+    // `~/adapt`: off without a ground-truth topic, refusing (with the reason) without a model.
     let (corrector, adapt) = if params.ground_truth_topic.is_empty() {
         // Said at start: a client calling a service that is not there waits without an answer.
         tracing::warn!("the ~/adapt service is not offered: ground_truth_topic is empty");
