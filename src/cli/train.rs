@@ -304,41 +304,55 @@ impl RunLock {
     fn acquire(out_dir: &std::path::Path, name: &str) -> anyhow::Result<Self> {
         let path = out_dir.join(format!("{name}.lock"));
         let me = std::process::id();
-        for _ in 0..2 {
-            match std::fs::OpenOptions::new().write(true).create_new(true).open(&path) {
-                Ok(mut f) => {
-                    use std::io::Write as _;
-                    writeln!(f, "{me}").with_context(|| format!("writing {}", path.display()))?;
-                    return Ok(Self { path });
+        // The pid is written first and the file linked into place (atomic, and refused if the
+        // lock exists), so no run ever reads a lock without its pid and takes it for stale.
+        let mine = out_dir.join(format!("{name}.lock.{me}"));
+        std::fs::write(&mine, format!("{me}\n")).with_context(|| format!("writing {}", mine.display()))?;
+        let linked = (0..2).find_map(|_| {
+            match std::fs::hard_link(&mine, &path) {
+                Ok(()) => Some(Ok(())),
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => match Self::stale(&path, out_dir, name) {
+                    Ok(()) => None,
+                    Err(e) => Some(Err(e)),
+                },
+                Err(e) => {
+                    // A file system without hard links: not worth refusing the run for.
+                    tracing::warn!("no run lock at {} ({e}): a second run of this name would not be refused", path.display());
+                    Some(Ok(()))
                 }
-                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                    let holder = std::fs::read_to_string(&path).ok().and_then(|s| s.trim().parse::<i32>().ok());
-                    // SAFETY: kill with signal 0 only asks whether the process exists.
-                    let alive = holder.is_some_and(|pid| {
-                        pid > 0
-                            && (unsafe { libc::kill(pid, 0) } == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM))
-                    });
-                    if alive {
-                        anyhow::bail!(
-                            "another run (pid {}) is writing {} in {}: wait for it, or give this one its own --name or --out-dir \
-                             (if no run is writing it, the pid is another program's: delete {})",
-                            holder.unwrap_or_default(),
-                            name,
-                            out_dir.display(),
-                            path.display()
-                        );
-                    }
-                    let who = holder.map_or("an unreadable pid".to_string(), |p| format!("pid {p}"));
-                    let ckpt = out_dir.join(format!("{name}.ckpt.json"));
-                    let resume =
-                        if ckpt.exists() { format!(" (its checkpoint: --resume {} continues it)", ckpt.display()) } else { String::new() };
-                    tracing::warn!("{}: left by a run that is gone ({who}); taken over{resume}", path.display());
-                    let _ = std::fs::remove_file(&path);
-                }
-                Err(e) => return Err(e).with_context(|| format!("creating {}", path.display())),
             }
+        });
+        let _ = std::fs::remove_file(&mine);
+        match linked {
+            Some(Ok(())) => Ok(Self { path }),
+            Some(Err(e)) => Err(e),
+            None => anyhow::bail!("{}: could not be taken over", path.display()),
         }
-        anyhow::bail!("{}: could not be taken over", path.display())
+    }
+
+    /// An existing lock: an error while its run is alive, else removed (taken over).
+    fn stale(path: &std::path::Path, out_dir: &std::path::Path, name: &str) -> anyhow::Result<()> {
+        let holder = std::fs::read_to_string(path).ok().and_then(|s| s.trim().parse::<i32>().ok());
+        // SAFETY: kill with signal 0 only asks whether the process exists.
+        let alive = holder.is_some_and(|pid| {
+            pid > 0 && (unsafe { libc::kill(pid, 0) } == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM))
+        });
+        if alive {
+            anyhow::bail!(
+                "another run (pid {}) is writing {} in {}: wait for it, or give this one its own --name or --out-dir \
+                     (if no run is writing it, the pid is another program's: delete {})",
+                holder.unwrap_or_default(),
+                name,
+                out_dir.display(),
+                path.display()
+            );
+        }
+        let who = holder.map_or("an unreadable pid".to_string(), |p| format!("pid {p}"));
+        let ckpt = out_dir.join(format!("{name}.ckpt.json"));
+        let resume = if ckpt.exists() { format!(" (its checkpoint: --resume {} continues it)", ckpt.display()) } else { String::new() };
+        tracing::warn!("{}: left by a run that is gone ({who}); taken over{resume}", path.display());
+        let _ = std::fs::remove_file(path);
+        Ok(())
     }
 }
 
