@@ -278,25 +278,38 @@ fn lag_search(
     let coarse_min_pairs = (MIN_LAG_PAIRS / block).max(20);
     let coarse: Vec<(i64, Option<f64>)> =
         (-coarse_max..=coarse_max).map(|l| (l * block as i64, lag_correlation(&coarse_gyro, &coarse_gt, l, coarse_min_pairs))).collect();
-    // The coarse search's best peaks beyond reach (a periodic gait has one a step period from
-    // the true one, almost as high on block means).
+    // The coarse search's best peaks (a periodic gait has one a step period from the true one,
+    // almost as high on block means), and zero lag.
     let mut peaks: Vec<(i64, f64)> = (0..coarse.len())
         .filter_map(|i| {
             let (l, c) = (coarse[i].0, coarse[i].1?);
             let left = i.checked_sub(1).and_then(|j| coarse[j].1).unwrap_or(f64::NEG_INFINITY);
             let right = coarse.get(i + 1).and_then(|x| x.1).unwrap_or(f64::NEG_INFINITY);
-            (l.abs() > max_lag && c >= left && c >= right && c >= GROUND_TRUTH_LAG_MIN_CORRELATION).then_some((l, c))
+            let candidate = l.abs() <= max_lag || c >= GROUND_TRUTH_LAG_MIN_CORRELATION;
+            (candidate && c >= left && c >= right).then_some((l, c))
         })
         .collect();
     peaks.sort_by(|a, b| b.1.total_cmp(&a.1));
-    // The fine search covers the lags within reach and around each of those peaks; the best
-    // fine correlation decides (block means blur a periodic motion's peaks).
-    let mut lags: Vec<i64> = (-max_lag..=max_lag).collect();
-    for &(l, c) in peaks.iter().take(COARSE_PEAKS) {
-        tracing::debug!("clock-lag coarse peak at {:.3} s (r {c:.3}): searched there too", l as f64 * period);
-        // Kept apart from the other ranges by a gap: their ends are not neighbours in the peak fit.
-        lags.push(i64::MIN);
-        lags.extend((l - 2 * block as i64..=l + 2 * block as i64).filter(|x| x.abs() > max_lag));
+    peaks.truncate(COARSE_PEAKS);
+    peaks.push((0, f64::NAN));
+    peaks.sort_by_key(|p| p.0);
+    // The fine search, at every sample, covers two blocks either side of each (within ±1 s
+    // only, inside the reach; anywhere beyond it); the best fine correlation decides.
+    let mut lags: Vec<i64> = Vec::new();
+    for &(l, c) in &peaks {
+        tracing::trace!("clock-lag coarse peak at {:.3} s (r {c:.3})", l as f64 * period);
+        let range = (l - 2 * block as i64..=l + 2 * block as i64).filter(|x| l.abs() > max_lag || x.abs() <= max_lag);
+        for x in range {
+            match lags.last() {
+                Some(&last) if last != i64::MIN && x <= last => {}
+                // Kept apart from the other ranges by a gap: their ends are not neighbours in the peak fit.
+                Some(&last) if last != i64::MIN && x > last + 1 => {
+                    lags.push(i64::MIN);
+                    lags.push(x);
+                }
+                _ => lags.push(x),
+            }
+        }
     }
     let corr: Vec<Option<f64>> =
         lags.iter().map(|&l| if l == i64::MIN { None } else { lag_correlation(&gyro_norm, &gt_rate, l, MIN_LAG_PAIRS) }).collect();
@@ -312,7 +325,7 @@ fn lag_search(
 /// Block length (s) and reach (s, either way) of [`ground_truth_lag`]'s coarse search.
 const COARSE_BLOCK_S: f64 = 0.05;
 const COARSE_LAG_SEARCH_S: f64 = 30.0;
-/// Coarse peaks beyond the fine reach that the fine search also visits.
+/// Coarse peaks the fine search visits (besides zero lag).
 const COARSE_PEAKS: usize = 3;
 
 /// Means of consecutive blocks of `len` values, over the finite ones (NaN where none is).

@@ -108,11 +108,9 @@ pub fn check_frame_on(all: &[Increment], min_angle_rad: f64) -> Option<FrameChec
 /// Whether the ground truth's quaternions are stored inverted (world in body): the increments
 /// read that way follow the gyro (after any constant rotation and bias) at most half as far
 /// off as the increments read as stored. Unlike another frame, no constant rotation fixes it.
-pub fn inverted_quaternions(all: &[Increment], min_angle_rad: f64) -> bool {
-    match (check_frame_with(all, min_angle_rad, |p| p.gt), check_frame_with(all, min_angle_rad, |p| p.gt_if_inverted)) {
-        (Some(stored), Some(inverted)) => inverted.residual_deg < 0.5 * stored.residual_deg,
-        _ => false,
-    }
+/// `stored`: [`check_frame_on`] of the same increments.
+pub fn inverted_quaternions(all: &[Increment], min_angle_rad: f64, stored: &FrameCheck) -> bool {
+    check_frame_with(all, min_angle_rad, |p| p.gt_if_inverted).is_some_and(|inverted| inverted.residual_deg < 0.5 * stored.residual_deg)
 }
 
 fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Increment) -> Vector3<f64>) -> Option<FrameCheck> {
@@ -280,17 +278,21 @@ mod tests {
         assert!(c.rotation().angle_to(&rx).to_degrees() < 0.2 || !c.fully_observable, "{c:?} vs {rx:?}");
     }
 
+    fn reads_inverted(pairs: &[Increment]) -> bool {
+        inverted_quaternions(pairs, 0.05, &check_frame_on(pairs, 0.05).unwrap())
+    }
+
     /// Inverted quaternions (world in body) are told from another frame.
     #[test]
     fn inverted_quaternions_are_told_from_another_frame() {
         let (imu, att) = motion(20_000, 3);
         let inverted: Vec<_> = att.iter().map(|q| Some(q.inverse())).collect();
-        assert!(inverted_quaternions(&increments(&imu, &inverted, 40), 0.05));
+        assert!(reads_inverted(&increments(&imu, &inverted, 40)));
         let rx = UnitQuaternion::from_euler_angles(0.1, -0.4, 1.2);
         let rotated: Vec<_> = att.iter().map(|q| Some(q * rx.inverse())).collect();
-        assert!(!inverted_quaternions(&increments(&imu, &rotated, 40), 0.05));
+        assert!(!reads_inverted(&increments(&imu, &rotated, 40)));
         let same: Vec<_> = att.iter().map(|q| Some(*q)).collect();
-        assert!(!inverted_quaternions(&increments(&imu, &same, 40), 0.05));
+        assert!(!reads_inverted(&increments(&imu, &same, 40)));
     }
 
     #[test]

@@ -263,6 +263,22 @@ fn to_task(rec: &Recording, what: &'static str, cfg: &AdaptConfig) -> Result<Tas
     Ok(data::task_from_recording(rec.clone(), &src, &dataset_cfg(cfg), None)?)
 }
 
+/// At least `min_seconds` of the task covered by ground truth.
+fn require_covered(task: &Task, what: &'static str, min_seconds: f64) -> Result<(), AdaptError> {
+    if task.covered_seconds() >= min_seconds {
+        return Ok(());
+    }
+    Err(AdaptError::TooLittleData {
+        what,
+        detail: format!(
+            "{:.3} s of IMU with ground truth ({:.3} s span, {} samples), at least {min_seconds:.0} s needed",
+            task.covered_seconds(),
+            task.seconds(),
+            task.len()
+        ),
+    })
+}
+
 /// The calibration head's VarStore names: Ĉ_ω's `gyro_calib.delta` and the bias of the
 /// Generator's last conv (its output is scaled by σ and added to the gyro: a constant offset).
 fn calibration_head_names(vs: &VarStore) -> Vec<String> {
@@ -380,31 +396,10 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     let mut query = query.clone();
     let s_task0 = to_task(&support, "support", cfg)?;
     // Seconds with ground truth, not the span: gaps in it are not data to adapt on.
-    if s_task0.covered_seconds() < cfg.min_support_seconds {
-        return Err(AdaptError::TooLittleData {
-            what: "support",
-            detail: format!(
-                "{:.3} s of IMU with ground truth ({:.3} s span, {} samples), at least {:.0} s needed",
-                s_task0.covered_seconds(),
-                s_task0.seconds(),
-                s_task0.len(),
-                cfg.min_support_seconds
-            ),
-        });
-    }
+    require_covered(&s_task0, "support", cfg.min_support_seconds)?;
     // The query's length first: on a few seconds the clock check can find a false peak.
     let q_task0 = to_task(&query, "query", cfg)?;
-    if q_task0.covered_seconds() < cfg.min_query_seconds {
-        return Err(AdaptError::TooLittleData {
-            what: "query",
-            detail: format!(
-                "{:.3} s of IMU with ground truth ({:.3} s span), at least {:.0} s needed",
-                q_task0.covered_seconds(),
-                q_task0.seconds(),
-                cfg.min_query_seconds
-            ),
-        });
-    }
+    require_covered(&q_task0, "query", cfg.min_query_seconds)?;
     crate::train::data::check_clock(&support)?;
     crate::train::data::check_clock(&query)?;
     crate::train::data::check_plausible(&support)?;

@@ -98,28 +98,26 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let detector = RestDetector::default();
-    // Which models know IMUs by name (one Ĉ_ω or a correction gain per IMU; the others ignore
-    // --imu); read once, before any bag.
-    let per_imu: Vec<bool> = args
+    // The models' metadata, read once, before any bag.
+    let metas: Vec<imu_fsda::model::export::ModelMetadata> = args
         .models
         .iter()
-        .map(|m| Ok(!load_metadata(&metadata_path(m)).with_context(|| format!("model {}", m.display()))?.imu_names().is_empty()))
+        .map(|m| load_metadata(&metadata_path(m)).with_context(|| format!("model {}", m.display())))
         .collect::<anyhow::Result<_>>()?;
+    // Which models know IMUs by name (one Ĉ_ω or a correction gain per IMU; the others ignore --imu).
+    let per_imu: Vec<bool> = metas.iter().map(|m| !m.imu_names().is_empty()).collect();
     // The start-up check for each IMU the bags will be run as, too: a per-IMU Ĉ_ω edited in
     // the `.json` is a mismatch only with that IMU selected.
     let imu_names: std::collections::BTreeSet<&str> =
         args.imus.iter().map(|rule| rule.split_once('=').map_or(rule.as_str(), |(_, name)| name)).filter(|n| !n.is_empty()).collect();
-    for (m, &per_imu) in args.models.iter().zip(&per_imu) {
+    for (m, meta) in args.models.iter().zip(&metas) {
         super::corrector::check_model_files(m, None)?;
-        if per_imu {
-            let meta = load_metadata(&metadata_path(m))?;
-            let known = meta.imu_names();
-            for name in imu_names.iter().filter(|n| known.iter().any(|k| k == *n)) {
-                super::corrector::check_model_files(m, Some(name)).with_context(|| format!("run as IMU {name}"))?;
-            }
+        let known = meta.imu_names();
+        for name in imu_names.iter().filter(|n| known.iter().any(|k| k == *n)) {
+            super::corrector::check_model_files(m, Some(name)).with_context(|| format!("run as IMU {name}"))?;
         }
     }
-    let labels = model_labels(&args.models)?;
+    let labels = model_labels(&args.models, &metas);
     let mut rows = Vec::new();
     let mut failed: Vec<String> = Vec::new();
     for (bag, name) in args.bags.iter().zip(names) {
@@ -435,11 +433,11 @@ fn glob_match(pattern: &str, text: &str) -> bool {
 
 /// Each model's row label: its name, else (two of one name: a renamed copy, two adaptations)
 /// its file stem, else its path.
-fn model_labels(models: &[std::path::PathBuf]) -> anyhow::Result<Vec<String>> {
-    let names: Vec<String> = models.iter().map(|m| Ok(load_metadata(&metadata_path(m))?.name)).collect::<anyhow::Result<_>>()?;
+fn model_labels(models: &[std::path::PathBuf], metas: &[imu_fsda::model::export::ModelMetadata]) -> Vec<String> {
+    let names: Vec<String> = metas.iter().map(|m| m.name.clone()).collect();
     let stems: Vec<String> = models.iter().map(|m| m.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned())).collect();
     let unique = |list: &[String], i: usize| list.iter().filter(|x| **x == list[i]).count() == 1;
-    Ok((0..models.len())
+    (0..models.len())
         .map(|i| {
             if unique(&names, i) {
                 names[i].clone()
@@ -449,7 +447,7 @@ fn model_labels(models: &[std::path::PathBuf]) -> anyhow::Result<Vec<String>> {
                 models[i].display().to_string()
             }
         })
-        .collect())
+        .collect()
 }
 
 #[cfg(test)]

@@ -198,11 +198,9 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ModelError + '_ {
 
 /// Writes through `write(tmp)` then renames, so a reader never sees a half-written file.
 fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<(), ModelError>) -> Result<(), ModelError> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    write(&tmp)?;
-    std::fs::rename(&tmp, path).map_err(io_err(path))
+    let mut staged = Staged::default();
+    staged.write(path, write)?;
+    staged.commit()
 }
 
 /// The code revision: `IMU_FSDA_GIT_REV` at build time, else `git rev-parse HEAD` in the

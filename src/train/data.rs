@@ -247,7 +247,9 @@ pub fn rotation_agreement(rec: &Recording) -> Option<(Option<f64>, usize, Option
         let mid = ratios.len() / 2;
         *ratios.select_nth_unstable_by(mid, f64::total_cmp).1
     });
-    Some((median, ratios.len(), crate::adapt::frame::check_frame_on(&pairs, 0.05), crate::adapt::frame::inverted_quaternions(&pairs, 0.05)))
+    let frame = crate::adapt::frame::check_frame_on(&pairs, 0.05);
+    let inverted = frame.as_ref().is_some_and(|f| crate::adapt::frame::inverted_quaternions(&pairs, 0.05, f));
+    Some((median, ratios.len(), frame, inverted))
 }
 
 /// Refuses ground truth that does not describe this IMU's rotation: a gyro in °/s, a pose that
