@@ -66,6 +66,17 @@ pub struct OrientationErrors {
     pub seconds: f64,
 }
 
+impl OrientationErrors {
+    /// "x % of the span in ground-truth gaps, not scored" where the ground truth has gaps: a
+    /// recording with mocap at its ends only (outdoors) is scored on a fraction of its span.
+    pub fn gap_note(&self) -> Option<String> {
+        (self.samples_in_gaps > 0).then(|| {
+            let share = 100.0 * self.samples_in_gaps as f64 / (self.samples_in_gaps + self.evaluated_samples) as f64;
+            format!("{share:.1} % of the span in ground-truth gaps, not scored")
+        })
+    }
+}
+
 /// Integrate `gyro` (one per IMU sample) and compare with the ground truth.
 pub fn evaluate(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOptions) -> Result<OrientationErrors, EvalError> {
     evaluate_with_path(rec, gyro, opts).map(|(e, _)| e)

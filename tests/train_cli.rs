@@ -412,7 +412,7 @@ fn bad_inputs_are_refused_before_training() {
 
     // Two recordings of one name in a list: their results would be filed under one key.
     let ok_rec = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 0), temperature: vec![] };
-    for sub in ["day1", "day2"] {
+    for sub in ["day0", "day1", "day2"] {
         std::fs::create_dir_all(d.join(sub)).unwrap();
         write_recording(d.join(sub).join("run_0.mcap"), &ok_rec).unwrap();
     }
@@ -420,7 +420,7 @@ fn bad_inputs_are_refused_before_training() {
     std::fs::write(
         &cfg,
         format!(
-            "model: {{mode: fsda}}\ndataset:\n  root: {}\n  train: [{{bag: day1/run_0.mcap}}]\n  test: [{{bag: day1/run_0.mcap}}, {{bag: day2/run_0.mcap}}]\ntrain: {{epochs: 2, window_samples: 2000, threads: 1}}\n",
+            "model: {{mode: fsda}}\ndataset:\n  root: {}\n  train: [{{bag: day0/run_0.mcap}}]\n  test: [{{bag: day1/run_0.mcap}}, {{bag: day2/run_0.mcap}}]\ntrain: {{epochs: 2, window_samples: 2000, threads: 1}}\n",
             d.display()
         ),
     )
@@ -580,4 +580,72 @@ fn seed_children_stop_with_their_parent() {
     std::thread::sleep(std::time::Duration::from_secs(3));
     let after: Vec<u64> = logs.iter().map(size).collect();
     assert_eq!(before, after, "a child went on training after its parent stopped");
+}
+
+/// A resume continues on the data its checkpoint trained on: a training bag rewritten under
+/// the same path (a re-export, another crop of the same drive) is refused by name; the
+/// untouched bag resumes.
+#[test]
+fn a_resume_refuses_recordings_that_changed() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let sim = imu_fsda::sim::SimConfig::load(&manifest().join("params/sim/aerial_adis16448.yaml")).unwrap();
+    let flight = imu_fsda::sim::simulate(&sim).unwrap().recording;
+    let bag = d.join("flight.mcap");
+    write_recording(&bag, &flight).unwrap();
+    let cfg = d.join("c.yaml");
+    std::fs::write(
+        &cfg,
+        "model: {mode: fsda}\ndataset:\n  train: [{bag: flight.mcap}]\ntrain: {epochs: 2, window_samples: 2000, threads: 1}\n",
+    )
+    .unwrap();
+    let train = |epochs: &str, resume: bool| {
+        let mut cmd = Command::new(bin());
+        cmd.args(["train", "--no-progress", "--config"])
+            .arg(&cfg)
+            .arg("--out-dir")
+            .arg(d.join("out"))
+            .args(["--name", "m", "--epochs", epochs]);
+        if resume {
+            cmd.arg("--resume").arg(d.join("out/m.ckpt.json"));
+        }
+        run(&mut cmd)
+    };
+    assert!(train("2", false).status.success());
+    let mut edited = flight.clone();
+    edited.imu[100].gyro.x += 1e-3;
+    write_recording(&bag, &edited).unwrap();
+    let out = train("3", true);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("the data of train.flight changed since the checkpoint"), "{err}");
+    write_recording(&bag, &flight).unwrap();
+    let out = train("3", true);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// The trainer's test rows say, as `eval`'s do, how much of a recording its ground-truth gaps
+/// left unscored.
+#[test]
+fn test_rows_name_the_ground_truth_gaps() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let sim = imu_fsda::sim::SimConfig::load(&manifest().join("params/sim/aerial_adis16448.yaml")).unwrap();
+    let flight = imu_fsda::sim::simulate(&sim).unwrap().recording;
+    write_recording(d.join("flight.mcap"), &flight).unwrap();
+    let mut gappy = flight.clone();
+    let t0 = gappy.ground_truth[0].stamp_ns;
+    gappy.ground_truth.retain(|p| !(5_000_000_000..9_000_000_000).contains(&(p.stamp_ns - t0)));
+    write_recording(d.join("gappy.mcap"), &gappy).unwrap();
+    let cfg = d.join("c.yaml");
+    std::fs::write(
+        &cfg,
+        "model: {mode: fsda}\ndataset:\n  train: [{bag: flight.mcap}]\n  test: [{bag: gappy.mcap}]\ntrain: {epochs: 2, window_samples: 2000, threads: 1}\n",
+    )
+    .unwrap();
+    let printed = ok(Command::new(bin()).args(["train", "--no-progress", "--config"]).arg(&cfg).arg("--out-dir").arg(d.join("out")));
+    let row = printed.lines().find(|l| l.starts_with("test gappy")).unwrap_or_else(|| panic!("{printed}"));
+    let share: f64 =
+        row.split("; ").nth(1).and_then(|n| n.split(' ').next()).and_then(|x| x.parse().ok()).unwrap_or_else(|| panic!("{row}"));
+    let span = (flight.imu.last().unwrap().stamp_ns - flight.imu[0].stamp_ns) as f64 * 1e-9;
+    assert!(row.contains("% of the span in ground-truth gaps, not scored") && (share - 400.0 / span).abs() < 1.0, "{row} ({span} s)");
 }

@@ -190,12 +190,40 @@ fn wahba(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuaternion<f64>,
         let vi = v_t.row(idx[0]).transpose();
         // Opposite axes (a frame flipped upside down) have no unique smallest rotation: a half
         // turn about an axis across them.
-        Rotation3::rotation_between(&vi, &ug).unwrap_or_else(|| {
+        let base = Rotation3::rotation_between(&vi, &ug).unwrap_or_else(|| {
             let across = vi.cross(&Vector3::x()).try_normalize(1e-6).unwrap_or_else(|| vi.cross(&Vector3::y()).normalize());
             Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(across), std::f64::consts::PI)
-        })
+        });
+        about_dominant_axis(pairs, base, &ug)
     };
     Some((UnitQuaternion::from_rotation_matrix(&rot), fully_observable))
+}
+
+/// The turn `ψ` about the ground truth's dominant axis `u` that best fits the weak motion about
+/// the other axes (a car's pitch and roll), applied after `base`. Any `ψ` maps the dominant
+/// axes onto each other, so `base` alone guesses the rest: a frame turned 180° about the
+/// car's forward axis came out turned about its lateral axis, and the roll and pitch it applied
+/// were mirrored. `Σ φ_gtᵀ Rot(u, ψ) a` (a = base φ_imu) is `A cos ψ + B sin ψ` plus a constant,
+/// so `ψ = atan2(B, A)`. Kept only where it lowers the squared error by a quarter and by 1e-4
+/// of the motion's own: fitted to noise alone (a car that only yaws) it would turn the frame
+/// at random.
+fn about_dominant_axis(pairs: &[(Vector3<f64>, Vector3<f64>)], base: Rotation3<f64>, u: &Vector3<f64>) -> Rotation3<f64> {
+    let (mut a_sum, mut b_sum, mut cost, mut motion) = (0.0, 0.0, 0.0, 0.0);
+    for (g, i) in pairs {
+        motion += g.norm_squared();
+        let a = base * i;
+        a_sum += g.dot(&a) - g.dot(u) * u.dot(&a);
+        b_sum += g.dot(&u.cross(&a));
+        cost += (g - a).norm_squared();
+    }
+    // Σ |g − Rot a|² = const − 2 (A cos ψ + B sin ψ): the best ψ lowers it by 2 (√(A² + B²) − A).
+    let gain = 2.0 * (a_sum.hypot(b_sum) - a_sum);
+    if gain > 0.25 * cost && gain > 1e-4 * motion {
+        let turn = Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(*u), b_sum.atan2(a_sum));
+        turn * base
+    } else {
+        base
+    }
 }
 
 #[cfg(test)]
@@ -293,6 +321,35 @@ mod tests {
         assert!(!reads_inverted(&increments(&imu, &rotated, 40)));
         let same: Vec<_> = att.iter().map(|q| Some(*q)).collect();
         assert!(!reads_inverted(&increments(&imu, &same, 40)));
+    }
+
+    /// A car that mostly yaws, its IMU mounted upside down (a half turn about the forward
+    /// axis): the half turn is found from the little pitch and roll, not guessed about another
+    /// axis that maps the yaw axis the same way.
+    #[test]
+    fn a_half_turn_on_a_car_is_found_about_its_own_axis() {
+        let (mut imu, _) = motion(30_000, 1);
+        let mut q = UnitQuaternion::identity();
+        let mut att = Vec::new();
+        for (k, s) in imu.iter_mut().enumerate() {
+            let t = k as f64 * 0.005;
+            s.gyro.x = 0.04 * (2.3 * t).sin();
+            s.gyro.y = 0.03 * (1.7 * t).cos();
+            att.push(q);
+            q *= exp(&(s.gyro * 0.005));
+        }
+        for axis in [Vector3::x_axis(), Vector3::y_axis()] {
+            let rx = UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI);
+            let gt: Vec<_> = att.iter().map(|q| Some(q * rx.inverse())).collect();
+            let c = check_frame(&imu, &gt, 50, 0.05).unwrap();
+            assert!(!c.fully_observable && c.is_other_frame(5.0), "{c:?}");
+            assert!(c.rotation().angle_to(&rx).to_degrees() < 2.0, "{axis:?}: {c:?}");
+            assert!(c.residual_deg < 1.0, "{c:?}");
+        }
+        // Yaw alone: nothing to fit the turn on, and none is made up.
+        let (imu, att) = motion(20_000, 1);
+        let same: Vec<_> = att.iter().map(|q| Some(*q)).collect();
+        assert!(check_frame(&imu, &same, 40, 0.05).unwrap().angle_deg < 0.1);
     }
 
     #[test]

@@ -269,10 +269,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 match evaluate_with_path(&rec, &gyro, &opts) {
                     Ok((e, path)) => {
                         keep(&method, path);
-                        if e.samples_in_gaps > 0 {
-                            // A recording with mocap at its ends only (outdoors) is scored on a fraction.
-                            let share = 100.0 * e.samples_in_gaps as f64 / (e.samples_in_gaps + e.evaluated_samples) as f64;
-                            add_note(&mut note, &format!("{share:.1} % of the span in ground-truth gaps, not scored"));
+                        if let Some(gaps) = e.gap_note() {
+                            add_note(&mut note, &gaps);
                         }
                         rows.push(Row { bag: name.clone(), method: method.clone(), errors: Some(e), note });
                     }

@@ -119,17 +119,19 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         let gained = s.validation_with_gain.iter().find(|g| g.name == v.name).map_or(String::new(), |g| {
             format!("  with its IMU's correction gain {:8.3}°", g.evals.first().map_or(f64::NAN, |e| e.1.aoe_deg))
         });
-        out!("validation {:<24} AOE raw {:8.3}°  model {:8.3}°{gained}", v.name, v.raw.aoe_deg, at_export(v))?;
+        let gaps = v.raw.gap_note().map_or(String::new(), |n| format!("; {n}"));
+        out!("validation {:<24} AOE raw {:8.3}°  model {:8.3}°{gained}{gaps}", v.name, v.raw.aoe_deg, at_export(v))?;
     }
     for (imu, g) in &s.correction_gains {
         out!("correction gain {imu}: {g:.3} (train.correction_gains: the test rows of recordings from that IMU apply it)")?;
     }
     for v in &s.monitor {
-        out!("monitor    {:<24} AOE raw {:8.3}°  model {:8.3}°", v.name, v.raw.aoe_deg, at_export(v))?;
+        let gaps = v.raw.gap_note().map_or(String::new(), |n| format!("; {n}"));
+        out!("monitor    {:<24} AOE raw {:8.3}°  model {:8.3}°{gaps}", v.name, v.raw.aoe_deg, at_export(v))?;
     }
     for t in &s.test {
         out!(
-            "test {:<30} AOE raw {:8.3}°  model {:8.3}°  (roll {:.3} pitch {:.3} yaw {:.3}, tilt {:.3} heading {:.3})",
+            "test {:<30} AOE raw {:8.3}°  model {:8.3}°  (roll {:.3} pitch {:.3} yaw {:.3}, tilt {:.3} heading {:.3}){}",
             t.name,
             t.raw.aoe_deg,
             t.model.aoe_deg,
@@ -137,7 +139,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             t.model.pitch_rmse_deg,
             t.model.yaw_rmse_deg,
             t.model.tilt_rmse_deg,
-            t.model.heading_rmse_deg
+            t.model.heading_rmse_deg,
+            t.model.gap_note().map_or(String::new(), |n| format!("; {n}"))
         )?;
     }
     out!("model: {}", s.model_json)?;

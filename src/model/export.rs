@@ -326,10 +326,31 @@ pub fn write_metadata(path: &Path, metadata: &ModelMetadata) -> Result<(), Model
 }
 
 fn require_file(path: &Path) -> Result<(), ModelError> {
+    let refuse = |why: String| Err(ModelError::Io { path: path.to_path_buf(), source: std::io::Error::other(why) });
+    if path.is_dir() {
+        // Name the models it holds: `--model models/` is a common slip.
+        let mut models: Vec<String> = std::fs::read_dir(path)
+            .map(|entries| {
+                entries
+                    .filter_map(|e| e.ok().map(|e| e.path()))
+                    .filter(|p| p.extension().is_some_and(|x| x == "pt") && p.with_extension("json").is_file())
+                    .filter_map(|p| p.file_name().map(|f| f.to_string_lossy().into_owned()))
+                    .collect()
+            })
+            .unwrap_or_default();
+        models.sort();
+        return refuse(if models.is_empty() {
+            "a folder, not a model file".into()
+        } else {
+            format!("a folder, not a model file; it holds {}", models.join(", "))
+        });
+    }
+    if path.to_str().is_none() {
+        // libtorch takes UTF-8 paths only; its own error reads as a corrupt file.
+        return refuse("not valid UTF-8, and libtorch opens UTF-8 paths only: rename the file or its folders".into());
+    }
     if path.is_file() {
         Ok(())
-    } else if path.is_dir() {
-        Err(ModelError::Io { path: path.to_path_buf(), source: std::io::Error::other("a folder, not a model file") })
     } else {
         Err(ModelError::MissingFile { path: path.to_path_buf() })
     }
@@ -546,5 +567,25 @@ mod tests {
         let m: M = serde_json::from_str(r#"{"metrics": {"a": 1.5, "seconds_per_epoch": null}}"#).unwrap();
         assert_eq!(m.metrics["a"], 1.5);
         assert!(!m.metrics.contains_key("seconds_per_epoch"));
+    }
+
+    /// `--model models/` names the models in the folder; a path libtorch cannot open (not
+    /// UTF-8) says so instead of reading as a corrupt file.
+    #[test]
+    fn a_folder_or_a_non_utf8_path_is_refused_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        for f in ["a.pt", "a.json", "b.pt"] {
+            std::fs::write(dir.path().join(f), "").unwrap();
+        }
+        let e = load_metadata(&crate::model::predict::metadata_path(dir.path())).unwrap_err().to_string();
+        assert!(e.contains("a folder, not a model file; it holds a.pt") && !e.contains("b.pt"), "{e}");
+        #[cfg(unix)]
+        {
+            use std::os::unix::ffi::OsStrExt;
+            let odd = dir.path().join(std::ffi::OsStr::from_bytes(b"m\xff.json"));
+            std::fs::write(&odd, "{}").unwrap();
+            let e = load_metadata(&odd).unwrap_err().to_string();
+            assert!(e.contains("UTF-8 paths only"), "{e}");
+        }
     }
 }

@@ -43,8 +43,12 @@ pub fn with_correction_gain(imu: &[ImuSample], mut corrected: Vec<Vector3<f64>>,
     corrected
 }
 
-/// A model file given as `.pt`, `.ot` or `.json`: the metadata path beside it.
+/// A model file given as `.pt`, `.ot` or `.json`: the metadata path beside it. A folder is
+/// returned as it is, for the loader to refuse by name (`models/` is not `models.json`).
 pub fn metadata_path(model: &Path) -> PathBuf {
+    if model.is_dir() {
+        return model.to_path_buf();
+    }
     model.with_extension("json")
 }
 

@@ -44,6 +44,10 @@ pub struct CheckpointMeta {
     /// [`save`]; absent in older checkpoints (not checked).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pair_token: Option<i64>,
+    /// [`crate::train::data::Task::fingerprint`] of every recording, keyed `<list>.<name>`
+    /// (absent in older checkpoints: not checked).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub data_fingerprints: BTreeMap<String, String>,
 }
 
 #[cfg(test)]
@@ -63,6 +67,7 @@ impl CheckpointMeta {
             train_seconds: 0.0,
             recording_drift: None,
             pair_token: None,
+            data_fingerprints: BTreeMap::new(),
         }
     }
 }

@@ -145,6 +145,27 @@ pub struct DatasetConfig {
 
 impl DatasetConfig {
     /// Every source of every list (train, validation, test, monitor).
+    /// `a` and `b` read some of the same samples: one recording (the same sequence folder or
+    /// bag, however spelt, or the same simulation config) over overlapping crops.
+    pub fn same_samples(&self, a: &SourceConfig, b: &SourceConfig) -> bool {
+        let key = |s: &SourceConfig| -> Option<(u8, PathBuf)> {
+            let (kind, p) = match (&s.sequence, &s.bag, &s.simulate) {
+                (Some(p), _, _) => (0, self.root.join(p)),
+                (None, Some(p), _) => (1, self.root.join(p)),
+                (None, None, Some(p)) => (2, PathBuf::from(p)),
+                _ => return None,
+            };
+            // Resolved where it exists (symlinks, `..`); else spelt without `.` and trailing `/`.
+            Some((kind, std::fs::canonicalize(&p).unwrap_or_else(|_| p.components().collect())))
+        };
+        if key(a).is_none() || key(a) != key(b) {
+            return false;
+        }
+        let span = |s: &SourceConfig| (s.start_s.unwrap_or(0.0), s.end_s.unwrap_or(f64::INFINITY));
+        let ((a0, a1), (b0, b1)) = (span(a), span(b));
+        a0 < b1 && b0 < a1
+    }
+
     fn sources_mut(&mut self) -> impl Iterator<Item = &mut SourceConfig> {
         self.train.iter_mut().chain(self.validation.iter_mut()).chain(self.test.iter_mut()).chain(self.monitor.iter_mut())
     }
@@ -574,6 +595,25 @@ impl TrainConfig {
             }
         }
         map.insert("model".into(), merged);
+        // Keys serde would take and then not use: `seed` beside `seeds` (which one trains?),
+        // `seeds: []` (read as absent: one run with seed 0), MAML settings outside fsda_f.
+        if let Some(train) = map.get("train").and_then(|t| t.as_mapping()) {
+            let seeds = train.get("seeds");
+            if train.contains_key("seed") && seeds.is_some() {
+                return Err(
+                    "train.seed and train.seeds: give one (seeds trains one run per seed and exports the best; seed trains one run)".into(),
+                );
+            }
+            if seeds.and_then(|s| s.as_sequence()).is_some_and(|s| s.is_empty()) {
+                return Err("train.seeds is empty: list the seeds to train, or give train.seed for one run".into());
+            }
+            if train.contains_key("maml") && mode != Mode::FsdaF {
+                return Err(format!(
+                    "train.maml: the few-shot settings apply to model.mode fsda_f only, and this config's mode is {}: remove the section",
+                    serde_yaml::to_value(mode).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
+                ));
+            }
+        }
         serde_yaml::from_value(doc).map_err(|e| e.to_string())
     }
 
@@ -602,6 +642,18 @@ impl TrainConfig {
                         return Err(format!("dataset.{what}[{i}]: end_s {b} must be after start_s {a}"));
                     }
                 }
+            }
+        }
+        // A test recording trained on scores the model on what it has seen, under a heading
+        // that says held out. (Validation may repeat training recordings: the shipped recipe
+        // chooses its seed on them.)
+        for (i, test) in self.dataset.test.iter().enumerate() {
+            if let Some(train) = self.dataset.train.iter().find(|tr| self.dataset.same_samples(tr, test)) {
+                return Err(format!(
+                    "dataset.test[{i}] ({}) overlaps dataset.train's {}: a test recording must be held out (crop them apart with start_s / end_s, or score training data with `imu-fsda eval`)",
+                    test.describe(),
+                    train.describe()
+                ));
             }
         }
         if t.epochs == 0 {
@@ -840,6 +892,40 @@ mod tests {
         assert_eq!((euroc.gyro_noise_std, euroc.accel_noise_std), (Augment::default().gyro_noise_std, 2.0e-2));
     }
 
+    /// Keys that would be read and then not used are refused by name.
+    #[test]
+    fn unused_seed_and_maml_keys_are_refused() {
+        let parse = |model: &str, train: &str| {
+            TrainConfig::parse(&format!(
+                "model: {{mode: {model}}}\ndataset: {{train: [{{sequence: a}}], validation: [{{sequence: a}}]}}\ntrain: {{epochs: 3, {train}}}\n"
+            ))
+        };
+        assert!(parse("fsda_f", "seed: 1, seeds: [2, 3]").unwrap_err().contains("give one"));
+        assert!(parse("fsda_f", "seeds: []").unwrap_err().contains("train.seeds is empty"));
+        assert!(parse("fsda_f", "seeds: [2, 3]").is_ok() && parse("fsda_f", "seed: 2").is_ok());
+        let e = parse("digdl", "maml: {inner_lr: 0.1}").unwrap_err();
+        assert!(e.contains("fsda_f only") && e.contains("is digdl"), "{e}");
+        assert!(parse("fsda", "maml: {}").unwrap_err().contains("is fsda:"));
+        assert!(parse("fsda_f", "maml: {inner_lr: 0.1}").is_ok());
+    }
+
+    /// A test recording that is also trained on is refused, however its path is spelt; crops
+    /// that do not overlap are not.
+    #[test]
+    fn a_test_recording_must_not_be_trained_on() {
+        let with = |train: &str, test: &str| {
+            TrainConfig::parse(&format!("model: {{mode: fsda}}\ndataset: {{train: [{train}], test: [{test}]}}\ntrain: {{epochs: 3}}\n"))
+                .unwrap()
+                .validate()
+        };
+        let e = with("{sequence: euroc/MH_01_easy}", "{sequence: ./euroc/MH_01_easy/}").unwrap_err();
+        assert!(e.contains("dataset.test[0]") && e.contains("held out"), "{e}");
+        assert!(with("{bag: b/x.mcap, end_s: 60}", "{bag: b/x.mcap, start_s: 30}").is_err());
+        assert!(with("{bag: b/x.mcap, end_s: 60}", "{bag: b/x.mcap, start_s: 60}").is_ok());
+        assert!(with("{sequence: b/x.mcap}", "{bag: b/x.mcap}").is_ok(), "a folder and a bag are not one recording");
+        assert!(with("{sequence: euroc/MH_01_easy}", "{sequence: euroc/MH_02_easy}").is_ok());
+    }
+
     #[test]
     fn model_section_starts_from_mode_defaults() {
         let text = "model: {mode: digdl}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3}\n";
@@ -863,7 +949,6 @@ mod tests {
         };
         let with_val = "{train: [{sequence: a}], validation: [{sequence: a}]}";
         assert!(with(with_val, "[0, 1, 2]").is_ok());
-        assert!(with(with_val, "[]").is_ok());
         assert!(with(with_val, "[0, 1, 0]").unwrap_err().contains("repeats"));
         assert!(with("{train: [{sequence: a}]}", "[0, 1]").unwrap_err().contains("dataset.validation is empty"));
         assert!(with("{train: [{sequence: a}], monitor: [{sequence: b}]}", "[0, 1]").unwrap_err().contains("validation"));

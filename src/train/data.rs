@@ -135,6 +135,27 @@ impl Task {
         self.rec.imu_seconds()
     }
 
+    /// A digest of the samples this task trains or scores on (FNV-1a over every IMU and
+    /// ground-truth stamp and value, bit for bit): a resumed run refuses data that changed
+    /// under the same path since its checkpoint.
+    pub fn fingerprint(&self) -> String {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |bits: u64| {
+            for b in bits.to_le_bytes() {
+                h = (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        };
+        for s in &self.rec.imu {
+            eat(s.stamp_ns as u64);
+            s.gyro.iter().chain(s.accel.iter()).for_each(|v| eat(v.to_bits()));
+        }
+        for p in &self.rec.ground_truth {
+            eat(p.stamp_ns as u64);
+            p.world_from_body.coords.iter().chain(p.position_in_world.iter()).for_each(|v| eat(v.to_bits()));
+        }
+        format!("{h:016x}")
+    }
+
     /// Seconds with valid ground truth (gaps left out).
     pub fn covered_seconds(&self) -> f64 {
         self.seconds() * self.valid_fraction

@@ -153,6 +153,16 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
     Ok(data)
 }
 
+impl Datasets {
+    /// [`Task::fingerprint`] of every recording, keyed `<list>.<name>`.
+    pub fn fingerprints(&self) -> BTreeMap<String, String> {
+        [("train", &self.train), ("validation", &self.validation), ("test", &self.test), ("monitor", &self.monitor)]
+            .into_iter()
+            .flat_map(|(list, tasks)| tasks.iter().map(move |t| (format!("{list}.{}", t.name), t.fingerprint())))
+            .collect()
+    }
+}
+
 /// The evaluation options of a run's config.
 pub fn eval_opts(cfg: &TrainConfig) -> EvalOptions {
     EvalOptions { max_gap_ns: (cfg.dataset.max_interpolation_gap_ms * 1e6) as i64 }
@@ -790,6 +800,17 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         }
     }
     let mut data = load_datasets(&cfg)?;
+    let fingerprints = data.fingerprints();
+    if let Some(r) = resume.as_ref().filter(|r| !r.meta.data_fingerprints.is_empty()) {
+        let changed: Vec<&str> =
+            fingerprints.iter().filter(|(k, v)| r.meta.data_fingerprints.get(*k) != Some(*v)).map(|(k, _)| k.as_str()).collect();
+        if !changed.is_empty() {
+            anyhow::bail!(
+                "--resume: the data of {} changed since the checkpoint (same paths and config, other samples): the run would continue on other data; restore the recordings or start a new run",
+                changed.join(", ")
+            );
+        }
+    }
     let eopts = eval_opts(&cfg);
 
     let mut vs = VarStore::new(Device::Cpu);
@@ -916,6 +937,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             train_seconds: seconds,
             recording_drift: drift.cloned(),
             pair_token: None,
+            data_fingerprints: fingerprints.clone(),
         };
         checkpoint::save(&opts.out_dir, &opts.name, &vs, adam, best_vars, ema.map(|e| &e.avg), &meta)
     };
