@@ -649,3 +649,34 @@ fn test_rows_name_the_ground_truth_gaps() {
     let span = (flight.imu.last().unwrap().stamp_ns - flight.imu[0].stamp_ns) as f64 * 1e-9;
     assert!(row.contains("% of the span in ground-truth gaps, not scored") && (share - 400.0 / span).abs() < 1.0, "{row} ({span} s)");
 }
+
+/// A lock whose pid now belongs to a process started after the lock was written (the pid was
+/// reused: after a reboot, or months later) is taken over; a lock held by a live run is not.
+#[test]
+fn a_lock_whose_pid_was_reused_is_taken_over() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let sim = imu_fsda::sim::SimConfig::load(&manifest().join("params/sim/aerial_adis16448.yaml")).unwrap();
+    write_recording(d.join("flight.mcap"), &imu_fsda::sim::simulate(&sim).unwrap().recording).unwrap();
+    let cfg = d.join("c.yaml");
+    std::fs::write(
+        &cfg,
+        "model: {mode: fsda}\ndataset:\n  train: [{bag: flight.mcap}]\ntrain: {epochs: 1, window_samples: 2000, threads: 1}\n",
+    )
+    .unwrap();
+    std::fs::create_dir_all(d.join("out")).unwrap();
+    let lock = d.join("out/m.lock");
+    let train = || {
+        run(Command::new(bin()).args(["train", "--no-progress", "--name", "m", "--config"]).arg(&cfg).arg("--out-dir").arg(d.join("out")))
+    };
+    // This test's own pid, written now: a live run's lock.
+    std::fs::write(&lock, format!("{}\n", std::process::id())).unwrap();
+    let out = train();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("another run (pid"));
+    // The same pid in a lock written a day before this process started.
+    assert!(Command::new("touch").args(["-d", "1 day ago"]).arg(&lock).status().unwrap().success());
+    let out = train();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && err.contains("since given to a process started after the lock was written"), "{err}");
+    assert!(!lock.exists(), "the lock is removed at the end of the run");
+}

@@ -32,6 +32,16 @@ pub struct DiagnoseArgs {
     /// Temperature topic of both bags (sensor_msgs/Temperature), if any.
     #[arg(long, default_value = imu_fsda::bag::TEMPERATURE_TOPIC)]
     pub temperature_topic: String,
+    /// The simulated bag's IMU topic, where it differs from the real one's (default:
+    /// --imu-topic).
+    #[arg(long, requires = "sim")]
+    pub sim_imu_topic: Option<String>,
+    /// The simulated bag's ground-truth topic (default: --ground-truth-topic).
+    #[arg(long, requires = "sim")]
+    pub sim_ground_truth_topic: Option<String>,
+    /// The simulated bag's temperature topic (default: --temperature-topic).
+    #[arg(long, requires = "sim")]
+    pub sim_temperature_topic: Option<String>,
     /// Output directory: report.json, report.md, patch.yaml, CSVs, PNG figures (psd, allan,
     /// residual), corrected_sim.mcap.
     #[arg(short, long)]
@@ -122,8 +132,13 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
         ground_truth: Some(args.ground_truth_topic.clone()),
         temperature: Some(args.temperature_topic.clone()),
     };
+    let sim_topics = RecordingTopics {
+        imu: args.sim_imu_topic.clone().unwrap_or_else(|| topics.imu.clone()),
+        ground_truth: args.sim_ground_truth_topic.clone().or_else(|| topics.ground_truth.clone()),
+        temperature: args.sim_temperature_topic.clone().or_else(|| topics.temperature.clone()),
+    };
     let mut aligned = match (&args.sim, &args.noise_model) {
-        (Some(sim), _) => align::load_on(sim, real_path, &topics)?,
+        (Some(sim), _) => align::load_each_on(sim, &sim_topics, real_path, &topics)?,
         (None, Some(model)) => {
             let text = std::fs::read_to_string(model).map_err(|e| match e.kind() {
                 std::io::ErrorKind::InvalidData => anyhow::anyhow!(

@@ -340,7 +340,10 @@ impl RunLock {
         let alive = holder.is_some_and(|pid| {
             pid > 0 && (unsafe { libc::kill(pid, 0) } == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM))
         });
-        if alive {
+        // A pid the system gave to a later process (after a reboot or a long time) is not the
+        // run that wrote the lock: that run started before it wrote the file.
+        let reused = alive && holder.is_some_and(|pid| Self::started_after_lock(pid, path));
+        if alive && !reused {
             anyhow::bail!(
                 "another run (pid {}) is writing {} in {}: wait for it, or give this one its own --name or --out-dir \
                      (if no run is writing it, the pid is another program's: delete {})",
@@ -350,12 +353,39 @@ impl RunLock {
                 path.display()
             );
         }
-        let who = holder.map_or("an unreadable pid".to_string(), |p| format!("pid {p}"));
+        let who = match holder {
+            Some(p) if reused => format!("pid {p}, since given to a process started after the lock was written"),
+            Some(p) => format!("pid {p}"),
+            None => "an unreadable pid".to_string(),
+        };
         let ckpt = out_dir.join(format!("{name}.ckpt.json"));
         let resume = if ckpt.exists() { format!(" (its checkpoint: --resume {} continues it)", ckpt.display()) } else { String::new() };
         tracing::warn!("{}: left by a run that is gone ({who}); taken over{resume}", path.display());
         let _ = std::fs::remove_file(path);
         Ok(())
+    }
+}
+
+impl RunLock {
+    /// Whether process `pid` started after `lock` was last written (Linux: its start time in
+    /// `/proc/<pid>/stat` after boot, against the file's mtime; 2 s of slack for the clock
+    /// tick and boot time's whole seconds). False where it cannot be told.
+    fn started_after_lock(pid: i32, lock: &std::path::Path) -> bool {
+        let started = || -> Option<f64> {
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+            // Field 22, counted after the parenthesised command name (which may hold spaces).
+            let ticks: f64 = stat.rsplit_once(')')?.1.split_whitespace().nth(19)?.parse().ok()?;
+            let boot: f64 =
+                std::fs::read_to_string("/proc/stat").ok()?.lines().find_map(|l| l.strip_prefix("btime "))?.trim().parse().ok()?;
+            // SAFETY: sysconf only reads a system constant.
+            let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
+            (hz > 0).then(|| boot + ticks / hz as f64)
+        };
+        let written = std::fs::metadata(lock).and_then(|m| m.modified()).ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok());
+        match (started(), written) {
+            (Some(started), Some(written)) => started > written.as_secs_f64() + 2.0,
+            _ => false,
+        }
     }
 }
 

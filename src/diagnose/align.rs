@@ -198,15 +198,25 @@ pub fn load(sim_path: &Path, real_path: &Path) -> Result<Aligned, DiagnoseError>
 
 /// [`load`] with the topics both bags are read on.
 pub fn load_on(sim_path: &Path, real_path: &Path, topics: &RecordingTopics) -> Result<Aligned, DiagnoseError> {
-    let (sim, sim_report) = read_recording(sim_path, topics)?;
-    let (real, real_report) = read_recording(real_path, topics)?;
+    load_each_on(sim_path, topics, real_path, topics)
+}
+
+/// [`load_on`] with each bag's own topics: a simulator and a robot seldom name them alike.
+pub fn load_each_on(
+    sim_path: &Path,
+    sim_topics: &RecordingTopics,
+    real_path: &Path,
+    real_topics: &RecordingTopics,
+) -> Result<Aligned, DiagnoseError> {
+    let (sim, sim_report) = read_recording(sim_path, sim_topics)?;
+    let (real, real_report) = read_recording(real_path, real_topics)?;
     let mut notes = Vec::new();
     for (name, r) in [("sim", &sim_report), ("real", &real_report)] {
         if r.skipped() > 0 {
             notes.push(format!("{name} bag: {r}"));
         }
     }
-    align(sim, real, covariance_variances(sim_path, &topics.imu)?, notes)
+    align(sim, real, covariance_variances(sim_path, &sim_topics.imu)?, notes)
 }
 
 /// Align two recordings (see the module docs).
