@@ -394,6 +394,9 @@ pub struct LoadReport {
     pub imu_non_finite: u64,
     pub imu_duplicate_stamp: u64,
     pub imu_backwards_stamp: u64,
+    /// Samples stamped 0 in a stream whose other stamps are clock times (a driver that
+    /// publishes before its clock is set): left out, not integrated as a gap of decades.
+    pub imu_unset_stamp: u64,
     pub ground_truth_read: u64,
     pub ground_truth_invalid: u64,
     pub ground_truth_out_of_order: u64,
@@ -425,6 +428,7 @@ impl LoadReport {
 
     pub fn skipped(&self) -> u64 {
         self.imu_non_finite
+            + self.imu_unset_stamp
             + self.imu_duplicate_stamp
             + self.imu_backwards_stamp
             + self.ground_truth_invalid
@@ -436,8 +440,16 @@ impl std::fmt::Display for LoadReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "imu {} read, skipped {} non-finite, {} duplicate stamps, {} backwards stamps; ground truth {} read, skipped {} invalid, {} out of order",
-            self.imu_read, self.imu_non_finite, self.imu_duplicate_stamp, self.imu_backwards_stamp, self.ground_truth_read, self.ground_truth_invalid, self.ground_truth_out_of_order
+            "imu {} read, skipped {} non-finite, {} duplicate stamps, {} backwards stamps",
+            self.imu_read, self.imu_non_finite, self.imu_duplicate_stamp, self.imu_backwards_stamp
+        )?;
+        if self.imu_unset_stamp > 0 {
+            write!(f, ", {} unset (0) stamps", self.imu_unset_stamp)?;
+        }
+        write!(
+            f,
+            "; ground truth {} read, skipped {} invalid, {} out of order",
+            self.ground_truth_read, self.ground_truth_invalid, self.ground_truth_out_of_order
         )
     }
 }
@@ -519,8 +531,14 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
         }
     }
     report.out_of_log_time_order = in_log_time_order(&mut imu) + in_log_time_order(&mut poses) + in_log_time_order(&mut temperature);
+    // Stamped 0 beside clock times (over an hour): not set, rather than the sample's time.
+    let clock_stamps = imu.iter().any(|(_, s)| s.stamp_ns > UNSET_STAMP_BESIDE_NS);
     for (_, s) in imu {
         report.imu_read += 1;
+        if clock_stamps && s.stamp_ns == 0 {
+            report.imu_unset_stamp += 1;
+            continue;
+        }
         push_imu(&mut rec.imu, s, &mut report);
     }
     for (_, pose) in poses {
@@ -555,6 +573,10 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
     }
     Ok((rec, report))
 }
+
+/// An IMU stamp of 0 is taken as unset when other stamps of the stream are past this (1 h):
+/// a simulator's clock starts at 0 and its first sample may well be stamped 0.
+const UNSET_STAMP_BESIDE_NS: i64 = 3_600_000_000_000;
 
 /// Orders one topic's messages by log time (a stable sort: equal log times keep the file's
 /// order); returns how many came before an earlier-written one's log time.
@@ -708,6 +730,29 @@ mod tests {
         let imu = info.iter().find(|t| t.topic == IMU_TOPIC).unwrap();
         assert_eq!(imu.count, 500);
         assert!((imu.rate_hz() - 200.0).abs() < 1e-6);
+    }
+
+    /// A first sample stamped 0 before the driver's clock was set is left out and counted, not
+    /// integrated as a gap of decades; a simulator's clock, which starts at 0, keeps it.
+    #[test]
+    fn an_unset_stamp_beside_clock_times_is_left_out() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.mcap");
+        let mut rec = recording();
+        rec.imu.iter_mut().for_each(|s| s.stamp_ns += 1_700_000_000_000_000_000);
+        rec.ground_truth.iter_mut().for_each(|p| p.stamp_ns += 1_700_000_000_000_000_000);
+        rec.temperature.clear();
+        rec.imu[0].stamp_ns = 0;
+        write_recording(&path, &rec).unwrap();
+        let (back, report) = read_recording(&path, &RecordingTopics::default()).unwrap();
+        assert_eq!((report.imu_unset_stamp, report.skipped(), back.imu.len()), (1, 1, 499));
+        assert_eq!(back.imu[..], rec.imu[1..]);
+        assert!(report.to_string().contains("1 unset (0) stamps"), "{report}");
+        let mut sim = recording();
+        sim.imu.iter_mut().for_each(|s| s.stamp_ns -= 1_000_000_000);
+        write_recording(&path, &sim).unwrap();
+        let (back, report) = read_recording(&path, &RecordingTopics::default()).unwrap();
+        assert_eq!((report.skipped(), back.imu.len(), back.imu[0].stamp_ns), (0, 500, 0));
     }
 
     /// A bag is written beside its path and renamed when finished: an unfinished writer leaves
