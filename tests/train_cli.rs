@@ -455,6 +455,12 @@ fn bad_inputs_are_refused_before_training() {
     inverted.ground_truth.iter_mut().for_each(|p| p.world_from_body = p.world_from_body.inverse());
     let err = train_fails_on(d, &inverted, "gt_inverted", "");
     assert!(err.contains("quaternions are inverted"), "{err}");
+    // A driver that flips the z axis: a mirror image, which no rotation fixes (it was reported
+    // as "another frame" of 123.8°, and `adapt --frame apply` accepted it).
+    let mut flipped = flight.clone();
+    flipped.imu.iter_mut().for_each(|s| s.gyro.z = -s.gyro.z);
+    let err = train_fails_on(d, &flipped, "gyro_z_flipped", "");
+    assert!(err.contains("mirror image of the ground truth's (x→x, y→y, z→−z"), "{err}");
 
     let far = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 3_600_000_000_000), temperature: vec![] };
     let err = train_fails_on(d, &far, "no_overlap", "");
@@ -621,6 +627,39 @@ fn a_resume_refuses_recordings_that_changed() {
     write_recording(&bag, &flight).unwrap();
     let out = train("3", true);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+
+    // Stopped with epochs left, the same command without --resume is refused (it started again
+    // from epoch 0 over the checkpoint); the checkpoint stays as it was.
+    let mut long = Command::new(bin())
+        .args(["train", "--no-progress", "--config"])
+        .arg(&cfg)
+        .arg("--out-dir")
+        .arg(d.join("out"))
+        .args(["--name", "long", "--epochs", "100000"])
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let ckpt = d.join("out/long.ckpt.json");
+    // Its first checkpoint (the stop writes one too, but waiting for it keeps the test honest
+    // about a run that has started training).
+    let t = std::time::Instant::now();
+    while !d.join("out/long.lock").exists() && t.elapsed().as_secs() < 60 {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    // SAFETY: a signal to the child this test started.
+    unsafe { libc::kill(long.id() as i32, libc::SIGINT) };
+    assert_eq!(long.wait().unwrap().code(), Some(130));
+    let saved = std::fs::read(&ckpt).unwrap();
+    let again = run(Command::new(bin())
+        .args(["train", "--no-progress", "--config"])
+        .arg(&cfg)
+        .arg("--out-dir")
+        .arg(d.join("out"))
+        .args(["--name", "long", "--epochs", "100000"]));
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(!again.status.success() && err.contains("holds an unfinished run of long") && err.contains("--resume"), "{err}");
+    assert_eq!(std::fs::read(&ckpt).unwrap(), saved);
 }
 
 /// The trainer's test rows say, as `eval`'s do, how much of a recording its ground-truth gaps
@@ -679,4 +718,49 @@ fn a_lock_whose_pid_was_reused_is_taken_over() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success() && err.contains("since given to a process started after the lock was written"), "{err}");
     assert!(!lock.exists(), "the lock is removed at the end of the run");
+}
+
+/// A resume may change the validation list: each recording's evaluations stay under its own
+/// name (they were paired by position, and a new recording's figures were filed under the
+/// old one's name, beside the old one's raw AOE).
+#[test]
+fn a_resume_with_another_validation_list_keeps_each_recordings_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut sim = imu_fsda::sim::SimConfig::load(&manifest().join("params/sim/aerial_adis16448.yaml")).unwrap();
+    for (name, seed) in [("a", 1), ("b", 2), ("c", 3)] {
+        sim.seed = seed;
+        write_recording(d.join(format!("{name}.mcap")), &imu_fsda::sim::simulate(&sim).unwrap().recording).unwrap();
+    }
+    let config = |validation: &str| {
+        let cfg = d.join(format!("v{}.yaml", validation.len()));
+        std::fs::write(
+            &cfg,
+            format!(
+                "model: {{mode: fsda}}\ndataset:\n  train: [{{bag: a.mcap}}]\n  validation: [{validation}]\ntrain: {{epochs: 4, window_samples: 2000, threads: 1, eval_every: 1, select_best: true}}\n"
+            ),
+        )
+        .unwrap();
+        cfg
+    };
+    let train = |cfg: &Path, epochs: &str, resume: bool| {
+        let mut cmd = Command::new(bin());
+        cmd.args(["train", "--no-progress", "--name", "m", "--epochs", epochs, "--config"]).arg(cfg).arg("--out-dir").arg(d.join("out"));
+        if resume {
+            cmd.arg("--resume").arg(d.join("out/m.ckpt.json"));
+        }
+        run(&mut cmd)
+    };
+    let out = train(&config("{bag: b.mcap}"), "2", false);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = train(&config("{bag: c.mcap}, {bag: b.mcap}"), "4", true);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && err.contains("the validation set is not the checkpoint's"), "{err}");
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.join("out/m.train.json")).unwrap()).unwrap();
+    let epochs = |name: &str| -> Vec<u64> {
+        let v = summary["validation"].as_array().unwrap().iter().find(|v| v["name"] == name).unwrap_or_else(|| panic!("{summary}"));
+        v["evals"].as_array().unwrap().iter().map(|e| e[0].as_u64().unwrap()).collect()
+    };
+    assert_eq!((epochs("b"), epochs("c")), (vec![1, 2, 3, 4], vec![3, 4]));
+    assert!(summary["exported_epoch"].as_u64().unwrap() >= 3, "chosen on the new set only");
 }

@@ -32,6 +32,18 @@ pub struct FrameCheck {
     /// The constant gyro bias `b` fitted with `R_x`, rad/s (absent in older reports).
     #[serde(default)]
     pub gyro_bias_rad_s: [f64; 3],
+    /// The gyro's axes are a mirror image of the ground truth's (one or three axes' signs
+    /// flipped, a left-handed driver frame): an orthogonal map with determinant −1 explains the
+    /// increments at most half as far off as the best rotation. No rotation fixes that.
+    #[serde(default)]
+    pub mirrored: bool,
+    /// That map, row-major (ground truth's body from the gyro's axes), when `mirrored`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mirror_map: Option<[[f64; 3]; 3]>,
+    /// RMS angle between `φ_gt` and the mirror map's image of the gyro's, degrees, when
+    /// `mirrored`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mirror_residual_deg: Option<f64>,
 }
 
 impl FrameCheck {
@@ -40,7 +52,23 @@ impl FrameCheck {
     /// own (a scale error, noise over 0.25 s increments) also makes Wahba's fit return some
     /// rotation, but one that barely lowers the residual: that is the gyro, not the frame.
     pub fn is_other_frame(&self, tolerance_deg: f64) -> bool {
-        self.angle_deg > tolerance_deg && self.residual_deg < 0.5 * self.residual_identity_deg
+        !self.mirrored && self.angle_deg > tolerance_deg && self.residual_deg < 0.5 * self.residual_identity_deg
+    }
+
+    /// The mirror map as the axes it sends each gyro axis to, e.g. `x→x, y→y, z→−z`, where it
+    /// is one (within 0.2 of a signed permutation), else the matrix.
+    pub fn mirror_axes(&self) -> Option<String> {
+        let m = self.mirror_map?;
+        let names = ["x", "y", "z"];
+        let mut parts = Vec::new();
+        for c in 0..3 {
+            let (r, v) = (0..3).map(|r| (r, m[r][c])).max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))?;
+            if v.abs() < 0.8 {
+                return Some(format!("{m:.2?}"));
+            }
+            parts.push(format!("{}→{}{}", names[c], if v < 0.0 { "−" } else { "" }, names[r]));
+        }
+        Some(parts.join(", "))
     }
 
     pub fn rotation(&self) -> UnitQuaternion<f64> {
@@ -110,7 +138,11 @@ pub fn check_frame_on(all: &[Increment], min_angle_rad: f64) -> Option<FrameChec
 /// off as the increments read as stored. Unlike another frame, no constant rotation fixes it.
 /// `stored`: [`check_frame_on`] of the same increments.
 pub fn inverted_quaternions(all: &[Increment], min_angle_rad: f64, stored: &FrameCheck) -> bool {
-    check_frame_with(all, min_angle_rad, |p| p.gt_if_inverted).is_some_and(|inverted| inverted.residual_deg < 0.5 * stored.residual_deg)
+    // A mirror image of the axes (a flipped gyro axis) can also read better inverted than as
+    // stored: inverted only if that reading beats the mirror's too.
+    check_frame_with(all, min_angle_rad, |p| p.gt_if_inverted).is_some_and(|inverted| {
+        inverted.residual_deg < 0.5 * stored.residual_deg && stored.mirror_residual_deg.is_none_or(|m| inverted.residual_deg < m)
+    })
 }
 
 fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Increment) -> Vector3<f64>) -> Option<FrameCheck> {
@@ -150,14 +182,30 @@ fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Incre
         (s / pairs.len().max(1) as f64).sqrt().to_degrees()
     };
     let identity_pairs = selected(&bias_identity);
+    let residual_deg = rms(&pairs, &|i| q * i);
+    // A mirror image: fitted with its own bias (it moves the bias as a rotation would).
+    let mirror = wahba_with_mirror(&pairs).and_then(|(_, _, m)| m).and_then(|m0| {
+        let mut m = m0;
+        let mut b = bias;
+        for _ in 0..20 {
+            b = all.iter().map(|p| (p.imu - m.transpose() * gt_of(p)) * p.seconds).sum::<Vector3<f64>>() / sum_t2;
+            m = wahba_with_mirror(&selected(&b))?.2?;
+        }
+        let r = rms(&selected(&b), &|i| m * i);
+        (r < 0.5 * residual_deg).then_some((m, r))
+    });
     Some(FrameCheck {
         gt_from_imu: [q.w, q.i, q.j, q.k],
         angle_deg: q.angle().to_degrees(),
         increments: pairs.len(),
         fully_observable,
-        residual_deg: rms(&pairs, &|i| q * i),
+        residual_deg,
         residual_identity_deg: rms(&identity_pairs, &|i| *i),
         gyro_bias_rad_s: [bias.x, bias.y, bias.z],
+        mirrored: mirror.is_some(),
+        mirror_map: mirror
+            .map(|(m, _)| [[m[(0, 0)], m[(0, 1)], m[(0, 2)]], [m[(1, 0)], m[(1, 1)], m[(1, 2)]], [m[(2, 0)], m[(2, 1)], m[(2, 2)]]]),
+        mirror_residual_deg: mirror.map(|(_, r)| r),
     })
 }
 
@@ -165,6 +213,12 @@ fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Incre
 /// `Σ |φ_gt − R φ_imu|²`, and whether it is fully observable (else the smallest rotation taking
 /// the dominant gyro axis onto the ground truth's). `None` with fewer than 3 pairs.
 fn wahba(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuaternion<f64>, bool)> {
+    wahba_with_mirror(pairs).map(|(q, full, _)| (q, full))
+}
+
+/// [`wahba`], and the orthogonal map with determinant −1 (`U Vᵀ`) where that is the
+/// unconstrained optimum, fully observable motion only.
+fn wahba_with_mirror(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuaternion<f64>, bool, Option<Matrix3<f64>>)> {
     if pairs.len() < 3 {
         return None;
     }
@@ -179,8 +233,12 @@ fn wahba(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuaternion<f64>,
     idx.sort_by(|&x, &y| svd.singular_values[y].total_cmp(&svd.singular_values[x]));
     let s = svd.singular_values;
     let fully_observable = s[idx[1]] > 0.05 * s[idx[0]];
+    let mut mirror = None;
     let rot = if fully_observable {
         let d = (u.determinant() * v_t.determinant()).signum();
+        if d < 0.0 {
+            mirror = Some(u * v_t);
+        }
         // Put the sign on the smallest singular direction.
         let mut fix = Matrix3::identity();
         fix[(idx[2], idx[2])] = d;
@@ -196,7 +254,7 @@ fn wahba(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuaternion<f64>,
         });
         about_dominant_axis(pairs, base, &ug)
     };
-    Some((UnitQuaternion::from_rotation_matrix(&rot), fully_observable))
+    Some((UnitQuaternion::from_rotation_matrix(&rot), fully_observable, mirror))
 }
 
 /// The turn `ψ` about the ground truth's dominant axis `u` that best fits the weak motion about
@@ -350,6 +408,26 @@ mod tests {
         let (imu, att) = motion(20_000, 1);
         let same: Vec<_> = att.iter().map(|q| Some(*q)).collect();
         assert!(check_frame(&imu, &same, 40, 0.05).unwrap().angle_deg < 0.1);
+    }
+
+    /// A driver that flips one axis (or all three) gives a mirror image of the motion: named
+    /// as such, not as another frame that `--frame apply` would "fix".
+    #[test]
+    fn mirrored_axes_are_not_another_frame() {
+        let (imu, att) = motion(20_000, 3);
+        let gt: Vec<_> = att.iter().map(|q| Some(*q)).collect();
+        for flip in [Vector3::new(1.0, 1.0, -1.0), Vector3::new(-1.0, -1.0, -1.0)] {
+            let flipped: Vec<ImuSample> = imu.iter().map(|s| ImuSample { gyro: s.gyro.component_mul(&flip), ..*s }).collect();
+            let c = check_frame(&flipped, &gt, 40, 0.05).unwrap();
+            assert!(c.mirrored && !c.is_other_frame(5.0), "{c:?}");
+            let want = if flip.z < 0.0 && flip.x > 0.0 { "x→x, y→y, z→−z" } else { "x→−x, y→−y, z→−z" };
+            assert_eq!(c.mirror_axes().unwrap(), want);
+        }
+        // A rotation is not a mirror image.
+        let rx = UnitQuaternion::from_euler_angles(0.1, -0.4, 1.2);
+        let rotated: Vec<_> = att.iter().map(|q| Some(q * rx.inverse())).collect();
+        let c = check_frame(&imu, &rotated, 40, 0.05).unwrap();
+        assert!(!c.mirrored && c.is_other_frame(5.0), "{c:?}");
     }
 
     #[test]

@@ -75,6 +75,11 @@ impl CheckpointMeta {
 /// The `.ot` entry holding [`CheckpointMeta::pair_token`].
 const PAIR_KEY: &str = "ckpt.pair";
 
+/// The `.ot` entry holding the whole [`CheckpointMeta`] as JSON bytes: the `.ot` is renamed
+/// into place first, so a run killed before its `.json` follows (a second Ctrl-C, kill -9)
+/// leaves an `.ot` that resumes by itself instead of a pair that no longer matches.
+const META_KEY: &str = "ckpt.meta";
+
 pub fn paths(out_dir: &Path, name: &str) -> (PathBuf, PathBuf) {
     (out_dir.join(format!("{name}.ckpt.ot")), out_dir.join(format!("{name}.ckpt.json")))
 }
@@ -102,11 +107,13 @@ pub fn save(
         named.extend(ema.iter().map(|(n, t)| (format!("ema.{n}"), t.shallow_clone())));
     }
     named.push((PAIR_KEY.to_string(), Tensor::from_slice(&[token])));
+    let text = serde_json::to_string_pretty(&meta)?;
+    named.push((META_KEY.to_string(), Tensor::from_slice(text.as_bytes())));
     let tmp = ot.with_extension("ot.tmp");
     Tensor::save_multi(&named, &tmp)?;
     std::fs::rename(&tmp, &ot)?;
     let tmp = json.with_extension("json.tmp");
-    std::fs::write(&tmp, serde_json::to_string_pretty(&meta)?)?;
+    std::fs::write(&tmp, text)?;
     std::fs::rename(&tmp, &json)?;
     Ok(json)
 }
@@ -123,18 +130,43 @@ pub fn load(path: &Path) -> anyhow::Result<Loaded> {
     let stem = s.trim_end_matches(".json").trim_end_matches(".ot").to_string();
     let json = PathBuf::from(format!("{stem}.json"));
     let ot = PathBuf::from(format!("{stem}.ot"));
-    let meta: CheckpointMeta = serde_json::from_str(
-        &std::fs::read_to_string(&json).map_err(|e| anyhow::anyhow!("{}: {e} (resume takes the .ckpt.json path)", json.display()))?,
-    )
-    .map_err(|e| anyhow::anyhow!("{}: not a checkpoint: {e}", json.display()))?;
-    if meta.format_version != 1 {
-        anyhow::bail!("{}: checkpoint format {} (expected 1)", json.display(), meta.format_version);
+    let read_json = || -> anyhow::Result<CheckpointMeta> {
+        let text =
+            std::fs::read_to_string(&json).map_err(|e| anyhow::anyhow!("{}: {e} (resume takes the .ckpt.json path)", json.display()))?;
+        serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: not a checkpoint: {e}", json.display()))
+    };
+    // The `.json` is read first where the `.ot` cannot be: its error names what is wrong.
+    if !ot.is_file() {
+        read_json()?;
     }
     let mut tensors: BTreeMap<String, Tensor> = Tensor::load_multi(&ot)
         .map_err(|e| anyhow::anyhow!("{}: {}", ot.display(), crate::model::torch_message(&e)))?
         .into_iter()
         .collect();
     let in_ot = tensors.remove(PAIR_KEY).and_then(|t| Vec::<i64>::try_from(&t).ok()).and_then(|v| v.first().copied());
+    if let Some(embedded) = tensors.remove(META_KEY) {
+        // The `.ot` carries its own metadata (saves since session 38): a `.json` left behind by
+        // an interrupted save does not matter.
+        let bytes = Vec::<u8>::try_from(&embedded).map_err(|e| anyhow::anyhow!("{}: {META_KEY}: {e}", ot.display()))?;
+        let meta: CheckpointMeta =
+            serde_json::from_slice(&bytes).map_err(|e| anyhow::anyhow!("{}: its metadata is not a checkpoint's: {e}", ot.display()))?;
+        if meta.format_version != 1 {
+            anyhow::bail!("{}: checkpoint format {} (expected 1)", ot.display(), meta.format_version);
+        }
+        if read_json().ok().and_then(|j| j.pair_token) != meta.pair_token {
+            tracing::warn!(
+                "{} is not the save of {} (a save interrupted between the two files): resuming from the .ot, epoch {}",
+                json.display(),
+                ot.display(),
+                meta.epoch
+            );
+        }
+        return Ok(Loaded { meta, tensors });
+    }
+    let meta = read_json()?;
+    if meta.format_version != 1 {
+        anyhow::bail!("{}: checkpoint format {} (expected 1)", json.display(), meta.format_version);
+    }
     if let Some(token) = meta.pair_token {
         if in_ot != Some(token) {
             anyhow::bail!(
@@ -233,10 +265,11 @@ mod tests {
         )
     }
 
-    /// A checkpoint's `.ot` replaced by another one of the same shapes (another run's, or a
-    /// save of this run that the `.json` does not describe) is refused; the true pair loads.
+    /// The `.ot` carries its own metadata: a save interrupted after the `.ot` was renamed and
+    /// before the `.json` followed (a second Ctrl-C, kill -9) resumes from the `.ot`, whose
+    /// weights and epoch agree. An `.ot` without it (older saves) must match its `.json`.
     #[test]
-    fn a_weights_file_from_another_save_is_refused() {
+    fn the_weights_file_describes_itself() {
         let dir = tempfile::tempdir().unwrap();
         let write = |name: &str, w: f32, epoch: usize| {
             let vs = VarStore::new(tch::Device::Cpu);
@@ -247,9 +280,16 @@ mod tests {
         let b = write("b", 2.0, 6);
         let loaded = load(&a).unwrap();
         assert_eq!(loaded.meta.epoch, 3);
-        assert!(!loaded.tensors.contains_key(PAIR_KEY), "the token is not a variable");
+        assert!(!loaded.tensors.contains_key(PAIR_KEY) && !loaded.tensors.contains_key(META_KEY), "not variables");
         assert_eq!(Vec::<f32>::try_from(&loaded.tensors["vs.w"]).unwrap(), vec![1.0, 1.0]);
+        // The next save's `.ot` in place, its `.json` never written.
         std::fs::copy(dir.path().join("b.ckpt.ot"), dir.path().join("a.ckpt.ot")).unwrap();
+        let loaded = load(&a).unwrap();
+        assert_eq!((loaded.meta.epoch, Vec::<f32>::try_from(&loaded.tensors["vs.w"]).unwrap()), (6, vec![2.0, 2.0]));
+        // An older `.ot` (no metadata of its own) of another save is refused.
+        let old: Vec<(String, Tensor)> =
+            vec![("vs.w".into(), Tensor::from_slice(&[5.0f32, 5.0])), (PAIR_KEY.into(), Tensor::from_slice(&[7i64]))];
+        Tensor::save_multi(&old, dir.path().join("a.ckpt.ot")).unwrap();
         let e = load(&a).err().expect("a mismatched pair loads").to_string();
         assert!(e.contains("was not saved with") && e.contains("a.ckpt.json"), "{e}");
         assert!(load(&b).is_ok());

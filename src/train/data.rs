@@ -62,6 +62,12 @@ pub enum DataError {
     )]
     OtherFrame { name: String, angle_deg: f64, residual_deg: f64, identity_deg: f64 },
     #[error(
+        "{name}: the gyro's axes are a mirror image of the ground truth's ({axes}; residual {mirror_deg:.1}° as a mirror image, \
+         {rotation_deg:.1}° after the best rotation): an axis sign flipped in the IMU driver, or a left-handed frame; \
+         no rotation of the ground truth fixes that: correct the driver's axes (ROS frames are right-handed, REP 103)"
+    )]
+    MirroredAxes { name: String, axes: String, mirror_deg: f64, rotation_deg: f64 },
+    #[error(
         "{name}: the ground truth's rotation axes do not follow the gyro's (RMS {residual_deg:.1}° apart over {increments} \
          0.25-s increments, even after the best constant rotation): inverted quaternions (body-from-world), another body's poses, \
          or clocks more than the 30 s searched apart?"
@@ -286,6 +292,14 @@ pub fn check_ground_truth_follows_gyro(rec: &Recording, other_frame: bool) -> Re
     if let Some(f) = frame.filter(|f| f.increments >= 10) {
         if inverted {
             return Err(DataError::InvertedQuaternions { name: rec.name.clone() });
+        }
+        if f.mirrored {
+            return Err(DataError::MirroredAxes {
+                name: rec.name.clone(),
+                axes: f.mirror_axes().unwrap_or_default(),
+                mirror_deg: f.mirror_residual_deg.unwrap_or(f64::NAN),
+                rotation_deg: f.residual_deg,
+            });
         }
         if f.is_other_frame(5.0) {
             if !other_frame {

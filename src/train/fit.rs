@@ -747,6 +747,37 @@ pub fn flush_denormals_to_zero() {
     }
 }
 
+/// A new run over a checkpoint of the same name that has epochs left to train would replace
+/// it: after "stopped after epoch 116 of 300", the same command without `--resume` started
+/// again from epoch 0 and the 116 epochs were gone. A finished run's checkpoint is replaced
+/// (training a model again under its name).
+fn refuse_to_restart_over_unfinished(out_dir: &Path, name: &str) -> anyhow::Result<()> {
+    let (ot, json) = checkpoint::paths(out_dir, name);
+    if !ot.exists() && !json.exists() {
+        return Ok(());
+    }
+    match checkpoint::load(&json) {
+        // A run stopped by its time budget is finished as asked.
+        Ok(c) if c.meta.epoch < c.meta.config.train.epochs && !budget_spent(&c.meta) => anyhow::bail!(
+            "{} holds an unfinished run of {name} (epoch {} of {}): continue it with --resume {}, or delete it (or give another --name) to start over",
+            json.display(),
+            c.meta.epoch,
+            c.meta.config.train.epochs,
+            json.display()
+        ),
+        Ok(_) => Ok(()),
+        Err(e) => {
+            tracing::warn!("{}: unreadable ({e:#}); a new run replaces it", json.display());
+            Ok(())
+        }
+    }
+}
+
+fn budget_spent(meta: &CheckpointMeta) -> bool {
+    let budget = meta.config.train.max_train_seconds;
+    budget > 0.0 && meta.train_seconds >= budget
+}
+
 /// The config with the command line's `--seed` / `--epochs` applied, checked again.
 pub fn with_overrides(cfg: &TrainConfig, seed: Option<u64>, epochs: Option<usize>) -> anyhow::Result<TrainConfig> {
     let mut cfg = cfg.clone();
@@ -799,11 +830,18 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             );
         }
     }
+    if resume.is_none() {
+        refuse_to_restart_over_unfinished(&opts.out_dir, &opts.name)?;
+    }
     let mut data = load_datasets(&cfg)?;
     let fingerprints = data.fingerprints();
     if let Some(r) = resume.as_ref().filter(|r| !r.meta.data_fingerprints.is_empty()) {
-        let changed: Vec<&str> =
-            fingerprints.iter().filter(|(k, v)| r.meta.data_fingerprints.get(*k) != Some(*v)).map(|(k, _)| k.as_str()).collect();
+        // Recordings of the same name only: the evaluation lists may change on a resume.
+        let changed: Vec<&str> = fingerprints
+            .iter()
+            .filter(|(k, v)| r.meta.data_fingerprints.get(*k).is_some_and(|was| was != *v))
+            .map(|(k, _)| k.as_str())
+            .collect();
         if !changed.is_empty() {
             anyhow::bail!(
                 "--resume: the data of {} changed since the checkpoint (same paths and config, other samples): the run would continue on other data; restore the recordings or start a new run",
@@ -887,11 +925,26 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             .map(|t| Ok(SequenceEvals { name: t.name.clone(), source: t.source.clone(), raw: evaluate_raw(t, &eopts)?, evals: vec![] }))
             .collect()
     };
-    if validation.len() != data.validation.len() {
-        validation = fresh(&data.validation)?;
-    }
-    if monitor.len() != data.monitor.len() {
-        monitor = fresh(&data.monitor)?;
+    // A resume may change the evaluation lists: the checkpoint's evaluations are kept for the
+    // recordings still listed (by name and source), the others start empty. Before, they were
+    // paired by position, and a new recording's figures were filed under the old one's name.
+    let carry = |old: Vec<SequenceEvals>, tasks: &[Task]| -> anyhow::Result<(Vec<SequenceEvals>, bool)> {
+        let fresh_list = fresh(tasks)?;
+        let same = old.len() == tasks.len() && old.iter().zip(tasks).all(|(o, t)| o.name == t.name && o.source == t.source);
+        let mut old: BTreeMap<(String, String), SequenceEvals> = old.into_iter().map(|o| ((o.name.clone(), o.source.clone()), o)).collect();
+        let list = fresh_list.into_iter().map(|f| old.remove(&(f.name.clone(), f.source.clone())).unwrap_or(f)).collect();
+        Ok((list, same))
+    };
+    let (carried, same_validation) = carry(std::mem::take(&mut validation), &data.validation)?;
+    validation = carried;
+    monitor = carry(std::mem::take(&mut monitor), &data.monitor)?.0;
+    if resume.is_some() && !same_validation && best.is_some() {
+        tracing::warn!(
+            "--resume: the validation set is not the checkpoint's; the best epoch so far (epoch {}) was chosen on the other one, and the best is chosen again from here on",
+            best.map_or(0, |b| b.0)
+        );
+        best = None;
+        best_vars = None;
     }
     for v in &validation {
         tracing::info!("validation {}: raw AOE {:.2}°", v.name, v.raw.aoe_deg);
