@@ -173,7 +173,7 @@ pub enum AdaptError {
          truth in the IMU frame, or allow it to be re-expressed (frame policy `apply`)",
         .0.angle_deg, .0.gt_from_imu, .0.residual_deg, .0.residual_identity_deg, .0.increments,
         if .0.fully_observable { "" } else { "; only the tilt between the motion axes is observable" })]
-    OtherFrame(FrameCheck),
+    OtherFrame(Box<FrameCheck>),
     #[error(transparent)]
     Data(#[from] DataError),
     #[error(transparent)]
@@ -420,7 +420,7 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
         }
         if let Some(f) = frame.filter(|f| f.is_other_frame(cfg.frame_tolerance_deg)) {
             match cfg.frame_policy {
-                FramePolicy::Error => return Err(AdaptError::OtherFrame(f)),
+                FramePolicy::Error => return Err(AdaptError::OtherFrame(Box::new(f))),
                 FramePolicy::Apply => {
                     tracing::warn!("ground truth re-expressed in the IMU frame: rotation of {:.1}°", f.angle_deg);
                     apply_frame(&mut support, &f.rotation());
