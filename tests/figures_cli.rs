@@ -98,6 +98,26 @@ fn embed_writes_png_and_points() {
         .arg(&again));
     assert_eq!(csv, std::fs::read_to_string(again.with_extension("csv")).unwrap());
 
+    // Two bags of one file name in two folders are two groups, each named by its path.
+    for sub in ["a", "b"] {
+        std::fs::create_dir_all(d.path().join(sub)).unwrap();
+        std::fs::copy(repo("test_bags/sim_car.mcap"), d.path().join(sub).join("run.mcap")).unwrap();
+    }
+    let twins = d.path().join("twins.png");
+    run(Command::new(bin())
+        .args(["embed", "--model"])
+        .arg(repo("models/fsda-f.pt"))
+        .arg("--sequence")
+        .arg(d.path().join("a/run.mcap"))
+        .arg(d.path().join("b/run.mcap"))
+        .args(["--points-per-sequence", "20", "--iterations", "100", "-o"])
+        .arg(&twins));
+    let csv = std::fs::read_to_string(twins.with_extension("csv")).unwrap();
+    for sub in ["a", "b"] {
+        let name = d.path().join(sub).join("run.mcap").display().to_string();
+        assert_eq!(csv.lines().filter(|r| r.starts_with(&format!("{name},bag,"))).count(), 20, "{csv}");
+    }
+
     // DIGDL has no Embedding: an error that says so.
     let out = Command::new(bin())
         .args(["embed", "--model"])

@@ -314,6 +314,8 @@ fn numeric_options_out_of_range_are_refused_by_name() {
         (&["adapt", "--model", "m.pt", "--bag", bag, "-o", "x.pt", "--query-seconds=-1"], "--query-seconds"),
         (&["adapt", "--model", "m.pt", "--bag", bag, "-o", "x.pt", "--support-seconds", "1e300"], "--support-seconds"),
         (&["adapt", "--model", "m.pt", "--bag", bag, "-o", "x.pt", "--lr", "nan"], "--lr"),
+        (&["embed", "--model", "m.pt", "--sequence", bag, "-o", "x.png", "--perplexity", "0"], "--perplexity"),
+        (&["embed", "--model", "m.pt", "--sequence", bag, "-o", "x.png", "--points-per-sequence", "0"], "--points-per-sequence"),
     ];
     for (args, option) in cases {
         let out = Command::new(bin()).args(*args).output().unwrap();
@@ -330,6 +332,10 @@ fn numeric_options_out_of_range_are_refused_by_name() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("fewer than 2 IMU samples"), "{err}");
+    // A start past the ground truth names the option (it read "does not overlap the IMU").
+    let out = Command::new(bin()).args(["eval", bag, "--method", "raw", "--start-s", "1e6"]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("--start-s 1000000 is past the ground truth"), "{err}");
 }
 
 /// eval drops a value no IMU measures, as the node does, and says so in the row: one 1e30

@@ -144,15 +144,18 @@ fn ci_small_learns_exports_and_resumes() {
         .join("\n");
     let budgeted_cfg = dir.path().join("ci-budget.yaml");
     std::fs::write(&budgeted_cfg, &budgeted).unwrap();
-    ok(Command::new(bin())
+    let printed = ok(Command::new(bin())
         .args(["train", "--config"])
         .arg(&budgeted_cfg)
         .arg("--out-dir")
         .arg(dir.path())
         .args(["--name", "ci", "--no-progress", "--epochs", "65", "--resume"])
         .arg(dir.path().join("ci.ckpt.json")));
+    assert!(printed.contains("after epoch 63 of 65") && !printed.contains("lowest validation score"), "{printed}");
     let stopped: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("ci.train.json")).unwrap()).unwrap();
     assert_eq!(stopped["history"].as_array().unwrap().len(), 63, "stops after the first epoch past the budget");
+    // Said as such: it reported "65 epochs" and, with select_best off, "lowest validation score".
+    assert_eq!((stopped["epochs"].as_u64(), stopped["epochs_planned"].as_u64()), (Some(63), Some(65)));
     assert_eq!(load_metadata(&dir.path().join("ci.json")).unwrap().metrics["stopped_at_budget"], 63.0);
 
     // A run of other length than the config's does not replace an existing model of its name
@@ -678,10 +681,12 @@ fn test_rows_name_the_ground_truth_gaps() {
     let cfg = d.join("c.yaml");
     std::fs::write(
         &cfg,
-        "model: {mode: fsda}\ndataset:\n  train: [{bag: flight.mcap}]\n  test: [{bag: gappy.mcap}]\ntrain: {epochs: 2, window_samples: 2000, threads: 1}\n",
+        "model: {mode: fsda}\ndataset:\n  train: [{bag: flight.mcap}]\n  test: [{bag: gappy.mcap, end_s: 1000}]\ntrain: {epochs: 2, window_samples: 2000, threads: 1}\n",
     )
     .unwrap();
-    let printed = ok(Command::new(bin()).args(["train", "--no-progress", "--config"]).arg(&cfg).arg("--out-dir").arg(d.join("out")));
+    let out = run(Command::new(bin()).args(["train", "--no-progress", "--config"]).arg(&cfg).arg("--out-dir").arg(d.join("out")));
+    let (printed, err) = (String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success() && err.contains("end_s 1000 s is past its ground-truth-covered data"), "{err}");
     let row = printed.lines().find(|l| l.starts_with("test gappy")).unwrap_or_else(|| panic!("{printed}"));
     let share: f64 =
         row.split("; ").nth(1).and_then(|n| n.split(' ').next()).and_then(|x| x.parse().ok()).unwrap_or_else(|| panic!("{row}"));
@@ -718,6 +723,14 @@ fn a_lock_whose_pid_was_reused_is_taken_over() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success() && err.contains("since given to a process started after the lock was written"), "{err}");
     assert!(!lock.exists(), "the lock is removed at the end of the run");
+    // An adapted model of the name (`adapt -o out/m.pt` writes m.adapt.json beside it) is not
+    // replaced by a training run.
+    std::fs::write(d.join("out/m.adapt.json"), "{}").unwrap();
+    let model = std::fs::read(d.join("out/m.json")).unwrap();
+    let out = train();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("is an adapted model"), "{err}");
+    assert_eq!(std::fs::read(d.join("out/m.json")).unwrap(), model);
 }
 
 /// A resume may change the validation list: each recording's evaluations stay under its own

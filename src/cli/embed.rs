@@ -28,17 +28,22 @@ pub struct EmbedArgs {
     #[arg(long, default_value = imu_fsda::bag::IMU_TOPIC)]
     pub imu_topic: String,
     /// Samples drawn (uniformly, without replacement) from each sequence.
-    #[arg(long, default_value_t = 300)]
-    pub points_per_sequence: usize,
+    #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u32).range(1..))]
+    pub points_per_sequence: u32,
     /// Seed of the sampling and of the t-SNE layout.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// t-SNE perplexity.
-    #[arg(long, default_value_t = 30.0)]
+    /// t-SNE perplexity (> 1).
+    #[arg(long, default_value_t = 30.0, value_parser = perplexity)]
     pub perplexity: f64,
     /// t-SNE gradient steps.
     #[arg(long, default_value_t = 1000)]
     pub iterations: usize,
+}
+
+/// A usage error (exit 2) as every other numeric option's, not a run-time one.
+fn perplexity(s: &str) -> Result<f64, String> {
+    super::finite(s).and_then(|x| if x > 1.0 { Ok(x) } else { Err(format!("{s} is not above 1")) })
 }
 
 /// Exact t-SNE is O(n²) in memory and time: beyond this, ask for fewer points.
@@ -67,10 +72,8 @@ fn load(path: &Path, imu_topic: &str) -> anyhow::Result<Source> {
 }
 
 pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
-    if args.points_per_sequence == 0 {
-        anyhow::bail!("--points-per-sequence must be at least 1");
-    }
-    if args.points_per_sequence * args.sequences.len() > MAX_POINTS {
+    let per_sequence = args.points_per_sequence as usize;
+    if per_sequence.saturating_mul(args.sequences.len()) > MAX_POINTS {
         anyhow::bail!(
             "{} sequences × {} points exceed the {MAX_POINTS} points an exact t-SNE handles here; lower --points-per-sequence",
             args.sequences.len(),
@@ -90,9 +93,15 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
     let model = EmbeddingModel::load(&args.model).with_context(|| format!("model {}", args.model.display()))?;
     let mut labels: Vec<(String, &'static str, usize, i64)> = Vec::new();
     let mut x: Vec<Vec<f64>> = Vec::new();
-    for (k, path) in args.sequences.iter().enumerate() {
-        let src = load(path, &args.imu_topic)?;
-        let idx = sample_indices(&src.imu, args.points_per_sequence, args.seed.wrapping_add(k as u64));
+    let sources = args.sequences.iter().map(|p| load(p, &args.imu_topic)).collect::<anyhow::Result<Vec<Source>>>()?;
+    // Two of one name (`a/run.mcap`, `b/run.mcap`) were drawn as one group and one label:
+    // each is named by its path instead.
+    let names: Vec<String> = sources.iter().map(|s| s.name.clone()).collect();
+    for (k, (path, mut src)) in args.sequences.iter().zip(sources).enumerate() {
+        if names.iter().filter(|n| **n == src.name).count() > 1 {
+            src.name = path.display().to_string();
+        }
+        let idx = sample_indices(&src.imu, per_sequence, args.seed.wrapping_add(k as u64));
         if idx.is_empty() {
             anyhow::bail!("{}: no finite IMU sample", path.display());
         }

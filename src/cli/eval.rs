@@ -147,6 +147,15 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                     present.join(", ")
                 );
             }
+            if let (Some(a), Some(g0), Some(g1)) = (args.start_s, rec.ground_truth.first(), rec.ground_truth.last()) {
+                let covered = (g1.stamp_ns - g0.stamp_ns) as f64 * 1e-9;
+                if a >= covered {
+                    anyhow::bail!(
+                        "{}: --start-s {a} is past the ground truth, which covers {covered:.1} s from its first pose: nothing left to score",
+                        bag.display()
+                    );
+                }
+            }
             let rec = if args.start_s.is_some() || args.end_s.is_some() {
                 rec.crop_after_ground_truth_start(args.start_s, args.end_s).with_context(|| {
                     format!(

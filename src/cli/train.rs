@@ -56,6 +56,16 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     // Two runs writing one <name> (two terminals, the default name) would each replace the
     // other's files; the second is refused while the first runs.
     let _lock = RunLock::acquire(&args.out_dir, &name)?;
+    // An adapted model of this name (`imu-fsda adapt -o`) is a robot's own: a training run
+    // replaced it without a word and left its `.adapt.json` describing another model.
+    let adapted = args.out_dir.join(format!("{name}.adapt.json"));
+    if adapted.exists() && args.out_dir.join(format!("{name}.json")).exists() {
+        anyhow::bail!(
+            "{} is an adapted model ({}): training would replace it; give this run its own --name or --out-dir",
+            args.out_dir.join(format!("{name}.pt")).display(),
+            adapted.display()
+        );
+    }
     if args.seed.is_none() && cfg.train.seeds.len() > 1 {
         if args.resume.is_some() {
             anyhow::bail!(
@@ -108,6 +118,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         s.loss_first,
         s.loss_last
     )?;
+    if let Some(planned) = s.epochs_planned {
+        out!("stopped by the wall-time budget (train.max_train_seconds) after epoch {} of {planned}", s.epochs)?;
+    }
     if s.exported_epoch != s.epochs {
         out!("exported epoch {} (lowest validation score; train.select_best)", s.exported_epoch)?;
     }

@@ -514,6 +514,10 @@ pub fn task_from_recording(
         return Err(DataError::EmptyCrop { name: rec.name.clone(), start: src.start_s.unwrap_or(0.0), seconds: covered_s });
     };
     let b = (a..=last).rev().find(|&i| in_crop(i)).unwrap_or(a);
+    if let Some(end) = src.end_s.filter(|e| *e > covered_s + 1.0) {
+        // Said, not refused: the crop is the rest of the recording, perhaps not what was meant.
+        tracing::warn!("{}: end_s {end} s is past its ground-truth-covered data ({covered_s:.1} s): cropped to the end", rec.name);
+    }
     let imu = rec.imu[a..=b].to_vec();
     let gt = &gt[a..=b];
     let mut valid = valid[a..=b].to_vec();

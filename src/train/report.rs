@@ -66,7 +66,12 @@ pub struct TrainSummary {
     pub name: String,
     pub mode: crate::model::Mode,
     pub seed: u64,
+    /// Epochs trained (fewer than the config's when the time budget stopped the run).
     pub epochs: usize,
+    /// The config's epochs, where the wall-time budget (`train.max_train_seconds`) stopped the
+    /// run before them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub epochs_planned: Option<usize>,
     pub resumed_from_epoch: Option<usize>,
     /// The epoch count of the exported weights.
     pub exported_epoch: usize,
