@@ -614,7 +614,15 @@ impl TrainConfig {
                 ));
             }
         }
-        serde_yaml::from_value(doc).map_err(|e| e.to_string())
+        serde_yaml::from_value(doc).map_err(|e| {
+            // A value's error has no place in the file; the text's own, where it fails too,
+            // names the key and the line.
+            // (Not for the `model` section: the text's lacks the mode's defaults.)
+            match serde_yaml::from_str::<TrainConfig>(text) {
+                Err(located) if !located.to_string().starts_with("model") => located.to_string(),
+                _ => e.to_string(),
+            }
+        })
     }
 
     /// Checks values that serde cannot.
@@ -890,6 +898,15 @@ mod tests {
         assert_eq!(t.augment_for("tumvi").gyro_noise_std, 1.0e-4);
         let euroc = t.augment_for("euroc");
         assert_eq!((euroc.gyro_noise_std, euroc.accel_noise_std), (Augment::default().gyro_noise_std, 2.0e-2));
+    }
+
+    /// A bad value names its key and line (the merged document's error had neither).
+    #[test]
+    fn a_bad_value_names_its_key_and_line() {
+        let e = TrainConfig::parse("model: {mode: fsda}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: -5}\n").unwrap_err();
+        assert!(e.contains("train.epochs") && e.contains("line 3"), "{e}");
+        let e = TrainConfig::parse("model: {mode: fsda, hidden: x}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 5}\n").unwrap_err();
+        assert!(e.contains("hidden"), "{e}");
     }
 
     /// Keys that would be read and then not used are refused by name.
