@@ -531,11 +531,19 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
         }
     }
     report.out_of_log_time_order = in_log_time_order(&mut imu) + in_log_time_order(&mut poses) + in_log_time_order(&mut temperature);
-    // Stamped 0 beside clock times (over an hour): not set, rather than the sample's time.
-    let clock_stamps = imu.iter().any(|(_, s)| s.stamp_ns > UNSET_STAMP_BESIDE_NS);
-    for (_, s) in imu {
+    // Stamped 0 and followed by a clock time (the next other stamp over an hour later): not
+    // set, rather than the sample's time. A simulator's clock starting at 0 goes on in steps.
+    let mut next_stamp = vec![0i64; imu.len()];
+    let mut next = 0i64;
+    for (k, (_, s)) in imu.iter().enumerate().rev() {
+        next_stamp[k] = next;
+        if s.stamp_ns != 0 {
+            next = s.stamp_ns;
+        }
+    }
+    for ((_, s), next) in imu.into_iter().zip(next_stamp) {
         report.imu_read += 1;
-        if clock_stamps && s.stamp_ns == 0 {
+        if s.stamp_ns == 0 && next > UNSET_STAMP_BESIDE_NS {
             report.imu_unset_stamp += 1;
             continue;
         }
@@ -574,7 +582,7 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
     Ok((rec, report))
 }
 
-/// An IMU stamp of 0 is taken as unset when other stamps of the stream are past this (1 h):
+/// An IMU stamp of 0 is taken as unset when the stream's next other stamp is past this (1 h):
 /// a simulator's clock starts at 0 and its first sample may well be stamped 0.
 const UNSET_STAMP_BESIDE_NS: i64 = 3_600_000_000_000;
 
@@ -750,6 +758,11 @@ mod tests {
         assert!(report.to_string().contains("1 unset (0) stamps"), "{report}");
         let mut sim = recording();
         sim.imu.iter_mut().for_each(|s| s.stamp_ns -= 1_000_000_000);
+        write_recording(&path, &sim).unwrap();
+        let (back, report) = read_recording(&path, &RecordingTopics::default()).unwrap();
+        assert_eq!((report.skipped(), back.imu.len(), back.imu[0].stamp_ns), (0, 500, 0));
+        // … however long it runs (here past an hour).
+        sim.imu.last_mut().unwrap().stamp_ns = 2 * UNSET_STAMP_BESIDE_NS;
         write_recording(&path, &sim).unwrap();
         let (back, report) = read_recording(&path, &RecordingTopics::default()).unwrap();
         assert_eq!((report.skipped(), back.imu.len(), back.imu[0].stamp_ns), (0, 500, 0));

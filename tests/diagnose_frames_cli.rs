@@ -134,4 +134,11 @@ fn the_sim_bag_is_read_on_its_own_topics() {
     assert!(diagnose(&case.join("sim.mcap"), &[], "same").status.success());
     assert_eq!(findings("own"), findings("same"));
     assert!(findings("own").as_array().unwrap().iter().any(|f| f["term"] == "gyro_scale"));
+    // They name the --sim bag's topics: with --noise-model there is none (a usage error).
+    let out = run(Command::new(bin())
+        .args(["diagnose", "--noise-model", "nm.yaml", "--sim-imu-topic", "/x", "--real"])
+        .arg(case.join("real.mcap"))
+        .arg("-o")
+        .arg(d.path().join("nm")));
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
 }

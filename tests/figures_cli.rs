@@ -117,6 +117,20 @@ fn embed_writes_png_and_points() {
         let name = d.path().join(sub).join("run.mcap").display().to_string();
         assert_eq!(csv.lines().filter(|r| r.starts_with(&format!("{name},bag,"))).count(), 20, "{csv}");
     }
+    // One bag given twice: two groups, numbered.
+    run(Command::new(bin())
+        .args(["embed", "--model"])
+        .arg(repo("models/fsda-f.pt"))
+        .arg("--sequence")
+        .arg(d.path().join("a/run.mcap"))
+        .arg(d.path().join("a/run.mcap"))
+        .args(["--points-per-sequence", "20", "--iterations", "100", "-o"])
+        .arg(&twins));
+    let csv = std::fs::read_to_string(twins.with_extension("csv")).unwrap();
+    for k in [1, 2] {
+        let name = format!("{} #{k}", d.path().join("a/run.mcap").display());
+        assert_eq!(csv.lines().filter(|r| r.starts_with(&format!("{name},bag,"))).count(), 20, "{csv}");
+    }
 
     // DIGDL has no Embedding: an error that says so.
     let out = Command::new(bin())

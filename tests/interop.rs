@@ -269,7 +269,11 @@ fn fixture() -> Vec<Item> {
         linear_acceleration_covariance: cov(std::f64::consts::PI),
     };
     imu0.orientation_covariance.0[8] = f64::INFINITY;
-    let imu1 = Imu::from_sample(&imu_sample([5e-324, -5e-324, 1e308], [f64::MAX, f64::MIN, -1e-310]), "");
+    // Stamped 0.25 s, not 0: a 0 beside clock times is read as an unset stamp and left out.
+    let imu1 = Imu {
+        header: hdr(0, 250_000_000, ""),
+        ..Imu::from_sample(&imu_sample([5e-324, -5e-324, 1e308], [f64::MAX, f64::MIN, -1e-310]), "")
+    };
     let imu2 = Imu {
         header: hdr(1_700_000_000, 123_456_789, "imu_link_λ"),
         linear_acceleration_covariance: cov(f64::EPSILON),

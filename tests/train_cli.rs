@@ -722,6 +722,13 @@ fn a_lock_whose_pid_was_reused_is_taken_over() {
     let out = train();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success() && err.contains("since given to a process started after the lock was written"), "{err}");
+    // Written a few seconds before this process started, as a file system whose clock runs
+    // behind stamps a live run's lock: still that run's, not taken.
+    std::fs::write(&lock, format!("{}\n", std::process::id())).unwrap();
+    assert!(Command::new("touch").args(["-d", "-5 seconds"]).arg(&lock).status().unwrap().success());
+    let out = train();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("another run (pid"));
+    std::fs::remove_file(&lock).unwrap();
     assert!(!lock.exists(), "the lock is removed at the end of the run");
     // An adapted model of the name (`adapt -o out/m.pt` writes m.adapt.json beside it) is not
     // replaced by a training run.

@@ -176,13 +176,17 @@ fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Incre
     }
     let (q, fully_observable) = fit?;
     let pairs = selected(&bias);
-    let bias_identity = bias_for(&UnitQuaternion::identity());
-    let rms = |pairs: &[(Vector3<f64>, Vector3<f64>)], f: &dyn Fn(&Vector3<f64>) -> Vector3<f64>| {
-        let s: f64 = pairs.iter().map(|(g, i)| g.angle(&f(i)).powi(2)).sum();
-        (s / pairs.len().max(1) as f64).sqrt().to_degrees()
+    // Every residual is taken over the increments the fit used, each reading with its own
+    // bias: the identity's bias could leave none of them above `min_angle_rad` (a car whose
+    // ground truth is turned 180° read "0.00° without the rotation" and passed).
+    let kept: Vec<&Increment> =
+        all.iter().filter(|p| gt_of(p).norm() >= min_angle_rad && (p.imu - bias * p.seconds).norm() >= min_angle_rad).collect();
+    let rms = |b: &Vector3<f64>, f: &dyn Fn(&Vector3<f64>) -> Vector3<f64>| {
+        let s: f64 = kept.iter().map(|p| gt_of(p).angle(&f(&(p.imu - b * p.seconds))).powi(2)).sum();
+        (s / kept.len().max(1) as f64).sqrt().to_degrees()
     };
-    let identity_pairs = selected(&bias_identity);
-    let residual_deg = rms(&pairs, &|i| q * i);
+    let bias_identity = bias_for(&UnitQuaternion::identity());
+    let residual_deg = rms(&bias, &|i| q * i);
     // A mirror image: fitted with its own bias (it moves the bias as a rotation would).
     let mirror = wahba_with_mirror(&pairs).and_then(|(_, _, m)| m).and_then(|m0| {
         let mut m = m0;
@@ -191,7 +195,7 @@ fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Incre
             b = all.iter().map(|p| (p.imu - m.transpose() * gt_of(p)) * p.seconds).sum::<Vector3<f64>>() / sum_t2;
             m = wahba_with_mirror(&selected(&b))?.2?;
         }
-        let r = rms(&selected(&b), &|i| m * i);
+        let r = rms(&b, &|i| m * i);
         (r < 0.5 * residual_deg).then_some((m, r))
     });
     Some(FrameCheck {
@@ -200,7 +204,7 @@ fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Incre
         increments: pairs.len(),
         fully_observable,
         residual_deg,
-        residual_identity_deg: rms(&identity_pairs, &|i| *i),
+        residual_identity_deg: rms(&bias_identity, &|i| *i),
         gyro_bias_rad_s: [bias.x, bias.y, bias.z],
         mirrored: mirror.is_some(),
         mirror_map: mirror
@@ -217,7 +221,7 @@ fn wahba(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuaternion<f64>,
 }
 
 /// [`wahba`], and the orthogonal map with determinant −1 (`U Vᵀ`) where that is the
-/// unconstrained optimum, fully observable motion only.
+/// unconstrained optimum.
 fn wahba_with_mirror(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuaternion<f64>, bool, Option<Matrix3<f64>>)> {
     if pairs.len() < 3 {
         return None;
@@ -233,12 +237,11 @@ fn wahba_with_mirror(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuat
     idx.sort_by(|&x, &y| svd.singular_values[y].total_cmp(&svd.singular_values[x]));
     let s = svd.singular_values;
     let fully_observable = s[idx[1]] > 0.05 * s[idx[0]];
-    let mut mirror = None;
+    // The unconstrained optimum is a mirror image where det(U Vᵀ) < 0; on weakly observable
+    // motion (a car) too, where only the weak axes can tell it from a half turn.
+    let mirror = ((u.determinant() * v_t.determinant()) < 0.0).then(|| u * v_t);
     let rot = if fully_observable {
         let d = (u.determinant() * v_t.determinant()).signum();
-        if d < 0.0 {
-            mirror = Some(u * v_t);
-        }
         // Put the sign on the smallest singular direction.
         let mut fix = Matrix3::identity();
         fix[(idx[2], idx[2])] = d;
@@ -403,6 +406,18 @@ mod tests {
             assert!(!c.fully_observable && c.is_other_frame(5.0), "{c:?}");
             assert!(c.rotation().angle_to(&rx).to_degrees() < 2.0, "{axis:?}: {c:?}");
             assert!(c.residual_deg < 1.0, "{c:?}");
+        }
+        // Its z axis flipped instead (or x and y swapped): a mirror image, which only the
+        // weak pitch and roll tell from a half turn.
+        let gt: Vec<_> = att.iter().map(|q| Some(*q)).collect();
+        for (map, axes) in [
+            (Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -1.0)), "x→x, y→y, z→−z"),
+            (Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0), "x→y, y→x, z→z"),
+        ] {
+            let mirrored: Vec<ImuSample> = imu.iter().map(|s| ImuSample { gyro: map * s.gyro, ..*s }).collect();
+            let c = check_frame(&mirrored, &gt, 50, 0.05).unwrap();
+            assert!(c.mirrored && !c.is_other_frame(5.0), "{axes}: {c:?}");
+            assert_eq!(c.mirror_axes().unwrap(), axes);
         }
         // Yaw alone: nothing to fit the turn on, and none is made up.
         let (imu, att) = motion(20_000, 1);

@@ -41,7 +41,8 @@ pub enum FramePolicy {
     Error,
     /// Re-express the ground truth in the IMU's frame (`R_gt ← R_gt R_x`) and go on.
     Apply,
-    /// Do not check.
+    /// Do not check for another frame (mirrored axes and inverted quaternions, which no
+    /// rotation explains, are still refused).
     Ignore,
 }
 

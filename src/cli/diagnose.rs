@@ -34,13 +34,13 @@ pub struct DiagnoseArgs {
     pub temperature_topic: String,
     /// The simulated bag's IMU topic, where it differs from the real one's (default:
     /// --imu-topic).
-    #[arg(long, requires = "sim")]
+    #[arg(long, conflicts_with_all = ["noise_model", "score_generated"])]
     pub sim_imu_topic: Option<String>,
     /// The simulated bag's ground-truth topic (default: --ground-truth-topic).
-    #[arg(long, requires = "sim")]
+    #[arg(long, conflicts_with_all = ["noise_model", "score_generated"])]
     pub sim_ground_truth_topic: Option<String>,
     /// The simulated bag's temperature topic (default: --temperature-topic).
-    #[arg(long, requires = "sim")]
+    #[arg(long, conflicts_with_all = ["noise_model", "score_generated"])]
     pub sim_temperature_topic: Option<String>,
     /// Output directory: report.json, report.md, patch.yaml, CSVs, PNG figures (psd, allan,
     /// residual), corrected_sim.mcap.

@@ -100,6 +100,10 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
     for (k, (path, mut src)) in args.sequences.iter().zip(sources).enumerate() {
         if names.iter().filter(|n| **n == src.name).count() > 1 {
             src.name = path.display().to_string();
+            // The same path given twice: numbered in the order given.
+            if args.sequences.iter().filter(|p| *p == path).count() > 1 {
+                src.name = format!("{} #{}", src.name, args.sequences[..=k].iter().filter(|p| *p == path).count());
+            }
         }
         let idx = sample_indices(&src.imu, per_sequence, args.seed.wrapping_add(k as u64));
         if idx.is_empty() {

@@ -380,25 +380,25 @@ impl RunLock {
 }
 
 impl RunLock {
-    /// Whether process `pid` started after `lock` was last written (Linux: its start time in
-    /// `/proc/<pid>/stat` after boot, against the file's mtime; 2 s of slack for the clock
-    /// tick and boot time's whole seconds). False where it cannot be told.
+    /// Whether process `pid` cannot be the run that wrote `lock` (Linux): the lock was written
+    /// before this boot, or the process started over 10 minutes after the lock was written
+    /// (its start time in `/proc/<pid>/stat`; the margin is for a shared file system whose clock
+    /// runs behind: a live run's lock must never be taken). False where it cannot be told.
     fn started_after_lock(pid: i32, lock: &std::path::Path) -> bool {
-        let started = || -> Option<f64> {
+        let boot = || -> Option<f64> {
+            std::fs::read_to_string("/proc/stat").ok()?.lines().find_map(|l| l.strip_prefix("btime "))?.trim().parse().ok()
+        };
+        let started = |boot: f64| -> Option<f64> {
             let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
             // Field 22, counted after the parenthesised command name (which may hold spaces).
             let ticks: f64 = stat.rsplit_once(')')?.1.split_whitespace().nth(19)?.parse().ok()?;
-            let boot: f64 =
-                std::fs::read_to_string("/proc/stat").ok()?.lines().find_map(|l| l.strip_prefix("btime "))?.trim().parse().ok()?;
             // SAFETY: sysconf only reads a system constant.
             let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
             (hz > 0).then(|| boot + ticks / hz as f64)
         };
         let written = std::fs::metadata(lock).and_then(|m| m.modified()).ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok());
-        match (started(), written) {
-            (Some(started), Some(written)) => started > written.as_secs_f64() + 2.0,
-            _ => false,
-        }
+        let (Some(boot), Some(written)) = (boot(), written.map(|w| w.as_secs_f64())) else { return false };
+        written + 1.0 < boot || started(boot).is_some_and(|s| s > written + 600.0)
     }
 }
 

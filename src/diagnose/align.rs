@@ -211,6 +211,13 @@ pub fn load_each_on(
     let (sim, sim_report) = read_recording(sim_path, sim_topics)?;
     let (real, real_report) = read_recording(real_path, real_topics)?;
     let mut notes = Vec::new();
+    for (name, path, rec, topics) in [("sim", sim_path, &sim, sim_topics), ("real", real_path, &real, real_topics)] {
+        if let Some(topic) = topics.ground_truth.as_deref().filter(|_| rec.ground_truth.is_empty()) {
+            // Said, not refused: the diagnosis runs on the IMU streams without it.
+            tracing::warn!("{name} bag {}: no ground truth on {topic}", path.display());
+            notes.push(format!("{name} bag: no ground truth on {topic}"));
+        }
+    }
     for (name, r) in [("sim", &sim_report), ("real", &real_report)] {
         if r.skipped() > 0 {
             notes.push(format!("{name} bag: {r}"));

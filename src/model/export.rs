@@ -333,7 +333,8 @@ fn require_file(path: &Path) -> Result<(), ModelError> {
             .map(|entries| {
                 entries
                     .filter_map(|e| e.ok().map(|e| e.path()))
-                    .filter(|p| p.extension().is_some_and(|x| x == "pt") && p.with_extension("json").is_file())
+                    // A model is its `.json` with the `.pt` or the `.ot` beside it.
+                    .filter(|p| p.extension().is_some_and(|x| x == "json") && ["pt", "ot"].iter().any(|e| p.with_extension(e).is_file()))
                     .filter_map(|p| p.file_name().map(|f| f.to_string_lossy().into_owned()))
                     .collect()
             })
@@ -578,7 +579,7 @@ mod tests {
             std::fs::write(dir.path().join(f), "").unwrap();
         }
         let e = load_metadata(&crate::model::predict::metadata_path(dir.path())).unwrap_err().to_string();
-        assert!(e.contains("a folder, not a model file; it holds a.pt") && !e.contains("b.pt"), "{e}");
+        assert!(e.contains("a folder, not a model file; it holds a.json") && !e.contains("b."), "{e}");
         #[cfg(unix)]
         {
             use std::os::unix::ffi::OsStrExt;

@@ -155,7 +155,7 @@ pub fn load(path: &Path) -> anyhow::Result<Loaded> {
         }
         if read_json().ok().and_then(|j| j.pair_token) != meta.pair_token {
             tracing::warn!(
-                "{} is not the save of {} (a save interrupted between the two files): resuming from the .ot, epoch {}",
+                "{} is not the save of {} (a save interrupted between the two files): the .ot's own record is read, epoch {}",
                 json.display(),
                 ot.display(),
                 meta.epoch

@@ -146,8 +146,13 @@ pub struct DatasetConfig {
 impl DatasetConfig {
     /// Every source of every list (train, validation, test, monitor).
     /// `a` and `b` read some of the same samples: one recording (the same sequence folder or
-    /// bag, however spelt, or the same simulation config) over overlapping crops.
+    /// bag, however spelt, and IMU topic, or the same simulation config) over overlapping crops.
     pub fn same_samples(&self, a: &SourceConfig, b: &SourceConfig) -> bool {
+        let topic = |s: &SourceConfig| s.imu_topic.clone().unwrap_or_else(|| crate::bag::IMU_TOPIC.to_string());
+        if a.bag.is_some() && b.bag.is_some() && topic(a) != topic(b) {
+            // Two IMUs of one bag are two recordings.
+            return false;
+        }
         let key = |s: &SourceConfig| -> Option<(u8, PathBuf)> {
             let (kind, p) = match (&s.sequence, &s.bag, &s.simulate) {
                 (Some(p), _, _) => (0, self.root.join(p)),
@@ -598,8 +603,10 @@ impl TrainConfig {
         // Keys serde would take and then not use: `seed` beside `seeds` (which one trains?),
         // `seeds: []` (read as absent: one run with seed 0), MAML settings outside fsda_f.
         if let Some(train) = map.get("train").and_then(|t| t.as_mapping()) {
-            let seeds = train.get("seeds");
-            if train.contains_key("seed") && seeds.is_some() {
+            // A key left empty (`seeds:`) is YAML's null: absent, as serde reads it.
+            let given = |k: &str| train.get(k).filter(|v| !v.is_null());
+            let seeds = given("seeds");
+            if given("seed").is_some() && seeds.is_some() {
                 return Err(
                     "train.seed and train.seeds: give one (seeds trains one run per seed and exports the best; seed trains one run)".into(),
                 );
@@ -607,7 +614,7 @@ impl TrainConfig {
             if seeds.and_then(|s| s.as_sequence()).is_some_and(|s| s.is_empty()) {
                 return Err("train.seeds is empty: list the seeds to train, or give train.seed for one run".into());
             }
-            if train.contains_key("maml") && mode != Mode::FsdaF {
+            if given("maml").is_some() && mode != Mode::FsdaF {
                 return Err(format!(
                     "train.maml: the few-shot settings apply to model.mode fsda_f only, and this config's mode is {}: remove the section",
                     serde_yaml::to_value(mode).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
@@ -618,7 +625,8 @@ impl TrainConfig {
             // A value's error has no place in the file; the text's own, where it fails too,
             // names the key and the line.
             // (Not for the `model` section: the text's lacks the mode's defaults.)
-            match serde_yaml::from_str::<TrainConfig>(text) {
+            // `fsda-f` → `fsda_f` as above (same length: lines and columns stay).
+            match serde_yaml::from_str::<TrainConfig>(&text.replace("fsda-f", "fsda_f")) {
                 Err(located) if !located.to_string().starts_with("model") => located.to_string(),
                 _ => e.to_string(),
             }
@@ -905,6 +913,9 @@ mod tests {
     fn a_bad_value_names_its_key_and_line() {
         let e = TrainConfig::parse("model: {mode: fsda}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: -5}\n").unwrap_err();
         assert!(e.contains("train.epochs") && e.contains("line 3"), "{e}");
+        let e =
+            TrainConfig::parse("model: {mode: fsda-f}\ndataset: {train: [{sequence: a, end_s: sixty}]}\ntrain: {epochs: 5}\n").unwrap_err();
+        assert!(e.contains("end_s") && e.contains("line 2"), "{e}");
         let e = TrainConfig::parse("model: {mode: fsda, hidden: x}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 5}\n").unwrap_err();
         assert!(e.contains("hidden"), "{e}");
     }
@@ -924,6 +935,8 @@ mod tests {
         assert!(e.contains("fsda_f only") && e.contains("is digdl"), "{e}");
         assert!(parse("fsda", "maml: {}").unwrap_err().contains("is fsda:"));
         assert!(parse("fsda_f", "maml: {inner_lr: 0.1}").is_ok());
+        // Left empty, they are absent.
+        assert!(parse("fsda_f", "seed: 1, seeds: null").is_ok() && parse("fsda", "maml: null").is_ok());
     }
 
     /// A test recording that is also trained on is refused, however its path is spelt; crops
@@ -941,6 +954,8 @@ mod tests {
         assert!(with("{bag: b/x.mcap, end_s: 60}", "{bag: b/x.mcap, start_s: 60}").is_ok());
         assert!(with("{sequence: b/x.mcap}", "{bag: b/x.mcap}").is_ok(), "a folder and a bag are not one recording");
         assert!(with("{sequence: euroc/MH_01_easy}", "{sequence: euroc/MH_02_easy}").is_ok());
+        assert!(with("{bag: b/x.mcap}", "{bag: b/x.mcap, imu_topic: /imu2/data}").is_ok(), "another IMU of the bag");
+        assert!(with("{bag: b/x.mcap}", "{bag: b/x.mcap, imu_topic: /imu/data}").is_err());
     }
 
     #[test]

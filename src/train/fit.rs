@@ -836,15 +836,17 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     let mut data = load_datasets(&cfg)?;
     let fingerprints = data.fingerprints();
     if let Some(r) = resume.as_ref().filter(|r| !r.meta.data_fingerprints.is_empty()) {
-        // Recordings of the same name only: the evaluation lists may change on a resume.
+        // Recordings of the same name only: the evaluation lists may change on a resume. The
+        // test recordings are scored once, at the end: theirs may change.
         let changed: Vec<&str> = fingerprints
             .iter()
+            .filter(|(k, _)| !k.starts_with("test."))
             .filter(|(k, v)| r.meta.data_fingerprints.get(*k).is_some_and(|was| was != *v))
             .map(|(k, _)| k.as_str())
             .collect();
         if !changed.is_empty() {
             anyhow::bail!(
-                "--resume: the data of {} changed since the checkpoint (same paths and config, other samples): the run would continue on other data; restore the recordings or start a new run",
+                "--resume: the data of {} changed since the checkpoint (same paths and config, other samples): the run would continue on other data; restore the recordings, or delete the checkpoint to start a new run",
                 changed.join(", ")
             );
         }
