@@ -254,6 +254,60 @@ def transfer(args):
         print("| mean | | " + " | ".join(f"{x:.2f}" for x in np.mean(rows, 0)) + " | |")
 
 
+def static_rest(w, a, max_gyro_span=0.02, max_acc_span=0.2, max_samples=2000):
+    """Samples of the initial rest by `eval`'s static-bias rule (200 Hz): consecutive 0.5-s
+    windows from the start whose 0.1-s block means span < 0.02 rad/s (gyro) and < 0.2 m/s²
+    (accelerometer) with |mean a| within 0.5 m/s² of 9.81, up to 10 s."""
+    k = 0
+    while k + 100 <= min(len(w), max_samples):
+        bw, ba = w[k : k + 100].reshape(5, 20, 3).mean(1), a[k : k + 100].reshape(5, 20, 3).mean(1)
+        if (np.ptp(bw, 0).max() < max_gyro_span and np.ptp(ba, 0).max() < max_acc_span
+                and abs(np.linalg.norm(ba.mean(0)) - 9.81) < 0.5):
+            k += 100
+        else:
+            break
+    return k
+
+
+def restshift(args):
+    """Each recording's flight constant (least squares on J-sample increments) against its
+    initial rest mean; the test recordings scored after their rest mean plus the training
+    recordings' mean flight-minus-rest shift."""
+    def load(paths):
+        out = {}
+        for path in paths:
+            d = read_bag(path, ("/imu/data", "/ground_truth/pose"))
+            imu, gt = d["/imu/data"], d["/ground_truth/pose"]
+            t, w, a = imu[:, 0], imu[:, 1:4], imu[:, 4:7]
+            flight = -fit_calibration(Increments(t, w, gt, args.increment), False)[1]
+            k = static_rest(w, a)
+            rest = w[:k].mean(0) if k >= 100 else None
+            out[os.path.splitext(os.path.basename(path))[0]] = (t, w, gt, flight, rest, k)
+        return out
+
+    train, test = load(args.train), load(args.test)
+    print("| bag | rest, s | flight − rest, mrad/s |")
+    print("|---|---|---|")
+    for name, (_, _, _, flight, rest, k) in {**train, **test}.items():
+        shift = "–" if rest is None else str(np.round((flight - rest) * 1e3, 2).tolist())
+        print(f"| {name} | {k / 200:.1f} | {shift} |")
+    shifts = [f - r for (_, _, _, f, r, _) in train.values() if r is not None]
+    if not shifts:
+        print("no training recording has an initial rest")
+        return
+    mean = np.mean(shifts, 0)
+    print(f"\ntraining mean shift {np.round(mean * 1e3, 2).tolist()} mrad/s over {len(shifts)} recordings "
+          f"(std {np.round(np.std(shifts, 0) * 1e3, 2).tolist()})\n")
+    print("| test | raw − rest mean | raw − (rest mean + shift) | raw − own constant (oracle) |")
+    print("|---|---|---|---|")
+    for name, (t, w, gt, flight, rest, _) in test.items():
+        if rest is None:
+            print(f"| {name} | no initial rest | | |")
+            continue
+        row = [aoe_deg(t, w - rest, gt), aoe_deg(t, w - rest - mean, gt), aoe_deg(t, w - flight, gt)]
+        print(f"| {name} | " + " | ".join(f"{x:.2f}" for x in row) + " |", flush=True)
+
+
 def read_replayed(path):
     """Raw IMU, denoised IMU and poses of a bag written by `imu-fsda replay`, the two IMU topics
     checked to be stamp for stamp the same samples (the analyses pair them row by row)."""
@@ -558,6 +612,11 @@ def main():
     t.add_argument("--test", nargs="+", required=True)
     t.add_argument("--increment", type=int, default=1024, help="J, samples")
     t.set_defaults(run=transfer)
+    r = sub.add_parser("restshift")
+    r.add_argument("--train", nargs="+", required=True)
+    r.add_argument("--test", nargs="+", required=True)
+    r.add_argument("--increment", type=int, default=1024, help="J, samples")
+    r.set_defaults(run=restshift)
     q = sub.add_parser("probe")
     q.add_argument("--positive", required=True, help="a file-name substring, e.g. V2_")
     q.add_argument("--train", nargs="+", required=True)
