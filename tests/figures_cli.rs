@@ -103,33 +103,26 @@ fn embed_writes_png_and_points() {
         std::fs::create_dir_all(d.path().join(sub)).unwrap();
         std::fs::copy(repo("test_bags/sim_car.mcap"), d.path().join(sub).join("run.mcap")).unwrap();
     }
-    let twins = d.path().join("twins.png");
-    run(Command::new(bin())
-        .args(["embed", "--model"])
-        .arg(repo("models/fsda-f.pt"))
-        .arg("--sequence")
-        .arg(d.path().join("a/run.mcap"))
-        .arg(d.path().join("b/run.mcap"))
-        .args(["--points-per-sequence", "20", "--iterations", "100", "-o"])
-        .arg(&twins));
-    let csv = std::fs::read_to_string(twins.with_extension("csv")).unwrap();
+    // Each group's name → its rows in the CSV, for these bags embedded together.
+    let groups = |bags: &[&str]| -> String {
+        let twins = d.path().join("twins.png");
+        let mut cmd = Command::new(bin());
+        cmd.args(["embed", "--model"]).arg(repo("models/fsda-f.pt")).arg("--sequence");
+        bags.iter().for_each(|b| {
+            cmd.arg(d.path().join(b));
+        });
+        run(cmd.args(["--points-per-sequence", "20", "--iterations", "100", "-o"]).arg(&twins));
+        std::fs::read_to_string(twins.with_extension("csv")).unwrap()
+    };
+    let rows = |csv: &str, name: &str| csv.lines().filter(|r| r.starts_with(&format!("{name},bag,"))).count();
+    let csv = groups(&["a/run.mcap", "b/run.mcap"]);
     for sub in ["a", "b"] {
-        let name = d.path().join(sub).join("run.mcap").display().to_string();
-        assert_eq!(csv.lines().filter(|r| r.starts_with(&format!("{name},bag,"))).count(), 20, "{csv}");
+        assert_eq!(rows(&csv, &d.path().join(sub).join("run.mcap").display().to_string()), 20, "{csv}");
     }
     // One bag given twice: two groups, numbered.
-    run(Command::new(bin())
-        .args(["embed", "--model"])
-        .arg(repo("models/fsda-f.pt"))
-        .arg("--sequence")
-        .arg(d.path().join("a/run.mcap"))
-        .arg(d.path().join("a/run.mcap"))
-        .args(["--points-per-sequence", "20", "--iterations", "100", "-o"])
-        .arg(&twins));
-    let csv = std::fs::read_to_string(twins.with_extension("csv")).unwrap();
+    let csv = groups(&["a/run.mcap", "a/run.mcap"]);
     for k in [1, 2] {
-        let name = format!("{} #{k}", d.path().join("a/run.mcap").display());
-        assert_eq!(csv.lines().filter(|r| r.starts_with(&format!("{name},bag,"))).count(), 20, "{csv}");
+        assert_eq!(rows(&csv, &format!("{} #{k}", d.path().join("a/run.mcap").display())), 20, "{csv}");
     }
 
     // DIGDL has no Embedding: an error that says so.

@@ -309,6 +309,22 @@ mod tests {
         (imu, att)
     }
 
+    /// A car: [`motion`]'s yaw with a little roll and pitch (amplitudes in rad/s), as a road
+    /// gives, and its attitude.
+    fn car(n: usize, roll: f64, pitch: f64) -> (Vec<ImuSample>, Vec<UnitQuaternion<f64>>) {
+        let (mut imu, _) = motion(n, 1);
+        let mut q = UnitQuaternion::identity();
+        let mut att = Vec::new();
+        for (k, s) in imu.iter_mut().enumerate() {
+            let t = k as f64 * 0.005;
+            s.gyro.x = roll * (2.3 * t).sin();
+            s.gyro.y = pitch * (1.7 * t).cos();
+            att.push(q);
+            q *= exp(&(s.gyro * 0.005));
+        }
+        (imu, att)
+    }
+
     #[test]
     fn finds_a_constant_rotation() {
         let (imu, att) = motion(20_000, 3);
@@ -341,18 +357,7 @@ mod tests {
     /// one is found to within 0.2° despite the bias (the bias is fitted with it).
     #[test]
     fn a_bias_on_mostly_one_axis_is_not_a_tilt() {
-        let (mut imu, att) = motion(30_000, 1);
-        // A little pitch and roll, as a car on a road has.
-        let mut q = UnitQuaternion::identity();
-        let mut att2 = Vec::new();
-        for (k, s) in imu.iter_mut().enumerate() {
-            let t = k as f64 * 0.005;
-            s.gyro.x = 0.05 * (2.3 * t).sin();
-            s.gyro.y = 0.04 * (1.7 * t).cos();
-            att2.push(q);
-            q *= exp(&(s.gyro * 0.005));
-        }
-        drop(att);
+        let (imu, att2) = car(30_000, 0.05, 0.04);
         let bias = Vector3::new(0.04, 0.01, 0.064);
         let biased: Vec<ImuSample> = imu.iter().map(|s| ImuSample { gyro: s.gyro + bias, ..*s }).collect();
         let same: Vec<_> = att2.iter().map(|q| Some(*q)).collect();
@@ -389,16 +394,7 @@ mod tests {
     /// axis that maps the yaw axis the same way.
     #[test]
     fn a_half_turn_on_a_car_is_found_about_its_own_axis() {
-        let (mut imu, _) = motion(30_000, 1);
-        let mut q = UnitQuaternion::identity();
-        let mut att = Vec::new();
-        for (k, s) in imu.iter_mut().enumerate() {
-            let t = k as f64 * 0.005;
-            s.gyro.x = 0.04 * (2.3 * t).sin();
-            s.gyro.y = 0.03 * (1.7 * t).cos();
-            att.push(q);
-            q *= exp(&(s.gyro * 0.005));
-        }
+        let (imu, att) = car(30_000, 0.04, 0.03);
         for axis in [Vector3::x_axis(), Vector3::y_axis()] {
             let rx = UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI);
             let gt: Vec<_> = att.iter().map(|q| Some(q * rx.inverse())).collect();
