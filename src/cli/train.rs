@@ -229,8 +229,9 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
             if let Some(e) = args.epochs {
                 cmd.arg("--epochs").arg(e.to_string());
             }
+            // The `.ot` resumes by itself (its `.json` may be missing after a kill mid-save).
             let (ckpt_ot, ckpt_json) = imu_fsda::train::checkpoint::paths(&runs, &run);
-            if ckpt_ot.exists() && ckpt_json.exists() {
+            if ckpt_ot.exists() {
                 cmd.arg("--resume").arg(&ckpt_json);
             }
             // A child outlives a parent stopped by SIGTERM (timeout, systemd, a scheduler): it

@@ -286,6 +286,11 @@ mod tests {
         std::fs::copy(dir.path().join("b.ckpt.ot"), dir.path().join("a.ckpt.ot")).unwrap();
         let loaded = load(&a).unwrap();
         assert_eq!((loaded.meta.epoch, Vec::<f32>::try_from(&loaded.tensors["vs.w"]).unwrap()), (6, vec![2.0, 2.0]));
+        // Killed before a first `.json` was written at all: the `.ot` alone resumes.
+        let json_a = std::fs::read(&a).unwrap();
+        std::fs::remove_file(&a).unwrap();
+        assert_eq!(load(&a).unwrap().meta.epoch, 6);
+        std::fs::write(&a, json_a).unwrap();
         // An older `.ot` (no metadata of its own) of another save is refused.
         let old: Vec<(String, Tensor)> =
             vec![("vs.w".into(), Tensor::from_slice(&[5.0f32, 5.0])), (PAIR_KEY.into(), Tensor::from_slice(&[7i64]))];
