@@ -530,7 +530,9 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
             temperature.push((m.log_time_ns, Temperature::decode(&m.data).map_err(decode_err)?.sample()));
         }
     }
-    report.out_of_log_time_order = in_log_time_order(&mut imu) + in_log_time_order(&mut poses) + in_log_time_order(&mut temperature);
+    report.out_of_log_time_order = in_log_time_order(&mut imu, |s| Some(s.stamp_ns))
+        + in_log_time_order(&mut poses, |p| p.as_ref().map(|p| p.stamp_ns))
+        + in_log_time_order(&mut temperature, |t| Some(t.stamp_ns));
     // Stamped 0 and followed by a clock time (the next other stamp over an hour later): not
     // set, rather than the sample's time. A simulator's clock starting at 0 goes on in steps.
     let mut next_stamp = vec![0i64; imu.len()];
@@ -587,8 +589,11 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
 const UNSET_STAMP_BESIDE_NS: i64 = 3_600_000_000_000;
 
 /// Orders one topic's messages by log time (a stable sort: equal log times keep the file's
-/// order); returns how many came before an earlier-written one's log time.
-fn in_log_time_order<T>(messages: &mut [(u64, T)]) -> u64 {
+/// order); returns how many came before an earlier-written one's log time. Where the header
+/// stamps (`stamp`) are in order as written and log-time order would put more of them out of
+/// order (a recorder that swapped two receive times), the file's order is kept: the stamps are
+/// what is integrated, and a sample out of their order is dropped as a backwards stamp.
+fn in_log_time_order<T>(messages: &mut [(u64, T)], stamp: impl Fn(&T) -> Option<i64>) -> u64 {
     let mut latest = 0u64;
     let mut late = 0u64;
     for (t, _) in messages.iter() {
@@ -598,7 +603,21 @@ fn in_log_time_order<T>(messages: &mut [(u64, T)]) -> u64 {
         latest = latest.max(*t);
     }
     if late > 0 {
-        messages.sort_by_key(|m| m.0);
+        // Stamps at or before the latest one read so far: what the reader drops.
+        let backwards = |order: &mut dyn Iterator<Item = &(u64, T)>| {
+            let mut latest = i64::MIN;
+            let mut count = 0usize;
+            for s in order.filter_map(|m| stamp(&m.1)) {
+                count += usize::from(s <= latest);
+                latest = latest.max(s);
+            }
+            count
+        };
+        let mut by_log: Vec<usize> = (0..messages.len()).collect();
+        by_log.sort_by_key(|&i| messages[i].0);
+        if backwards(&mut by_log.iter().map(|&i| &messages[i])) <= backwards(&mut messages.iter()) {
+            messages.sort_by_key(|m| m.0);
+        }
     }
     late
 }
@@ -823,6 +842,30 @@ mod tests {
         let times: Vec<u64> = messages_in_log_time_order(&path, &topics).unwrap().map(|m| m.unwrap().log_time_ns).collect();
         assert_eq!(times.len(), rec.imu.len());
         assert!(times.windows(2).all(|w| w[0] <= w[1]), "not in log-time order");
+    }
+
+    /// Two messages whose receive (log) times a recorder swapped, their header stamps in order
+    /// as written: kept in the file's order, not one dropped as a backwards stamp.
+    #[test]
+    fn swapped_log_times_with_ordered_stamps_lose_no_sample() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("swapped.mcap");
+        let rec = recording();
+        let mut w = BagWriter::create(&path).unwrap();
+        let ch = w.channel::<Imu>(IMU_TOPIC).unwrap();
+        for (k, s) in rec.imu.iter().enumerate() {
+            let log = match k {
+                100 => rec.imu[101].stamp_ns,
+                101 => rec.imu[100].stamp_ns,
+                _ => s.stamp_ns,
+            };
+            w.write(ch, log, &Imu::from_sample(s, IMU_FRAME)).unwrap();
+        }
+        w.finish().unwrap();
+        let (back, report) =
+            read_recording(&path, &RecordingTopics { ground_truth: None, temperature: None, ..Default::default() }).unwrap();
+        assert_eq!((report.skipped(), report.out_of_log_time_order), (0, 1), "{report}");
+        assert_eq!(back.imu, rec.imu);
     }
 
     #[test]
