@@ -150,9 +150,10 @@ fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Incre
     if sum_t2 <= 0.0 {
         return None;
     }
-    // The bias that fits best for a given R (least squares on φ_imu − b T − Rᵀ φ_gt).
-    let bias_for = |r: &UnitQuaternion<f64>| -> Vector3<f64> {
-        all.iter().map(|p| (p.imu - r.inverse() * gt_of(p)) * p.seconds).sum::<Vector3<f64>>() / sum_t2
+    // The bias that fits best for a given orthogonal map M, a rotation or a mirror image
+    // (least squares on φ_imu − b T − Mᵀ φ_gt).
+    let bias_for = |m: &Matrix3<f64>| -> Vector3<f64> {
+        all.iter().map(|p| (p.imu - m.transpose() * gt_of(p)) * p.seconds).sum::<Vector3<f64>>() / sum_t2
     };
     let selected = |b: &Vector3<f64>| -> Vec<(Vector3<f64>, Vector3<f64>)> {
         all.iter()
@@ -166,7 +167,7 @@ fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Incre
     for _ in 0..50 {
         let pairs = selected(&bias);
         let (q, fully_observable) = wahba(&pairs)?;
-        let next = bias_for(&q);
+        let next = bias_for(q.to_rotation_matrix().matrix());
         let moved = (next - bias).norm();
         bias = next;
         fit = Some((q, fully_observable));
@@ -185,14 +186,14 @@ fn check_frame_with(all: &[Increment], min_angle_rad: f64, gt_of: impl Fn(&Incre
         let s: f64 = kept.iter().map(|p| gt_of(p).angle(&f(&(p.imu - b * p.seconds))).powi(2)).sum();
         (s / kept.len().max(1) as f64).sqrt().to_degrees()
     };
-    let bias_identity = bias_for(&UnitQuaternion::identity());
+    let bias_identity = bias_for(&Matrix3::identity());
     let residual_deg = rms(&bias, &|i| q * i);
     // A mirror image: fitted with its own bias (it moves the bias as a rotation would).
     let mirror = wahba_with_mirror(&pairs).and_then(|(_, _, m)| m).and_then(|m0| {
         let mut m = m0;
         let mut b = bias;
         for _ in 0..20 {
-            b = all.iter().map(|p| (p.imu - m.transpose() * gt_of(p)) * p.seconds).sum::<Vector3<f64>>() / sum_t2;
+            b = bias_for(&m);
             m = wahba_with_mirror(&selected(&b))?.2?;
         }
         let r = rms(&b, &|i| m * i);
@@ -239,9 +240,9 @@ fn wahba_with_mirror(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuat
     let fully_observable = s[idx[1]] > 0.05 * s[idx[0]];
     // The unconstrained optimum is a mirror image where det(U Vᵀ) < 0; on weakly observable
     // motion (a car) too, where only the weak axes can tell it from a half turn.
-    let mirror = ((u.determinant() * v_t.determinant()) < 0.0).then(|| u * v_t);
+    let d = (u.determinant() * v_t.determinant()).signum();
+    let mirror = (d < 0.0).then(|| u * v_t);
     let rot = if fully_observable {
-        let d = (u.determinant() * v_t.determinant()).signum();
         // Put the sign on the smallest singular direction.
         let mut fix = Matrix3::identity();
         fix[(idx[2], idx[2])] = d;

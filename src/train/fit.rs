@@ -921,20 +921,19 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     };
     let mut ema = (cfg.train.ema_decay > 0.0)
         .then(|| checkpoint::Ema::new(&vs, cfg.train.ema_decay, resume.as_ref().map(|r| &r.tensors), adam.step.max(0) as u64));
-    let fresh = |tasks: &[Task]| -> anyhow::Result<Vec<SequenceEvals>> {
-        tasks
-            .iter()
-            .map(|t| Ok(SequenceEvals { name: t.name.clone(), source: t.source.clone(), raw: evaluate_raw(t, &eopts)?, evals: vec![] }))
-            .collect()
+    let fresh = |t: &Task| -> anyhow::Result<SequenceEvals> {
+        Ok(SequenceEvals { name: t.name.clone(), source: t.source.clone(), raw: evaluate_raw(t, &eopts)?, evals: vec![] })
     };
     // A resume may change the evaluation lists: the checkpoint's evaluations are kept for the
     // recordings still listed (by name and source), the others start empty. Before, they were
     // paired by position, and a new recording's figures were filed under the old one's name.
     let carry = |old: Vec<SequenceEvals>, tasks: &[Task]| -> anyhow::Result<(Vec<SequenceEvals>, bool)> {
-        let fresh_list = fresh(tasks)?;
         let same = old.len() == tasks.len() && old.iter().zip(tasks).all(|(o, t)| o.name == t.name && o.source == t.source);
         let mut old: BTreeMap<(String, String), SequenceEvals> = old.into_iter().map(|o| ((o.name.clone(), o.source.clone()), o)).collect();
-        let list = fresh_list.into_iter().map(|f| old.remove(&(f.name.clone(), f.source.clone())).unwrap_or(f)).collect();
+        let list = tasks
+            .iter()
+            .map(|t| old.remove(&(t.name.clone(), t.source.clone())).map_or_else(|| fresh(t), Ok))
+            .collect::<anyhow::Result<Vec<_>>>()?;
         Ok((list, same))
     };
     let (carried, same_validation) = carry(std::mem::take(&mut validation), &data.validation)?;
