@@ -52,6 +52,13 @@ pub fn detect(dir: &Path) -> Result<Sequence, DatasetError> {
     let imu_csv = mav0.join("imu0/data.csv");
     let euroc_gt = mav0.join("state_groundtruth_estimate0/data.csv");
     let tumvi_gt = mav0.join("mocap0/data.csv");
+    if !dir.exists() {
+        // A relative `dataset.root` read from another folder lands here: say the path is not there.
+        return Err(DatasetError::Io {
+            path: dir.to_path_buf(),
+            source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such folder"),
+        });
+    }
     let (kind, ground_truth_csv) = if !imu_csv.is_file() {
         return Err(DatasetError::Layout(dir.to_path_buf()));
     } else if euroc_gt.is_file() {

@@ -260,6 +260,9 @@ pub struct Counters {
     pub rate_changes: u64,
     pub resets: u64,
     pub warmup_samples: u64,
+    /// Samples missing from holes shorter than a gap, estimated from the stamps of a regular
+    /// stream (best-effort DDS dropping a burst, a driver's buffer overrun): bridged, not reset.
+    pub missed_samples: u64,
 }
 
 impl Counters {
@@ -357,6 +360,8 @@ pub struct Pipeline {
     /// model's): else every sample of a 20-Hz stream into a 200-Hz model was a gap, the model
     /// never warmed up and the attitude was never integrated.
     slow_period_ns: Option<f64>,
+    /// The interval before the last, ns: a hole is counted only in a regular stream.
+    last_dt_ns: i64,
 }
 
 /// Consecutive samples, advancing among themselves but behind the last accepted stamp, after
@@ -411,6 +416,7 @@ impl Pipeline {
             consecutive_gaps: 0,
             period_learned: false,
             slow_period_ns: None,
+            last_dt_ns: 0,
         }
     }
 
@@ -474,6 +480,7 @@ impl Pipeline {
             }
             self.backwards_run.end();
             let jumped_back = dt_ns < 0;
+            let period_before_ns = self.smoothed_period_ns;
             if !jumped_back {
                 self.learn_period(dt_ns);
             }
@@ -494,11 +501,15 @@ impl Pipeline {
                 if !jumped_back && self.attitude.world_from_body.is_some() {
                     self.attitude.grow(held_s, 0.0, self.cfg.bias_stddev);
                 }
-            } else if let Some(q) = self.attitude.world_from_body {
-                let dt = dt_ns as f64 * 1e-9;
-                self.attitude.world_from_body = Some(renormalize(q * exp(&(w_last * dt))));
-                self.attitude.grow(dt, self.cfg.angular_velocity_stddev, self.cfg.bias_stddev);
+            } else {
+                self.count_missed(dt_ns, period_before_ns);
+                if let Some(q) = self.attitude.world_from_body {
+                    let dt = dt_ns as f64 * 1e-9;
+                    self.attitude.world_from_body = Some(renormalize(q * exp(&(w_last * dt))));
+                    self.attitude.grow(dt, self.cfg.angular_velocity_stddev, self.cfg.bias_stddev);
+                }
             }
+            self.last_dt_ns = dt_ns;
         }
         let gyro = self.corrector.step(&s.gyro, &s.accel);
         let warming_up = self.since_reset < self.corrector.window() as u64;
@@ -553,13 +564,24 @@ impl Pipeline {
         }
     }
 
-    /// Learn the nominal period from the first intervals (median of 8) if not given, then
-    /// track the smoothed period to report rate changes.
+    /// A hole shorter than a gap: an interval of k of the stream's periods `p` (as it was before
+    /// this interval) after a regular one
+    /// stands for k − 1 samples that never arrived. Stamps taken on arrival (bursts of nearly
+    /// equal stamps, then a pause) are not regular, and count nothing.
+    fn count_missed(&mut self, dt_ns: i64, p: f64) {
+        let regular = (self.last_dt_ns as f64 - p).abs() <= 0.25 * p;
+        if self.gap_limit_ns().is_some() && p > 0.0 && regular && dt_ns as f64 >= 1.5 * p {
+            self.counters.missed_samples += ((dt_ns as f64 / p).round() as u64).saturating_sub(1);
+        }
+    }
+
     /// An interval longer than this is a gap, ns.
     fn gap_limit_ns(&self) -> Option<f64> {
         self.slow_period_ns.or(self.nominal_period_ns).map(|p| self.cfg.gap_periods * p)
     }
 
+    /// Learn the nominal period from the first intervals (median of 8) if not given, then
+    /// track the smoothed period to report rate changes.
     fn learn_period(&mut self, dt_ns: i64) {
         match self.nominal_period_ns {
             None => {
@@ -683,6 +705,38 @@ mod tests {
         assert!(q199.angle_to(&q200) < 1e-15, "held across the gap");
         assert!(p200[(0, 0)] > p199[(0, 0)] + 0.2, "flagged by a larger covariance");
         assert_eq!(p.counters().rate_changes, 0);
+    }
+
+    /// Holes shorter than a gap are bridged and their missing samples counted, at the model's
+    /// rate and at a stream's own; stamps taken on arrival in bursts count nothing.
+    #[test]
+    fn holes_shorter_than_a_gap_are_counted() {
+        let cfg = PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..Default::default() };
+        let bias = || Box::new(BiasCorrector { bias: Vector3::zeros() });
+        // 200 Hz, samples 100 and 101 lost (a 15-ms interval): 2 missed, no gap.
+        let mut p = Pipeline::new(bias(), cfg.clone());
+        for (i, s) in stream(300, 5_000_000).iter().enumerate() {
+            if i != 100 && i != 101 {
+                p.push(s).unwrap();
+            }
+        }
+        assert_eq!((p.counters().missed_samples, p.counters().gaps, p.counters().resets), (2, 0, 0));
+        // 1 kHz into the 200-Hz model: holes of 3 and 11 samples.
+        let mut p = Pipeline::new(bias(), cfg.clone());
+        for (i, s) in stream(3000, 1_000_000).iter().enumerate() {
+            if !(1000..1003).contains(&i) && !(2000..2011).contains(&i) {
+                p.push(s).unwrap();
+            }
+        }
+        assert_eq!((p.counters().missed_samples, p.counters().gaps), (14, 0));
+        // Arrival-stamped bursts: 20 samples 50 µs apart every 20 ms lose nothing.
+        let mut p = Pipeline::new(bias(), PipelineConfig { nominal_rate_hz: 0.0, ..cfg });
+        let mut imu = stream(2000, 1_000_000);
+        imu.iter_mut().enumerate().for_each(|(i, s)| s.stamp_ns = (i / 20) as i64 * 20_000_000 + (i % 20) as i64 * 50_000);
+        imu.iter().for_each(|s| {
+            let _ = p.push(s);
+        });
+        assert_eq!(p.counters().missed_samples, 0);
     }
 
     /// One stamp three hours ahead (or a source whose clock restarts) is followed after

@@ -117,7 +117,7 @@ impl Default for NodeParams {
             diagnostics_topic: "/diagnostics".into(),
             model: String::new(),
             imu_calibration: String::new(),
-            queue_depth: 10,
+            queue_depth: 100,
             diagnostics_period: 1.0,
             use_sim_time: false,
             pipeline: PipelineConfig::default(),
@@ -392,6 +392,8 @@ pub struct NodeStats {
     pub decode_errors: u64,
     pub frame_id: String,
     pub last_stamp_ns: i64,
+    /// When the last input arrived, on the status clock's time line ([`StatusClock`]).
+    pub last_input_ns: Option<i64>,
     pub input_rate_hz: f64,
     pub warming_up: bool,
     pub rate_off_nominal: bool,
@@ -412,23 +414,105 @@ pub struct NodeStats {
     pub adaptation_abandoned: bool,
 }
 
-/// Build the /diagnostics message from the stats.
-pub fn diagnostics_message(stats: &NodeStats, node_name: &str, stamp: Time) -> DiagnosticArray {
+/// No input for this long after the first, s: the status says the input stopped.
+pub const INPUT_STALE_AFTER_S: f64 = 1.0;
+/// How long a drop, gap, clock jump, missed sample or frame_id change keeps the status at
+/// WARN, s. The counters stay cumulative; the level says what is happening now.
+pub const EVENT_WARN_S: f64 = 10.0;
+
+/// The status over time, on the node's clock or a replayed bag's: the input rate over the
+/// last second or more (0 once the input stops), how long since the last input and since the
+/// last counted event. A dead driver must show, and one restart must not mark the sensor
+/// degraded for the rest of the run.
+#[derive(Debug, Default)]
+pub struct StatusClock {
+    rate_from: Option<(i64, u64)>,
+    rate_hz: f64,
+    events: u64,
+    last_event_ns: Option<i64>,
+}
+
+/// What [`StatusClock::tick`] measured, for [`diagnostics_message`].
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Liveness {
+    pub input_rate_hz: f64,
+    /// Seconds since the last input, once one arrived.
+    pub since_input_s: Option<f64>,
+    /// Seconds since a counted event was first seen, if any was.
+    pub since_event_s: Option<f64>,
+}
+
+/// Events that put the status at WARN while recent.
+fn events(stats: &NodeStats) -> u64 {
     let c = &stats.counters;
-    let dropped = c.dropped();
+    c.dropped() + c.gaps + c.clock_jumps + c.missed_samples + stats.frame_changes
+}
+
+impl StatusClock {
+    /// Measure the rate from `now_ns`, when `received` inputs had arrived (the first input of
+    /// a replay, not its first tick). Without it the first tick starts the clock.
+    pub fn start(&mut self, now_ns: i64, received: u64) {
+        self.rate_from.get_or_insert((now_ns, received));
+    }
+
+    /// At a diagnostics tick `now_ns`, on the clock of `stats.last_input_ns`.
+    pub fn tick(&mut self, stats: &NodeStats, now_ns: i64) -> Liveness {
+        let received = stats.counters.received;
+        let (t0, n0) = *self.rate_from.get_or_insert((now_ns, received));
+        if now_ns - t0 >= 1_000_000_000 {
+            self.rate_hz = received.saturating_sub(n0) as f64 / ((now_ns - t0) as f64 * 1e-9);
+            self.rate_from = Some((now_ns, received));
+        }
+        let e = events(stats);
+        if e > self.events {
+            self.events = e;
+            self.last_event_ns = Some(now_ns);
+        }
+        let since = |t: i64| (now_ns - t).max(0) as f64 * 1e-9;
+        Liveness {
+            input_rate_hz: self.rate_hz,
+            since_input_s: stats.last_input_ns.map(since),
+            since_event_s: self.last_event_ns.map(since),
+        }
+    }
+}
+
+/// The counted events, for the status message ("19 inputs dropped, 1 clock jump back followed").
+fn event_list(stats: &NodeStats) -> String {
+    let c = &stats.counters;
+    let mut parts = vec![format!("{} inputs dropped", c.dropped()), format!("{} gaps", c.gaps)];
+    if c.clock_jumps > 0 {
+        parts.push(format!("{} clock jumps back followed", c.clock_jumps));
+    }
+    if c.missed_samples > 0 {
+        parts.push(format!("{} samples missed in holes of the stamps", c.missed_samples));
+    }
+    if stats.frame_changes > 0 {
+        parts.push(format!("{} input frame_id changes (two IMUs on one topic?)", stats.frame_changes));
+    }
+    parts.join(", ")
+}
+
+/// Build the /diagnostics message from the stats and what the status clock measured.
+pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, stamp: Time) -> DiagnosticArray {
+    let c = &stats.counters;
+    let recent = live.since_event_s.is_some_and(|s| s < EVENT_WARN_S);
     let (level, message) = if stats.model_status != "ok" {
         (DiagnosticStatus::WARN, stats.model_status.clone())
     } else if c.received == 0 {
         (DiagnosticStatus::STALE, "no input yet".to_string())
+    } else if let Some(s) = live.since_input_s.filter(|s| *s > INPUT_STALE_AFTER_S) {
+        (DiagnosticStatus::ERROR, format!("no input for {s:.1} s"))
     } else if stats.rate_off_nominal {
         (DiagnosticStatus::WARN, "input rate off nominal".to_string())
-    } else if dropped > 0 || c.gaps > 0 || c.clock_jumps > 0 {
+    } else if recent {
         // Before "warming up": a stream whose every sample is a gap warms up for ever.
-        let jumps = if c.clock_jumps > 0 { format!(", {} clock jumps back followed", c.clock_jumps) } else { String::new() };
         let warming = if stats.warming_up { " (warming up)" } else { "" };
-        (DiagnosticStatus::WARN, format!("running{warming}; {dropped} inputs dropped, {} gaps{jumps}", c.gaps))
+        (DiagnosticStatus::WARN, format!("running{warming}; {}", event_list(stats)))
     } else if stats.warming_up {
         (DiagnosticStatus::OK, "warming up".to_string())
+    } else if live.since_event_s.is_some() {
+        (DiagnosticStatus::OK, format!("running; earlier: {}", event_list(stats)))
     } else {
         (DiagnosticStatus::OK, "running".to_string())
     };
@@ -436,7 +520,7 @@ pub fn diagnostics_message(stats: &NodeStats, node_name: &str, stamp: Time) -> D
     let values = vec![
         kv("model", stats.model.clone()),
         kv("window_samples", stats.window.to_string()),
-        kv("input_rate_hz", format!("{:.2}", stats.input_rate_hz)),
+        kv("input_rate_hz", format!("{:.2}", live.input_rate_hz)),
         kv("latency_p50_us", format!("{:.0}", stats.latency.quantile_us(0.5))),
         kv("latency_p99_us", format!("{:.0}", stats.latency.quantile_us(0.99))),
         kv("received", c.received.to_string()),
@@ -451,6 +535,7 @@ pub fn diagnostics_message(stats: &NodeStats, node_name: &str, stamp: Time) -> D
         kv("rate_changes", c.rate_changes.to_string()),
         kv("frame_id_changes", stats.frame_changes.to_string()),
         kv("warmup_samples", c.warmup_samples.to_string()),
+        kv("missed_samples", c.missed_samples.to_string()),
     ];
     let mut values = values;
     if !stats.adapt_status.is_empty() {
@@ -669,12 +754,14 @@ pub async fn run_node_with_adaptation(
     let node_ref = &node;
     let diagnostics = async move {
         let mut tick = tokio::time::interval(period);
+        let mut clock = StatusClock::default();
         loop {
             tick.tick().await;
             let stamp = Time::from_ns(node_ref.time_now().to_nanos());
             let msg = {
                 let s = diag_stats.lock().expect("stats lock");
-                diagnostics_message(&s, &node_name_owned, stamp)
+                let live = clock.tick(&s, status_clock_ns(Instant::now()));
+                diagnostics_message(&s, &live, &node_name_owned, stamp)
             };
             if let Err(e) = diag_pub.async_publish(msg).await {
                 tracing::warn!("diagnostics publish: {e:?}");
@@ -738,6 +825,7 @@ async fn process_loop(
     let mut published = 0u64;
     let mut received_any = false;
     let mut last_frame: Option<String> = None;
+    let mut frame_warnings = FrameWarnings::default();
     let mut rate_t0: Option<(Instant, u64)> = None;
     loop {
         // Idle counts from the first input, published or dropped (an all-NaN stream ends too).
@@ -766,7 +854,7 @@ async fn process_loop(
         if last_frame.as_deref() != Some(msg.header.frame_id.as_str()) {
             frame_changed = last_frame.is_some();
             if frame_changed {
-                tracing::warn!("input frame_id changed from {:?} to {:?}; passed through", last_frame, msg.header.frame_id);
+                frame_warnings.changed(arrived, last_frame.as_deref().unwrap_or_default(), &msg.header.frame_id);
             }
             last_frame = Some(msg.header.frame_id.clone());
         }
@@ -809,6 +897,7 @@ async fn process_loop(
                 }
             }
             s.last_stamp_ns = sample.stamp_ns;
+            s.last_input_ns = Some(status_clock_ns(arrived));
             s.warming_up = result.as_ref().is_ok_and(|c| c.warming_up);
             s.rate_off_nominal = pipeline.rate_off_nominal();
             let (t0, n0) = *rate_t0.get_or_insert((arrived, s.counters.received));
@@ -820,6 +909,37 @@ async fn process_loop(
         }
         if limits.max_messages.is_some_and(|m| published >= m) {
             return;
+        }
+    }
+}
+
+/// The node's status clock: monotonic ns since the first reading (the wall clock may step).
+fn status_clock_ns(at: Instant) -> i64 {
+    static EPOCH: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+    let epoch = *EPOCH.get_or_init(Instant::now);
+    i64::try_from(at.saturating_duration_since(epoch).as_nanos()).unwrap_or(i64::MAX)
+}
+
+/// The log line for input frame_id changes: the first at once, then at most one every 10 s
+/// with the count between (two IMUs on one topic changed it at every message: 1199 lines in 3 s).
+#[derive(Default)]
+struct FrameWarnings {
+    last_warned: Option<Instant>,
+    since: u64,
+}
+
+impl FrameWarnings {
+    fn changed(&mut self, now: Instant, from: &str, to: &str) {
+        self.since += 1;
+        if self.last_warned.is_none_or(|t| now.duration_since(t) >= Duration::from_secs(10)) {
+            let more = if self.since > 1 {
+                format!(" ({} changes since the last warning: two IMUs on one topic?)", self.since)
+            } else {
+                String::new()
+            };
+            tracing::warn!("input frame_id changed from {from:?} to {to:?}; passed through{more}");
+            self.last_warned = Some(now);
+            self.since = 0;
         }
     }
 }
@@ -1140,6 +1260,54 @@ mod tests {
         }
         assert!(with("    pipeline:\n      gap_periods: 1.5\n      gravity_init_seconds: 0.0\n").is_ok());
         NodeParams::default().validate().unwrap();
+    }
+
+    /// The level follows what happens now: a stopped input is an error, an event is a warning
+    /// for [`EVENT_WARN_S`], and the input rate falls to 0 when the input stops.
+    #[test]
+    fn the_status_follows_the_input_over_time() {
+        let s = 1_000_000_000i64;
+        let mut stats = NodeStats { model_status: "ok".into(), ..Default::default() };
+        let mut clock = StatusClock::default();
+        let status = |stats: &NodeStats, clock: &mut StatusClock, now: i64| {
+            let live = clock.tick(stats, now);
+            let d = diagnostics_message(stats, &live, "n", Time::from_ns(now));
+            let rate = d.status[0].values.iter().find(|kv| kv.key == "input_rate_hz").unwrap().value.clone();
+            (d.status[0].level, d.status[0].message.clone(), rate)
+        };
+        assert_eq!(status(&stats, &mut clock, 0).0, DiagnosticStatus::STALE);
+        // 200 Hz for 3 s, one clock jump back followed at 1 s.
+        for t in 1..=3 {
+            stats.counters.received = 200 * t as u64;
+            stats.last_input_ns = Some(t * s);
+            stats.counters.clock_jumps = u64::from(t >= 1);
+            stats.counters.dropped_backwards_stamp = if t >= 1 { 19 } else { 0 };
+            let (level, message, rate) = status(&stats, &mut clock, t * s);
+            assert_eq!(level, DiagnosticStatus::WARN, "{message}");
+            assert!(message.contains("19 inputs dropped") && message.contains("1 clock jumps back followed"), "{message}");
+            if t >= 2 {
+                assert_eq!(rate, "200.00");
+            }
+        }
+        // Still receiving 11 s after the event: OK, the counts kept as earlier events.
+        stats.counters.received = 200 * 12;
+        stats.last_input_ns = Some(12 * s);
+        let (level, message, _) = status(&stats, &mut clock, 12 * s);
+        assert_eq!(level, DiagnosticStatus::OK, "{message}");
+        assert!(message.starts_with("running; earlier: 19 inputs dropped"), "{message}");
+        // The input stops: an error after a second, and the rate falls to 0.
+        let (level, message, _) = status(&stats, &mut clock, 12 * s + s / 2);
+        assert_eq!(level, DiagnosticStatus::OK, "{message}");
+        let (level, message, _) = status(&stats, &mut clock, 15 * s);
+        assert_eq!((level, message.as_str()), (DiagnosticStatus::ERROR, "no input for 3.0 s"));
+        assert_eq!(status(&stats, &mut clock, 17 * s).2, "0.00");
+        // A new event while running warns again, and names a frame_id change.
+        stats.counters.received += 1;
+        stats.last_input_ns = Some(17 * s + 1);
+        stats.frame_changes = 1;
+        let (level, message, _) = status(&stats, &mut clock, 17 * s + 2);
+        assert_eq!(level, DiagnosticStatus::WARN, "{message}");
+        assert!(message.contains("1 input frame_id changes"), "{message}");
     }
 
     #[test]

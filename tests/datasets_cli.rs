@@ -133,6 +133,10 @@ fn import_errors_name_the_problem() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("not an EuRoC or TUM-VI sequence"), "{err}");
+    // A path that is not there says so (it read as "not an EuRoC or TUM-VI sequence").
+    let out = Command::new(bin()).arg("import").arg(dir.path().join("nowhere")).arg("-o").arg(dir.path().join("x.mcap")).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("nowhere: no such folder"), "{err}");
     // A bag without ground truth cannot be evaluated: a clear error, not a panic.
     let csv_dir = dir.path().join("s/mav0/imu0");
     std::fs::create_dir_all(&csv_dir).unwrap();

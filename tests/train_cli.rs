@@ -431,6 +431,21 @@ fn bad_inputs_are_refused_before_training() {
     let out = run(Command::new(bin()).args(["train", "--no-progress", "--config"]).arg(&cfg).arg("--out-dir").arg(d.join("out")));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("dataset.test: two recordings are named run_0"), "{err}");
+    // A validation crop shorter than the model's window scores only its warm-up (near 0°) and
+    // would steer the choice of seed.
+    let cfg = d.join("short_validation.yaml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "model: {{mode: fsda}}\ndataset:\n  root: {}\n  train: [{{bag: day0/run_0.mcap}}]\n  validation: [{{bag: day1/run_0.mcap, end_s: 0.1}}]\ntrain: {{epochs: 2, window_samples: 2000, threads: 1}}\n",
+            d.display()
+        ),
+    )
+    .unwrap();
+    let out = run(Command::new(bin()).args(["train", "--no-progress", "--config"]).arg(&cfg).arg("--out-dir").arg(d.join("out")));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("dataset.validation: run_0") && err.contains("shorter than the model's window"), "{err}");
+    assert!(!d.join("out/short_validation.pt").exists());
 
     let short = Recording { name: "x".into(), imu: imu(1000, 0), ground_truth: poses(1000, 0), temperature: vec![] };
     let err = train_fails_on(d, &short, "short", "");

@@ -58,25 +58,37 @@ fn info(file: PathBuf, json: bool) -> anyhow::Result<()> {
         out!("{}", serde_json::to_string_pretty(&v)?)?;
     } else {
         out!("Files:     {}", file.display())?;
-        out!("Duration:  {:.3} s", (last.saturating_sub(first)) as f64 * 1e-9)?;
-        out!("Start:     {:.9} s", first as f64 * 1e-9)?;
-        out!("End:       {:.9} s", last as f64 * 1e-9)?;
+        out!("Duration:  {} s", seconds(last.saturating_sub(first), 3))?;
+        out!("Start:     {} s", seconds(first, 9))?;
+        out!("End:       {} s", seconds(last, 9))?;
         out!("Messages:  {total}")?;
         out!("Topics:")?;
         for t in &topics {
             out!(
-                "  {:<28} {:<38} {:>9} msgs  {:>9.3} Hz  span {:.3} s",
+                "  {:<28} {:<38} {:>9} msgs  {:>9.3} Hz  span {} s",
                 t.topic,
                 t.type_name,
                 t.count,
                 t.rate_hz(),
-                (t.last_ns - t.first_ns) as f64 * 1e-9
+                seconds(t.last_ns.saturating_sub(t.first_ns), 3)
             )?;
         }
     }
     match err {
         None => Ok(()),
         Some(e) => Err(e).context("the bag could be read only up to the figures above"),
+    }
+}
+
+/// Nanoseconds as seconds with `decimals` digits, from the integer: an f64 of 1.4e18 ns has
+/// no digits left for the nanoseconds, and printed them as noise.
+fn seconds(ns: u64, decimals: u32) -> String {
+    let unit = 10u64.pow(9 - decimals.min(9));
+    let rounded = ns / unit + u64::from(ns % unit >= unit / 2 && unit > 1);
+    let scale = 10u64.pow(decimals.min(9));
+    match decimals {
+        0 => format!("{rounded}"),
+        d => format!("{}.{:0width$}", rounded / scale, rounded % scale, width = d.min(9) as usize),
     }
 }
 
@@ -117,4 +129,20 @@ fn echo(file: PathBuf, topic: Option<String>, limit: Option<u64>) -> anyhow::Res
         anyhow::bail!("{}: no messages on {t} (topics: {})", file.display(), others.iter().map(|t| &**t).collect::<Vec<_>>().join(", "));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::seconds;
+
+    #[test]
+    fn seconds_are_printed_from_the_integer() {
+        assert_eq!(seconds(1_403_636_579_758_555_508, 9), "1403636579.758555508");
+        assert_eq!(seconds(2_147_400_000_000_000_000, 3), "2147400000.000");
+        assert_eq!(seconds(1_999_500_000, 3), "2.000");
+        assert_eq!(seconds(1_999_499_999, 3), "1.999");
+        assert_eq!(seconds(0, 3), "0.000");
+        assert_eq!(seconds(u64::MAX, 9), "18446744073.709551615");
+        assert_eq!(seconds(u64::MAX, 3), "18446744073.710");
+    }
 }

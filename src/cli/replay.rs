@@ -8,7 +8,7 @@ use anyhow::Context;
 use imu_fsda::bag::BagWriter;
 use imu_fsda::infer::Pipeline;
 use imu_fsda::msg::{DiagnosticArray, Imu, RosMessage, Time, Vector3Stamped};
-use imu_fsda::node::{diagnostics_message, fill_denoised, NodeStats};
+use imu_fsda::node::{diagnostics_message, fill_denoised, NodeStats, StatusClock};
 
 use super::corrector::load_corrector;
 use super::node::NodeConfigArgs;
@@ -95,6 +95,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let mut last_log = 0u64;
     // Input rate over each diagnostics period, in the bag's time (log time, receipt).
     let mut rate_from: Option<(u64, u64)> = None;
+    let mut clock = StatusClock::default();
     // A damaged input or Ctrl-C ends the loop; what was replayed before it is kept.
     let (mut damage, mut read) = (None, 0u64);
     // MCAP lets a recorder write out of log-time order; the node would have received in log-time
@@ -146,6 +147,8 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             writer.write(corr_ch, m.log_time_ns as i64, &correction)?;
             stats.warming_up = c.warming_up;
         }
+        stats.last_input_ns = Some(m.log_time_ns as i64);
+        clock.start(m.log_time_ns as i64, pipeline.counters().received);
         let due = *next_diag.get_or_insert(m.log_time_ns + period_ns);
         let (t0, n0) = *rate_from.get_or_insert((m.log_time_ns, pipeline.counters().received));
         if m.log_time_ns >= due {
@@ -157,10 +160,11 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             stats.decode_errors = decode_errors;
             stats.rate_off_nominal = pipeline.rate_off_nominal();
             stats.frame_id = last_frame.clone().unwrap_or_default();
+            let live = clock.tick(&stats, m.log_time_ns as i64);
             writer.write(
                 diag_ch,
                 m.log_time_ns as i64,
-                &diagnostics_message(&stats, &args.config.node_name, Time::from_ns(m.log_time_ns as i64)),
+                &diagnostics_message(&stats, &live, &args.config.node_name, Time::from_ns(m.log_time_ns as i64)),
             )?;
             next_diag = Some(due + period_ns);
         }
@@ -168,7 +172,8 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     stats.counters = pipeline.counters().clone();
     stats.decode_errors = decode_errors;
     stats.frame_id = last_frame.unwrap_or_default();
-    writer.write(diag_ch, last_log as i64, &diagnostics_message(&stats, &args.config.node_name, Time::from_ns(last_log as i64)))?;
+    let live = clock.tick(&stats, last_log as i64);
+    writer.write(diag_ch, last_log as i64, &diagnostics_message(&stats, &live, &args.config.node_name, Time::from_ns(last_log as i64)))?;
     writer.finish().with_context(|| format!("finishing {}", args.output.display()))?;
     let kept = || format!("{} holds the replay of the {read} messages before it", args.output.display());
     if let Some(e) = damage {

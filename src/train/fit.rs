@@ -127,6 +127,15 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
             if let Some(why) = crate::model::rate_mismatch(cfg.model.rate_hz, task.rec.nominal_imu_rate_hz(), window) {
                 anyhow::bail!("{what} {}: {why}; resample it to model.rate_hz or leave it out", task.name);
             }
+            // Shorter than one window, its AOE is the warm-up's alone (near 0°, whatever the
+            // network does), and a validation score of it would pull the choice of seed and epoch.
+            data::check_length(
+                task,
+                usize::try_from(window).unwrap_or(usize::MAX),
+                &format!("the model's window, as a {what} recording"),
+                task.len(),
+            )
+            .map_err(|e| anyhow::anyhow!("dataset.{what}: {e}"))?;
         }
         Ok(tasks)
     };
