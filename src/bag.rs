@@ -400,6 +400,8 @@ pub struct LoadReport {
     pub ground_truth_read: u64,
     pub ground_truth_invalid: u64,
     pub ground_truth_out_of_order: u64,
+    /// Poses of a frozen ground truth ([`Recording::drop_frozen_ground_truth`]).
+    pub ground_truth_frozen: u64,
     pub temperature_read: u64,
     /// Messages written after one with a later log time: read in log-time order, not skipped.
     pub out_of_log_time_order: u64,
@@ -433,6 +435,7 @@ impl LoadReport {
             + self.imu_backwards_stamp
             + self.ground_truth_invalid
             + self.ground_truth_out_of_order
+            + self.ground_truth_frozen
     }
 }
 
@@ -450,7 +453,11 @@ impl std::fmt::Display for LoadReport {
             f,
             "; ground truth {} read, skipped {} invalid, {} out of order",
             self.ground_truth_read, self.ground_truth_invalid, self.ground_truth_out_of_order
-        )
+        )?;
+        if self.ground_truth_frozen > 0 {
+            write!(f, ", {} frozen (one pose repeated while the IMU moved: left out as a gap)", self.ground_truth_frozen)?;
+        }
+        Ok(())
     }
 }
 
@@ -561,6 +568,7 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
             },
         }
     }
+    report.ground_truth_frozen = rec.drop_frozen_ground_truth() as u64;
     report.temperature_read = temperature.len() as u64;
     for (_, t) in temperature {
         if t.celsius.is_finite() && rec.temperature.last().is_none_or(|l| t.stamp_ns > l.stamp_ns) {

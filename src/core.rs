@@ -63,6 +63,25 @@ pub struct Recording {
     pub temperature: Vec<TemperatureSample>,
 }
 
+/// Shortest run of one repeated ground-truth orientation that can be frozen, s.
+pub const FROZEN_MIN_S: f64 = 0.5;
+
+/// Whether the gyro between two stamps moved: an axis's spread over 0.02 rad/s, or its mean
+/// 0.05 rad/s from the recording's median (a steady turn). The thresholds sit above a
+/// consumer gyro's noise and bias at rest and below a car's gentlest turn.
+fn gyro_moves(imu: &[ImuSample], t0: i64, t1: i64, typical: &Vector3<f64>) -> bool {
+    let a = imu.partition_point(|s| s.stamp_ns < t0);
+    let b = imu.partition_point(|s| s.stamp_ns <= t1);
+    let span = &imu[a..b.max(a)];
+    if span.len() < 10 {
+        return false;
+    }
+    let n = span.len() as f64;
+    let mean = span.iter().map(|s| s.gyro).sum::<Vector3<f64>>() / n;
+    let var = span.iter().map(|s| (s.gyro - mean).component_mul(&(s.gyro - mean))).sum::<Vector3<f64>>() / n;
+    var.max().sqrt() > 0.02 || (mean - typical).abs().max() > 0.05
+}
+
 impl Recording {
     /// Duration of the IMU stream, s.
     pub fn imu_seconds(&self) -> f64 {
@@ -70,6 +89,55 @@ impl Recording {
             (Some(a), Some(b)) => (b.stamp_ns - a.stamp_ns) as f64 * 1e-9,
             _ => 0.0,
         }
+    }
+
+    /// Leaves out ground truth that stood still while the IMU moved: an INS repeating its last
+    /// pose in a tunnel, or publishing the identity while it aligns. Such poses were trained
+    /// and scored on as the truth (a car turning tens of degrees against a frozen pose). A run
+    /// of [`FROZEN_MIN_S`] or more of one orientation (to 1e-12 in the quaternion's dot
+    /// product, far below any real sensor's noise) counts when it ends in a jump the gyro
+    /// cannot make in that interval, or the gyro over it varies or turns: the run's last real
+    /// pose (its first) is kept unless the run opens the recording or is the identity. A platform at rest under a frozen pose keeps it: it is right.
+    /// Returns the poses left out.
+    pub fn drop_frozen_ground_truth(&mut self) -> usize {
+        let gt = &self.ground_truth;
+        if gt.len() < 3 || self.imu.len() < 10 {
+            return 0;
+        }
+        let median = |axis: usize| {
+            let mut v: Vec<f64> = self.imu.iter().map(|s| s.gyro[axis]).collect();
+            let mid = v.len() / 2;
+            *v.select_nth_unstable_by(mid, f64::total_cmp).1
+        };
+        let typical = Vector3::new(median(0), median(1), median(2));
+        let mut keep = vec![true; gt.len()];
+        let mut i = 0;
+        while i < gt.len() {
+            let q = gt[i].world_from_body;
+            let mut j = i + 1;
+            while j < gt.len() && gt[j].world_from_body.coords.dot(&q.coords).abs() > 1.0 - 1e-12 {
+                j += 1;
+            }
+            let long = j - i >= 3 && gt[j - 1].stamp_ns - gt[i].stamp_ns >= (FROZEN_MIN_S * 1e9) as i64;
+            // It ends in a jump the gyro cannot account for (the motion it hid), or the gyro
+            // moved under it.
+            let jumps = j < gt.len() && {
+                let (t0, t1) = (gt[j - 1].stamp_ns, gt[j].stamp_ns);
+                let a = self.imu.partition_point(|s| s.stamp_ns < t0);
+                let b = self.imu.partition_point(|s| s.stamp_ns <= t1);
+                let fastest = self.imu[a.min(b)..b].iter().map(|s| s.gyro.norm()).fold(0.0, f64::max);
+                gt[j].world_from_body.angle_to(&q) > 0.02 + 2.0 * fastest * (t1 - t0) as f64 * 1e-9
+            };
+            if long && (jumps || gyro_moves(&self.imu, gt[i].stamp_ns, gt[j - 1].stamp_ns, &typical)) {
+                let first = if i == 0 || q.angle() < 1e-9 { i } else { i + 1 };
+                keep[first..j].iter_mut().for_each(|k| *k = false);
+            }
+            i = j;
+        }
+        let before = self.ground_truth.len();
+        let mut k = keep.iter();
+        self.ground_truth.retain(|_| *k.next().unwrap_or(&true));
+        before - self.ground_truth.len()
     }
 
     /// The IMU's rate from its sample intervals near the median ([`nominal_rate_hz`]).
@@ -151,6 +219,51 @@ pub fn create_dir_all(dir: &std::path::Path) -> std::io::Result<()> {
 mod tests {
     use super::*;
     use nalgebra::{UnitQuaternion, Vector3};
+
+    /// A car turning at 0.3 rad/s for 60 s at 200 Hz, ground truth at 50 Hz, with `freeze`
+    /// applied to the poses.
+    fn turning_car(w: f64, freeze: impl Fn(f64, UnitQuaternion<f64>) -> UnitQuaternion<f64>) -> Recording {
+        let imu: Vec<ImuSample> = (0..12_000)
+            .map(|k| ImuSample { stamp_ns: k * 5_000_000, gyro: Vector3::new(0.001, -0.002, w), accel: Vector3::new(0.0, 0.0, 9.81) })
+            .collect();
+        let ground_truth = (0..3000)
+            .map(|k| {
+                let t = k as f64 * 0.02;
+                PoseSample {
+                    stamp_ns: k * 20_000_000,
+                    position_in_world: Vector3::zeros(),
+                    world_from_body: freeze(t, UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, w * t))),
+                }
+            })
+            .collect();
+        Recording { name: "car".into(), imu, ground_truth, temperature: vec![] }
+    }
+
+    #[test]
+    fn frozen_ground_truth_is_left_out_while_the_imu_moves() {
+        // A tunnel from 20 to 35 s: the INS repeats its last pose; the run's first pose is real.
+        let tunnel = |t: f64, q: UnitQuaternion<f64>| {
+            if (20.0..35.0).contains(&t) {
+                UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, 0.3 * 20.0))
+            } else {
+                q
+            }
+        };
+        let mut r = turning_car(0.3, tunnel);
+        assert_eq!(r.drop_frozen_ground_truth(), 749);
+        assert!(r.ground_truth.iter().all(|p| !(20.01..35.0).contains(&(p.stamp_ns as f64 * 1e-9))));
+        assert!(r.ground_truth.iter().any(|p| p.stamp_ns == 20_000_000_000), "the last real pose is kept");
+        // Aligning: the identity for the first 10 s, all of it left out.
+        let aligning = |t: f64, q: UnitQuaternion<f64>| if t < 10.0 { UnitQuaternion::identity() } else { q };
+        let mut r = turning_car(0.3, aligning);
+        assert_eq!(r.drop_frozen_ground_truth(), 500);
+        assert_eq!(r.ground_truth[0].stamp_ns, 10_000_000_000);
+        // At rest, a pose that does not change is right, and kept; so is a moving one.
+        let mut r = turning_car(0.0, |_, q| q);
+        assert_eq!(r.drop_frozen_ground_truth(), 0);
+        let mut r = turning_car(0.3, |_, q| q);
+        assert_eq!(r.drop_frozen_ground_truth(), 0);
+    }
 
     fn rec() -> Recording {
         // IMU at 100 Hz from t = 0 s, ground truth from t = 1.005 s.

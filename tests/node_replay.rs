@@ -371,17 +371,46 @@ fn eval_first_row(dir: &Path, bag: &Path, args: &[&str]) -> serde_json::Value {
     v["rows"][0].clone()
 }
 
-/// A hole in the IMU stream is said on every row (the figure alone hid it).
+/// A hole in the IMU stream is said on every row (the figure alone hid it): a long one
+/// restarts the integration from the ground truth, a short one is integrated across.
 #[test]
 fn eval_says_where_the_imu_stream_has_a_hole() {
     let d = tempfile::tempdir().unwrap();
     let mut rec = car_recording();
     let t0 = rec.imu[0].stamp_ns;
     rec.imu.retain(|s| !(5_000_000_000..7_000_000_000).contains(&(s.stamp_ns - t0)));
+    // 40 ms: longer than the node's gap (5 periods, 25 ms), shorter than a restart (50 ms).
+    rec.imu.retain(|s| !(10_000_000_000..10_035_000_000).contains(&(s.stamp_ns - t0)));
     let bag = d.path().join("hole.mcap");
     imu_fsda::bag::write_recording(&bag, &rec).unwrap();
     let row = eval_first_row(d.path(), &bag, &["--method", "raw"]);
-    assert!(row["note"].as_str().unwrap().contains("1 gap(s) in the IMU stream (longest 2.005 s)"), "{row}");
+    let note = row["note"].as_str().unwrap();
+    assert!(note.contains("integration restarted from the ground truth after 1 IMU gap(s)"), "{row}");
+    assert!(note.contains("1 hole(s) in the IMU stream (longest 0.040 s), integrated across"), "{row}");
+    assert_eq!(row["imu_gaps"], 1, "{row}");
+}
+
+/// Ground truth that repeats one pose while the car turns (an INS in a tunnel) is left out as
+/// a gap: scored as if those poses were missing, and said.
+#[test]
+fn eval_leaves_out_frozen_ground_truth() {
+    let d = tempfile::tempdir().unwrap();
+    let rec = car_recording();
+    let g0 = rec.ground_truth[0].stamp_ns;
+    let tunnel = |p: &imu_fsda::core::PoseSample| (8_000_000_000..12_000_000_000).contains(&(p.stamp_ns - g0));
+    let mut frozen = rec.clone();
+    let held = frozen.ground_truth.iter().rev().find(|p| p.stamp_ns - g0 < 8_000_000_000).unwrap().world_from_body;
+    frozen.ground_truth.iter_mut().filter(|p| tunnel(p)).for_each(|p| p.world_from_body = held);
+    let mut missing = rec.clone();
+    missing.ground_truth.retain(|p| !tunnel(p));
+    for (name, r) in [("frozen.mcap", &frozen), ("missing.mcap", &missing)] {
+        imu_fsda::bag::write_recording(d.path().join(name), r).unwrap();
+    }
+    let f = eval_first_row(d.path(), &d.path().join("frozen.mcap"), &["--method", "raw"]);
+    let m = eval_first_row(d.path(), &d.path().join("missing.mcap"), &["--method", "raw"]);
+    assert!(f["note"].as_str().unwrap().contains("frozen ground-truth poses left out"), "{f}");
+    assert_eq!((f["aoe_deg"].as_f64(), f["samples_in_gaps"].as_u64()), (m["aoe_deg"].as_f64(), m["samples_in_gaps"].as_u64()), "{f}\n{m}");
+    assert!(m["samples_in_gaps"].as_u64().unwrap() > 700, "{m}");
 }
 
 /// A model run on an IMU at another rate than it was trained for is scored, with the reason

@@ -169,7 +169,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             } else {
                 rec
             };
-            let imu_gaps = imu_gap_note(&rec);
+            let imu_gaps = imu_gap_note(&rec, &opts);
             if let Some(g) = &imu_gaps {
                 tracing::warn!("{}: {g}", bag.display());
             }
@@ -254,7 +254,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 };
                 let mut note = note;
                 if report.skipped() > 0 {
-                    add_note(&mut note, &format!("skipped {} input samples", report.skipped()));
+                    add_note(&mut note, &skipped_note(&report));
                 }
                 if let Some(gaps) = &imu_gaps {
                     add_note(&mut note, gaps);
@@ -340,22 +340,42 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Holes in the IMU stream (more than the node's gap rule, 5 nominal periods): every method is
-/// integrated across them with the rate before the hole, which a figure alone would hide (a
-/// 5-s hole took a 0.4° bag to 90°).
-fn imu_gap_note(rec: &imu_fsda::core::Recording) -> Option<String> {
+/// Holes in the IMU stream longer than the node's gap rule (5 nominal periods) but too short
+/// for the integration to restart from the ground truth ([`imu_fsda::eval::imu_gap_limit_ns`],
+/// which the row's own note reports): every method is integrated across them with the rate
+/// before the hole, which a figure alone would hide.
+fn imu_gap_note(rec: &imu_fsda::core::Recording, opts: &EvalOptions) -> Option<String> {
     let rate = rec.nominal_imu_rate_hz();
     if rate <= 0.0 {
         return None;
     }
     let limit_ns = (imu_fsda::infer::PipelineConfig::default().gap_periods * 1e9 / rate) as i64;
-    let gaps: Vec<i64> = rec.imu.windows(2).map(|w| w[1].stamp_ns - w[0].stamp_ns).filter(|dt| *dt > limit_ns).collect();
+    let restart_ns = imu_fsda::eval::imu_gap_limit_ns(&rec.imu, opts);
+    let gaps: Vec<i64> =
+        rec.imu.windows(2).map(|w| w[1].stamp_ns - w[0].stamp_ns).filter(|dt| *dt > limit_ns && *dt <= restart_ns).collect();
     let longest = *gaps.iter().max()?;
     Some(format!(
-        "{} gap(s) in the IMU stream (longest {:.3} s), integrated across with the last rate before each",
+        "{} hole(s) in the IMU stream (longest {:.3} s), integrated across with the last rate before each",
         gaps.len(),
         longest as f64 * 1e-9
     ))
+}
+
+/// What the bag reader left out, by stream: IMU samples and ground-truth poses are not the same.
+fn skipped_note(r: &imu_fsda::bag::LoadReport) -> String {
+    let imu = r.imu_non_finite + r.imu_unset_stamp + r.imu_duplicate_stamp + r.imu_backwards_stamp;
+    let gt = r.ground_truth_invalid + r.ground_truth_out_of_order;
+    let mut parts = Vec::new();
+    if imu > 0 {
+        parts.push(format!("skipped {imu} IMU samples"));
+    }
+    if gt > 0 {
+        parts.push(format!("skipped {gt} ground-truth poses"));
+    }
+    if r.ground_truth_frozen > 0 {
+        parts.push(format!("{} frozen ground-truth poses left out (one pose repeated while the IMU moved)", r.ground_truth_frozen));
+    }
+    parts.join("; ")
 }
 
 /// Each bag's label in the rows and its figures' file names: the file stem, or the path
