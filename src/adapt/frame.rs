@@ -120,6 +120,31 @@ pub fn increments(imu: &[ImuSample], gt: &[Option<UnitQuaternion<f64>>], window:
     out
 }
 
+/// Increment lengths the frame check tries, s, shortest first: a gently driven car (yaw
+/// under 0.15 rad/s) turns by less than 0.05 rad in 0.25 s, and had no frame check at all.
+pub const FRAME_INCREMENT_SECONDS: [f64; 5] = [0.25, 0.5, 1.0, 2.0, 4.0];
+
+/// Increments of the shortest length in [`FRAME_INCREMENT_SECONDS`] of which at least `enough`
+/// turn by `min_angle_rad` (in the gyro and the ground truth); the 0.25-s ones if none has.
+/// The fit takes a constant bias, so longer increments cost nothing but fewer of them.
+pub fn turning_increments(
+    imu: &[ImuSample],
+    gt: &[Option<UnitQuaternion<f64>>],
+    rate_hz: f64,
+    min_angle_rad: f64,
+    enough: usize,
+) -> Vec<Increment> {
+    let mut shortest = None;
+    for seconds in FRAME_INCREMENT_SECONDS {
+        let inc = increments(imu, gt, ((seconds * rate_hz).round() as usize).max(2));
+        if inc.iter().filter(|p| p.gt.norm() >= min_angle_rad && p.imu.norm() >= min_angle_rad).count() >= enough {
+            return inc;
+        }
+        shortest.get_or_insert(inc);
+    }
+    shortest.unwrap_or_default()
+}
+
 /// The frame check on increments of `window` samples ([`increments`]).
 pub fn check_frame(imu: &[ImuSample], gt: &[Option<UnitQuaternion<f64>>], window: usize, min_angle_rad: f64) -> Option<FrameCheck> {
     check_frame_on(&increments(imu, gt, window), min_angle_rad)
@@ -393,6 +418,31 @@ mod tests {
     /// A car that mostly yaws, its IMU mounted upside down (a half turn about the forward
     /// axis): the half turn is found from the little pitch and roll, not guessed about another
     /// axis that maps the yaw axis the same way.
+    /// A gently driven car (yaw under 0.15 rad/s, a little roll and pitch): no 0.25-s
+    /// increment turns by 0.05 rad, so the check takes longer ones and still finds a half turn.
+    #[test]
+    fn a_gentle_car_is_checked_on_longer_increments() {
+        let (mut imu, _) = car(40_000, 0.01, 0.008);
+        let mut q = UnitQuaternion::identity();
+        let mut att = Vec::new();
+        for s in imu.iter_mut() {
+            s.gyro.z *= 0.13;
+            att.push(q);
+            q *= exp(&(s.gyro * 0.005));
+        }
+        let rx = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
+        let gt: Vec<_> = att.iter().map(|q| Some(q * rx.inverse())).collect();
+        assert!(check_frame(&imu, &gt, 50, 0.05).is_none(), "no 0.25-s increment turns enough");
+        let inc = turning_increments(&imu, &gt, 200.0, 0.05, 10);
+        assert!(inc[0].seconds > 0.4, "{}", inc[0].seconds);
+        let c = check_frame_on(&inc, 0.05).unwrap();
+        assert!(c.is_other_frame(5.0) && c.rotation().angle_to(&rx).to_degrees() < 2.0, "{c:?}");
+        // The same car in the ground truth's frame: nothing found.
+        let same: Vec<_> = att.iter().map(|q| Some(*q)).collect();
+        let c = check_frame_on(&turning_increments(&imu, &same, 200.0, 0.05, 10), 0.05).unwrap();
+        assert!(!c.is_other_frame(5.0) && !c.mirrored, "{c:?}");
+    }
+
     #[test]
     fn a_half_turn_on_a_car_is_found_about_its_own_axis() {
         let (imu, att) = car(30_000, 0.04, 0.03);

@@ -375,8 +375,8 @@ pub fn apply_frame(rec: &mut Recording, gt_from_imu: &nalgebra::UnitQuaternion<f
 /// Runs the frame check on a recording (ground truth slerped at the IMU stamps).
 pub fn frame_check(rec: &Recording, cfg: &AdaptConfig) -> Option<FrameCheck> {
     let (gt, _) = data::ground_truth_at_imu(rec, &dataset_cfg(cfg));
-    let rate = rec.imu_rate_hz().max(1.0);
-    check_frame(&rec.imu, &gt, (0.25 * rate).round() as usize, 0.05)
+    let rate = rec.nominal_imu_rate_hz().max(1.0);
+    frame::check_frame_on(&frame::turning_increments(&rec.imu, &gt, rate, 0.05, 10), 0.05)
 }
 
 /// Adapts `loaded`'s Embedding on `support`, judges on `query` (see the module doc).

@@ -205,7 +205,7 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     }
     if r.frame.is_none() && cfg.frame_policy != FramePolicy::Ignore {
         eprintln!(
-            "frame check: not possible (fewer than 3 of the support's 0.25-s increments turn by 0.05 rad): the motion is too gentle to tell another frame or inverted quaternions"
+            "frame check: not possible (fewer than 3 of the support's 0.25- to 4-s increments turn by 0.05 rad): the motion is too gentle to tell another frame or inverted quaternions"
         );
     }
     if let Some(f) = &r.frame {

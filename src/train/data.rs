@@ -274,6 +274,8 @@ pub fn rotation_agreement(rec: &Recording) -> Option<(Option<f64>, usize, Option
         let mid = ratios.len() / 2;
         *ratios.select_nth_unstable_by(mid, f64::total_cmp).1
     });
+    // The frame on longer increments where the 0.25-s ones turn too little (a gently driven car).
+    let pairs = crate::adapt::frame::turning_increments(&rec.imu, &gt, rate, 0.05, 10);
     let frame = crate::adapt::frame::check_frame_on(&pairs, 0.05);
     let inverted = frame.as_ref().is_some_and(|f| crate::adapt::frame::inverted_quaternions(&pairs, 0.05, f));
     Some((median, ratios.len(), frame, inverted))
