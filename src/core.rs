@@ -203,7 +203,36 @@ pub fn nominal_rate_hz(imu: &[ImuSample]) -> f64 {
     }
     let (lo, hi) = (median / 2, median + median / 2);
     let (sum, count) = dt.iter().filter(|d| (lo..=hi).contains(*d)).fold((0i128, 0i128), |(s, c), d| (s + *d as i128, c + 1));
+    let span: i128 = dt.iter().map(|d| *d as i128).sum();
+    // Intervals near the median spanning under half the stream, with a tenth or more of the
+    // intervals far above it, are a batch's, not the stream's (a driver stamping 5 samples
+    // 10 µs apart on arrival read as 100 kHz): the mean over the span is the rate then. A
+    // stream with long gaps has few long intervals.
+    let long = dt.iter().filter(|d| **d > 2 * median).count();
+    if 2 * sum < span && long * 10 >= dt.len() {
+        return 1e9 * dt.len() as f64 / span as f64;
+    }
     1e9 * count as f64 / sum as f64
+}
+
+/// Header stamps taken on a batch's arrival, not at each sample: most intervals far below
+/// the stream's mean period (samples microseconds apart, then a pause). The stamps are what
+/// every command integrates with, so training and adaptation refuse them; what to say.
+pub fn burst_stamps(imu: &[ImuSample]) -> Option<String> {
+    if imu.len() < 20 {
+        return None;
+    }
+    let span = (imu[imu.len() - 1].stamp_ns - imu[0].stamp_ns) as f64;
+    let mean = span / (imu.len() - 1) as f64;
+    let short = imu.windows(2).filter(|w| ((w[1].stamp_ns - w[0].stamp_ns) as f64) < 0.1 * mean).count();
+    (short * 2 > imu.len()).then(|| {
+        format!(
+            "{short} of {} IMU stamp intervals are under a tenth of the stream's mean period ({:.3} ms, {:.1} Hz): header.stamp is the arrival time of a batch, not each sample's time; restamp the samples at the IMU's rate",
+            imu.len() - 1,
+            mean * 1e-6,
+            1e9 / mean
+        )
+    })
 }
 
 /// `std::fs::create_dir_all`, but when a file stands where a folder of the path must be, the
@@ -219,6 +248,22 @@ pub fn create_dir_all(dir: &std::path::Path) -> std::io::Result<()> {
 mod tests {
     use super::*;
     use nalgebra::{UnitQuaternion, Vector3};
+
+    /// Bursts stamped on arrival: 5 samples 10 µs apart every 25 ms are a 200-Hz stream
+    /// (it read as 100 kHz), and said; a regular stream with a gap or rounded stamps is not.
+    #[test]
+    fn bursts_stamped_on_arrival_are_the_mean_rate() {
+        let at = |stamps: &mut dyn Iterator<Item = i64>| -> Vec<ImuSample> {
+            stamps.map(|t| ImuSample { stamp_ns: t, gyro: Vector3::zeros(), accel: Vector3::new(0.0, 0.0, 9.81) }).collect()
+        };
+        let bursts = at(&mut (0..2000).map(|k| (k / 5) * 25_000_000 + (k % 5) * 10_000));
+        assert!((nominal_rate_hz(&bursts) - 200.0).abs() < 0.5, "{}", nominal_rate_hz(&bursts));
+        assert!(burst_stamps(&bursts).unwrap().contains("1600 of 1999 IMU stamp intervals"), "{:?}", burst_stamps(&bursts));
+        let gap = at(&mut (0..2000).map(|k| k * 5_000_000 + if k > 1000 { 2_000_000_000 } else { 0 }));
+        assert!((nominal_rate_hz(&gap) - 200.0).abs() < 1e-6 && burst_stamps(&gap).is_none());
+        let rounded = at(&mut (0..2000).map(|k| (k * 2_500_000 / 1_000_000) * 1_000_000));
+        assert!((nominal_rate_hz(&rounded) - 400.0).abs() < 1.0 && burst_stamps(&rounded).is_none());
+    }
 
     /// A car turning at 0.3 rad/s for 60 s at 200 Hz, ground truth at 50 Hz, with `freeze`
     /// applied to the poses.

@@ -412,6 +412,13 @@ fn bad_inputs_are_refused_before_training() {
     let bursty = Recording { name: "x".into(), imu: bursts, ground_truth: poses(8000, 0), temperature: vec![] };
     let err = train_fails_on(d, &bursty, "bursts", "");
     assert!(err.contains("repeat or go back from an earlier header stamp"), "{err}");
+    // The same bursts 10 µs apart: nothing repeats, but the stamps are still the arrival's
+    // (read as 100 kHz before).
+    let mut arrivals = imu(8000, 0);
+    arrivals.iter_mut().enumerate().for_each(|(i, s)| s.stamp_ns = (i / 4) as i64 * 20_000_000 + (i % 4) as i64 * 10_000);
+    let arrived = Recording { name: "x".into(), imu: arrivals, ground_truth: poses(8000, 0), temperature: vec![] };
+    let err = train_fails_on(d, &arrived, "arrivals", "");
+    assert!(err.contains("header.stamp is the arrival time of a batch"), "{err}");
 
     // Two recordings of one name in a list: their results would be filed under one key.
     let ok_rec = Recording { name: "x".into(), imu: imu(5000, 0), ground_truth: poses(5000, 0), temperature: vec![] };

@@ -165,7 +165,7 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let (rec, report) = read_recording(&args.bag, &topics).with_context(|| format!("reading {}", args.bag.display()))?;
-    if let Some(problem) = report.stamp_problem_above(0.1) {
+    if let Some(problem) = report.stamp_problem_above(0.1).or_else(|| imu_fsda::core::burst_stamps(&rec.imu)) {
         anyhow::bail!("{}: {problem}", args.bag.display());
     }
     anyhow::ensure!(

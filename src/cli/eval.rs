@@ -169,7 +169,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             } else {
                 rec
             };
-            let imu_gaps = imu_gap_note(&rec, &opts);
+            let imu_gaps = imu_gap_note(&rec, &opts).or_else(|| imu_fsda::core::burst_stamps(&rec.imu));
             if let Some(g) = &imu_gaps {
                 tracing::warn!("{}: {g}", bag.display());
             }

@@ -218,7 +218,7 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
     rec.name = name.clone();
     // Stamps most of which repeat (a driver stamping bursts on arrival) would be trained on as
     // a quarter of the data at a quarter of the rate: refused, as `eval` refuses them.
-    if let Some(problem) = report.stamp_problem_above(0.1) {
+    if let Some(problem) = report.stamp_problem_above(0.1).or_else(|| crate::core::burst_stamps(&rec.imu)) {
         return Err(DataError::Load { source_name: described, msg: problem });
     }
     if report.imu_non_finite > 0 {
