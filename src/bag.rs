@@ -282,7 +282,9 @@ fn not_mcap(path: &Path) -> Option<String> {
     const CONVERT: &str =
         "only MCAP is read; convert it with `ros2 bag convert` to storage_id mcap, or record with `ros2 bag record -s mcap`";
     if path.is_dir() {
-        let inside: Vec<PathBuf> = std::fs::read_dir(path).ok()?.filter_map(|e| e.ok().map(|e| e.path())).collect();
+        let mut inside: Vec<PathBuf> = std::fs::read_dir(path).ok()?.filter_map(|e| e.ok().map(|e| e.path())).collect();
+        // The listing's order is the file system's: a split recording's first part first.
+        inside.sort();
         let with = |ext: &str| inside.iter().filter(|p| p.to_string_lossy().ends_with(ext)).cloned().collect::<Vec<_>>();
         let (mcaps, db3s) = (with(".mcap"), with(".db3"));
         return Some(match (mcaps.first(), db3s.first()) {

@@ -21,7 +21,8 @@ pub enum EvalError {
     NoOverlap { name: String, imu_start: f64, imu_end: f64, gt_start: f64, gt_end: f64 },
     #[error(
         "{name}: the ground truth's {poses} pose(s) ({gt_start:.3}–{gt_end:.3} s) lie within the IMU stream but cover no \
-         IMU sample: interpolation needs two poses at most {max_gap_ms} ms apart around a sample"
+         IMU sample: interpolation needs two poses at most {max_gap_ms} ms apart around a sample (slower ground truth: raise \
+         `eval --max-gap-ms`, dataset.max_interpolation_gap_ms in a train config, max_interpolation_gap_ms in an adapt one)"
     )]
     NotCovered { name: String, poses: usize, gt_start: f64, gt_end: f64, max_gap_ms: f64 },
     #[error("{name}: the ground truth covers {covered} IMU sample(s): nothing to score (an orientation error needs at least 2)")]

@@ -1036,6 +1036,7 @@ async fn service_loop(
                     imu,
                     gt,
                     support_seconds: params.adapt_support_seconds,
+                    ground_truth: format!("{} as {}", params.ground_truth_topic, params.ground_truth_type),
                     out_dir: params.adapted_model_dir.clone(),
                     cfg: params.adapt.clone(),
                 };
@@ -1134,6 +1135,8 @@ struct Job {
     imu: Vec<SeqSample>,
     gt: Vec<crate::core::PoseSample>,
     support_seconds: f64,
+    /// "<topic> as <type>", for the reply when none arrived.
+    ground_truth: String,
     out_dir: String,
     cfg: crate::adapt::AdaptConfig,
 }
@@ -1157,7 +1160,12 @@ impl Job {
         let loaded = crate::model::export::load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading {}", meta.display()))?;
         loaded.select_imu(self.imu_calibration.as_deref())?;
         anyhow::ensure!(!self.imu.is_empty(), "no input buffered yet");
-        anyhow::ensure!(!self.gt.is_empty(), "no ground truth received yet");
+        // A publisher of another type on the topic is not matched by DDS, and nothing else says so.
+        anyhow::ensure!(
+            !self.gt.is_empty(),
+            "no ground truth received yet on {} (a publisher of another type there is not matched: set ground_truth_type)",
+            self.ground_truth
+        );
         let rec = crate::core::Recording {
             name: "node buffer".into(),
             imu: self.imu.iter().map(|s| s.sample).collect(),

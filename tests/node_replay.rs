@@ -521,6 +521,8 @@ fn replay_streams_are_its_own_and_its_rate_is_the_bags() {
     assert!(rates.len() >= 10 && rates[..rates.len() - 1].iter().all(|r| (r - 200.0).abs() < 1.0), "{rates:?}");
     // The replayed bag already holds the node's topics: replaying it again would mix two runs.
     fails(replay(&first, "second.mcap", &[]), "already holds /imu/denoised");
+    // Both clashes in one message (one per run made a user run three times).
+    fails(replay(&first, "second.mcap", &[]), "-r /imu/gyro_correction:=/imu/gyro_correction_replay");
     let o = replay(&first, "second.mcap", &["-r", "/imu/denoised:=/imu/denoised_2", "-r", "/imu/gyro_correction:=/imu/gyro_correction_2"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }

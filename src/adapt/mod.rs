@@ -326,7 +326,11 @@ fn init_output_bias(vs: &VarStore, head_names: &[String], net: &Net, support: &T
     if count < 10 {
         return Err(AdaptError::TooLittleData {
             what: "support",
-            detail: format!("{count} ground-truth-covered 0.25 s increments to estimate the gyro bias from, at least 10 needed"),
+            detail: format!(
+                "{count} ground-truth-covered 0.25 s increments to estimate the gyro bias from, at least 10 needed (a ground truth \
+                 slower than {:.0} Hz covers none: raise max_nearest_gt_ms in an `adapt --config` to half its period)",
+                500.0 / cfg.max_nearest_gt_ms.max(1e-3)
+            ),
         });
     }
     let e = sum / count as f64;

@@ -59,15 +59,20 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     // The node's streams must not land on a stream the bag already has (a bag recorded beside
     // the live node holds its /imu/denoised): two publishers mixed on one topic. Other nodes'
     // /diagnostics are the same type and share the topic, as on a live system.
-    for (key, topic) in [("output_topic", &params.output_topic), ("correction_topic", &params.correction_topic)] {
-        if let Some(t) = topics.iter().find(|t| t.topic == *topic) {
-            anyhow::bail!(
-                "{}: the bag already holds {topic} ({} messages of {}): the node's {key} would be mixed into it; remap it, e.g. -r {topic}:={topic}_replay",
-                args.input.display(),
-                t.count,
-                t.type_name
-            );
-        }
+    // Every clash at once: one per run made a user run three times.
+    let clashes: Vec<String> = [("output_topic", &params.output_topic), ("correction_topic", &params.correction_topic)]
+        .into_iter()
+        .filter_map(|(key, topic)| {
+            topics.iter().find(|t| t.topic == *topic).map(|t| {
+                format!(
+                    "{topic} ({} messages of {}): the node's {key} would be mixed into it; remap it, e.g. -r {topic}:={topic}_replay",
+                    t.count, t.type_name
+                )
+            })
+        })
+        .collect();
+    if !clashes.is_empty() {
+        anyhow::bail!("{}: the bag already holds {}", args.input.display(), clashes.join("; and "));
     }
     if let Some(t) = topics.iter().find(|t| t.topic == params.diagnostics_topic && t.type_name != DiagnosticArray::TYPE_NAME) {
         anyhow::bail!(

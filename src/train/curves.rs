@@ -53,9 +53,14 @@ pub fn training_curves(summary: &TrainSummary, path: &Path) -> Result<(), PlotEr
     if !aoe.is_empty() {
         let e = summary.exported_epoch as f64;
         // A band a few pixels wide whatever the run's length.
-        let half = (summary.epochs as f64 / 150.0).max(1.0);
+        let half = (summary.epochs as f64 / 150.0).max(0.3);
+        let title = if summary.monitor.is_empty() {
+            "full-length AOE per dataset".to_string()
+        } else {
+            "full-length AOE per dataset (monitor: recorded, never selected on)".to_string()
+        };
         panels.push(Panel {
-            title: "full-length AOE per dataset (monitor: recorded, never selected on)".into(),
+            title,
             x_label: "epoch".into(),
             y_label: "AOE [deg]".into(),
             series: aoe,
