@@ -158,6 +158,18 @@ impl BagWriter {
         Ok(Channel { id })
     }
 
+    /// A channel like the one `m` was read from: its topic, schema, message encoding and
+    /// metadata (rosbag2's QoS profiles), for messages copied through unchanged.
+    pub fn channel_of(&mut self, m: &BagMessage) -> Result<Channel, BagError> {
+        let schema_id = match m.schema.as_deref() {
+            None => 0,
+            Some(s) => self.mcap().add_schema(&s.name, &s.encoding, &s.data).map_err(|e| self.mcap_err(e))?,
+        };
+        let encoding = if m.channel.message_encoding.is_empty() { "cdr" } else { m.channel.message_encoding.as_str() };
+        let id = self.mcap().add_channel(schema_id, &m.topic, encoding, &m.channel.metadata).map_err(|e| self.mcap_err(e))?;
+        Ok(Channel { id })
+    }
+
     /// Write one message with its log time (ns); publish time is the same.
     pub fn write<M: RosMessage>(&mut self, channel: Channel, log_time_ns: i64, msg: &M) -> Result<(), BagError> {
         let mut buf = std::mem::take(&mut self.scratch);
@@ -219,6 +231,8 @@ pub struct BagMessage {
     pub type_name: Arc<str>,
     /// The channel's schema (encoding and definition), to copy messages into another bag.
     pub schema: Option<Arc<mcap::Schema<'static>>>,
+    /// The channel's message encoding and metadata, to copy it whole ([`BagWriter::channel_of`]).
+    pub channel: Arc<ChannelExtras>,
     pub log_time_ns: u64,
     pub data: Vec<u8>,
 }
@@ -231,7 +245,16 @@ pub struct BagReader {
     count: u64,
 }
 
-type ChannelInfo = (Arc<str>, Arc<str>, Option<Arc<mcap::Schema<'static>>>);
+type ChannelInfo = (Arc<str>, Arc<str>, Option<Arc<mcap::Schema<'static>>>, Arc<ChannelExtras>);
+
+/// What a channel carries beside its topic and schema, copied with its messages: rosbag2's
+/// `offered_qos_profiles` (a /tf_static replayed without its transient-local durability is
+/// never heard by tf2's static listener) and the message encoding.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ChannelExtras {
+    pub message_encoding: String,
+    pub metadata: BTreeMap<String, String>,
+}
 
 impl BagReader {
     pub fn open(path: impl AsRef<Path>) -> Result<Self, BagError> {
@@ -263,15 +286,17 @@ impl Iterator for BagReader {
             Err(source) => return Some(Err(BagError::Mcap { path: self.path.clone(), messages: self.count, source })),
         };
         self.count += 1;
-        let (topic, type_name, schema) = self
+        let (topic, type_name, schema, channel) = self
             .topics
             .entry(msg.channel.id)
             .or_insert_with(|| {
                 let type_name = msg.channel.schema.as_ref().map(|s| s.name.as_str()).unwrap_or("");
-                (Arc::from(msg.channel.topic.as_str()), Arc::from(type_name), msg.channel.schema.clone())
+                let extras =
+                    ChannelExtras { message_encoding: msg.channel.message_encoding.clone(), metadata: msg.channel.metadata.clone() };
+                (Arc::from(msg.channel.topic.as_str()), Arc::from(type_name), msg.channel.schema.clone(), Arc::new(extras))
             })
             .clone();
-        Some(Ok(BagMessage { topic, type_name, schema, log_time_ns: msg.log_time, data: msg.data.into_owned() }))
+        Some(Ok(BagMessage { topic, type_name, schema, channel, log_time_ns: msg.log_time, data: msg.data.into_owned() }))
     }
 }
 

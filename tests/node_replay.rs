@@ -371,6 +371,39 @@ fn eval_first_row(dir: &Path, bag: &Path, args: &[&str]) -> serde_json::Value {
     v["rows"][0].clone()
 }
 
+/// Channels copied through replay keep their metadata (rosbag2's offered_qos_profiles: a
+/// /tf_static without its transient-local profile is never heard by tf2's static listener).
+#[test]
+fn replay_keeps_the_channels_metadata() {
+    let d = tempfile::tempdir().unwrap();
+    let qos = "- history: 1\n  depth: 1\n  reliability: 1\n  durability: 1\n";
+    let input = d.path().join("with_qos.mcap");
+    let mut w = imu_fsda::bag::BagWriter::create(&input).unwrap();
+    let mut channels = std::collections::HashMap::new();
+    for m in BagReader::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap")).unwrap() {
+        let mut m = m.unwrap();
+        let mut extras = (*m.channel).clone();
+        extras.metadata.insert("offered_qos_profiles".into(), format!("{qos}# {}", m.topic));
+        m.channel = std::sync::Arc::new(extras);
+        let ch = *channels.entry(m.topic.clone()).or_insert_with(|| w.channel_of(&m).unwrap());
+        w.write_raw(ch, m.log_time_ns as i64, &m.data).unwrap();
+    }
+    w.finish().unwrap();
+    let out = d.path().join("out.mcap");
+    let o = Command::new(bin()).arg("replay").arg(&input).arg("-o").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut seen = 0;
+    for m in BagReader::open(&out).unwrap() {
+        let m = m.unwrap();
+        if !m.topic.starts_with("/imu/denoised") && !m.topic.starts_with("/imu/gyro_correction") && &*m.topic != "/diagnostics" {
+            assert_eq!(m.channel.metadata.get("offered_qos_profiles"), Some(&format!("{qos}# {}", m.topic)), "{}", m.topic);
+            assert_eq!(m.channel.message_encoding, "cdr");
+            seen += 1;
+        }
+    }
+    assert!(seen > 1000, "{seen}");
+}
+
 /// A hole in the IMU stream is said on every row (the figure alone hid it): a long one
 /// restarts the integration from the ground truth, a short one is integrated across.
 #[test]

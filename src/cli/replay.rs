@@ -121,7 +121,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         let ch = match channels.get(&m.topic) {
             Some(c) => *c,
             None => {
-                let c = writer.channel_like(&m.topic, m.schema.as_deref())?;
+                let c = writer.channel_of(&m)?;
                 channels.insert(m.topic.clone(), c);
                 c
             }
