@@ -664,8 +664,17 @@ fn a_replay_that_ends_early_keeps_what_it_replayed() {
             std::thread::sleep(std::time::Duration::from_millis(5));
         }
         unsafe { libc::kill(child.id() as i32, signal) };
+        // `timeout -s INT` signals the command, then its process group: the same request twice.
+        if signal == libc::SIGINT {
+            unsafe { libc::kill(child.id() as i32, signal) };
+        }
         child.wait_with_output().unwrap()
     };
+    let out_int = dir.path().join("out_int.mcap");
+    let o = run_until_partial(&out_int, libc::SIGINT);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(130) && err.contains("interrupted"), "two SIGINTs at once are one request: {:?} {err}", o.status);
+    assert!(topic_count(&out_int, "/imu/denoised") > 0);
     let out_term = dir.path().join("out_term.mcap");
     let o = run_until_partial(&out_term, libc::SIGTERM);
     let err = String::from_utf8_lossy(&o.stderr);
