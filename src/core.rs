@@ -66,9 +66,13 @@ pub struct Recording {
 /// Shortest run of one repeated ground-truth orientation that can be frozen, s.
 pub const FROZEN_MIN_S: f64 = 0.5;
 
-/// Whether the gyro between two stamps moved: an axis's spread over 0.02 rad/s, or its mean
-/// 0.05 rad/s from the recording's median (a steady turn). The thresholds sit above a
-/// consumer gyro's noise and bias at rest and below a car's gentlest turn.
+/// Whether the gyro between two stamps turned, in either of two ways a bias cannot mimic:
+/// its rate less the span's own mean, integrated, reaches 0.035 rad (2°) at some point (a turn
+/// there and back), or that mean is 0.02 rad/s (far above a gyro's bias instability) from the
+/// recording's median rate and turns 0.035 rad over the span (a steady bend). A standing
+/// platform's vibration integrates to nothing, and a bias that moved between a stop and the
+/// drive is far under 0.02 rad/s; where a frozen pose is dropped, the span is unscored, not
+/// wrong.
 fn gyro_moves(imu: &[ImuSample], t0: i64, t1: i64, typical: &Vector3<f64>) -> bool {
     let a = imu.partition_point(|s| s.stamp_ns < t0);
     let b = imu.partition_point(|s| s.stamp_ns <= t1);
@@ -76,10 +80,18 @@ fn gyro_moves(imu: &[ImuSample], t0: i64, t1: i64, typical: &Vector3<f64>) -> bo
     if span.len() < 10 {
         return false;
     }
-    let n = span.len() as f64;
-    let mean = span.iter().map(|s| s.gyro).sum::<Vector3<f64>>() / n;
-    let var = span.iter().map(|s| (s.gyro - mean).component_mul(&(s.gyro - mean))).sum::<Vector3<f64>>() / n;
-    var.max().sqrt() > 0.02 || (mean - typical).abs().max() > 0.05
+    let mean = span.iter().map(|s| s.gyro).sum::<Vector3<f64>>() / span.len() as f64;
+    let steady = (mean - typical).norm();
+    if steady > 0.02 && steady * (t1 - t0) as f64 * 1e-9 > 0.035 {
+        return true;
+    }
+    let mut turned = Vector3::zeros();
+    let mut furthest: f64 = 0.0;
+    for w in span.windows(2) {
+        turned += (w[0].gyro - mean) * ((w[1].stamp_ns - w[0].stamp_ns) as f64 * 1e-9);
+        furthest = furthest.max(turned.norm());
+    }
+    furthest > 0.035
 }
 
 impl Recording {
@@ -122,11 +134,13 @@ impl Recording {
             // It ends in a jump the gyro cannot account for (the motion it hid), or the gyro
             // moved under it.
             let jumps = j < gt.len() && {
+                // The gyro's own rotation between the two poses (vibration included).
                 let (t0, t1) = (gt[j - 1].stamp_ns, gt[j].stamp_ns);
                 let a = self.imu.partition_point(|s| s.stamp_ns < t0);
                 let b = self.imu.partition_point(|s| s.stamp_ns <= t1);
-                let fastest = self.imu[a.min(b)..b].iter().map(|s| s.gyro.norm()).fold(0.0, f64::max);
-                gt[j].world_from_body.angle_to(&q) > 0.02 + 2.0 * fastest * (t1 - t0) as f64 * 1e-9
+                let turned: Vector3<f64> =
+                    self.imu[a.min(b)..b].windows(2).map(|w| w[0].gyro * ((w[1].stamp_ns - w[0].stamp_ns) as f64 * 1e-9)).sum();
+                gt[j].world_from_body.angle_to(&q) > 0.02 + turned.norm() + 0.2 * (t1 - t0) as f64 * 1e-9
             };
             if long && (jumps || gyro_moves(&self.imu, gt[i].stamp_ns, gt[j - 1].stamp_ns, &typical)) {
                 let first = if i == 0 || q.angle() < 1e-9 { i } else { i + 1 };
@@ -225,7 +239,8 @@ pub fn burst_stamps(imu: &[ImuSample]) -> Option<String> {
     let span = (imu[imu.len() - 1].stamp_ns - imu[0].stamp_ns) as f64;
     let mean = span / (imu.len() - 1) as f64;
     let short = imu.windows(2).filter(|w| ((w[1].stamp_ns - w[0].stamp_ns) as f64) < 0.1 * mean).count();
-    (short * 2 > imu.len()).then(|| {
+    // Two samples a batch already make half the intervals short.
+    (short * 5 >= (imu.len() - 1) * 2).then(|| {
         format!(
             "{short} of {} IMU stamp intervals are under a tenth of the stream's mean period ({:.3} ms, {:.1} Hz): header.stamp is the arrival time of a batch, not each sample's time; restamp the samples at the IMU's rate",
             imu.len() - 1,
@@ -303,8 +318,11 @@ mod tests {
         let mut r = turning_car(0.3, aligning);
         assert_eq!(r.drop_frozen_ground_truth(), 500);
         assert_eq!(r.ground_truth[0].stamp_ns, 10_000_000_000);
-        // At rest, a pose that does not change is right, and kept; so is a moving one.
+        // At rest, a pose that does not change is right, and kept, vibrating or not; so is a
+        // moving one.
         let mut r = turning_car(0.0, |_, q| q);
+        assert_eq!(r.drop_frozen_ground_truth(), 0);
+        r.imu.iter_mut().enumerate().for_each(|(k, s)| s.gyro += Vector3::new(0.04, -0.03, 0.05) * (k as f64 * 2.1).sin());
         assert_eq!(r.drop_frozen_ground_truth(), 0);
         let mut r = turning_car(0.3, |_, q| q);
         assert_eq!(r.drop_frozen_ground_truth(), 0);

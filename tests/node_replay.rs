@@ -404,23 +404,22 @@ fn replay_keeps_the_channels_metadata() {
     assert!(seen > 1000, "{seen}");
 }
 
-/// A hole in the IMU stream is said on every row (the figure alone hid it): a long one
-/// restarts the integration from the ground truth, a short one is integrated across.
+/// A hole in the IMU stream is said on every row (the figure alone hid it), and crossed by the
+/// ground truth's rotation over it, not by the last rate held.
 #[test]
 fn eval_says_where_the_imu_stream_has_a_hole() {
     let d = tempfile::tempdir().unwrap();
     let mut rec = car_recording();
     let t0 = rec.imu[0].stamp_ns;
     rec.imu.retain(|s| !(5_000_000_000..7_000_000_000).contains(&(s.stamp_ns - t0)));
-    // 40 ms: longer than the node's gap (5 periods, 25 ms), shorter than a restart (50 ms).
+    // 40 ms: longer than the node's gap (5 periods, 25 ms).
     rec.imu.retain(|s| !(10_000_000_000..10_035_000_000).contains(&(s.stamp_ns - t0)));
     let bag = d.path().join("hole.mcap");
     imu_fsda::bag::write_recording(&bag, &rec).unwrap();
     let row = eval_first_row(d.path(), &bag, &["--method", "raw"]);
     let note = row["note"].as_str().unwrap();
-    assert!(note.contains("integration restarted from the ground truth after 1 IMU gap(s)"), "{row}");
-    assert!(note.contains("1 hole(s) in the IMU stream (longest 0.040 s), integrated across"), "{row}");
-    assert_eq!(row["imu_gaps"], 1, "{row}");
+    assert!(note.contains("2 hole(s) in the IMU stream (longest 2.005 s) crossed by the ground truth's rotation"), "{row}");
+    assert_eq!((row["imu_gaps"].as_u64(), row["imu_gaps_held"].as_u64()), (Some(2), Some(0)), "{row}");
 }
 
 /// Ground truth that repeats one pose while the car turns (an INS in a tunnel) is left out as
@@ -430,9 +429,9 @@ fn eval_leaves_out_frozen_ground_truth() {
     let d = tempfile::tempdir().unwrap();
     let rec = car_recording();
     let g0 = rec.ground_truth[0].stamp_ns;
-    let tunnel = |p: &imu_fsda::core::PoseSample| (8_000_000_000..12_000_000_000).contains(&(p.stamp_ns - g0));
+    let tunnel = |p: &imu_fsda::core::PoseSample| (4_000_000_000..16_000_000_000).contains(&(p.stamp_ns - g0));
     let mut frozen = rec.clone();
-    let held = frozen.ground_truth.iter().rev().find(|p| p.stamp_ns - g0 < 8_000_000_000).unwrap().world_from_body;
+    let held = frozen.ground_truth.iter().rev().find(|p| p.stamp_ns - g0 < 4_000_000_000).unwrap().world_from_body;
     frozen.ground_truth.iter_mut().filter(|p| tunnel(p)).for_each(|p| p.world_from_body = held);
     let mut missing = rec.clone();
     missing.ground_truth.retain(|p| !tunnel(p));
@@ -674,7 +673,8 @@ fn a_replay_that_ends_early_keeps_what_it_replayed() {
     let o = run_until_partial(&out_int, libc::SIGINT);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.code() == Some(130) && err.contains("interrupted"), "two SIGINTs at once are one request: {:?} {err}", o.status);
-    assert!(topic_count(&out_int, "/imu/denoised") > 0);
+    // Finished and readable (it may hold nothing: the signal can come before the first message).
+    assert!(topic_count(&out_int, "/imu/denoised") < total);
     let out_term = dir.path().join("out_term.mcap");
     let o = run_until_partial(&out_term, libc::SIGTERM);
     let err = String::from_utf8_lossy(&o.stderr);

@@ -126,7 +126,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         // their rows are kept (before, the first such bag ended the command with nothing).
         let evaluated = (|| -> anyhow::Result<()> {
             let (mut rec, report) = read_recording(bag, &topics)?;
-            if let Some(why) = report.stamp_problem() {
+            // Stamps that are not the samples' times leave nothing to score: the pauses between
+            // bursts stamped on arrival are holes, and every method read 0.00°.
+            if let Some(why) = report.stamp_problem().or_else(|| imu_fsda::core::burst_stamps(&rec.imu)) {
                 anyhow::bail!("{}: {why}", bag.display());
             }
             // Values no IMU measures are dropped, as the node drops them, and said in every row:
@@ -169,10 +171,6 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             } else {
                 rec
             };
-            let imu_gaps = imu_gap_note(&rec, &opts).or_else(|| imu_fsda::core::burst_stamps(&rec.imu));
-            if let Some(g) = &imu_gaps {
-                tracing::warn!("{}: {g}", bag.display());
-            }
             let lag = imu_fsda::eval::ground_truth_lag(&rec, &opts, imu_fsda::eval::GROUND_TRUTH_LAG_SEARCH_S);
             if let Some(l) = lag {
                 tracing::info!("{name}: ground truth lags the IMU by {:.1} ms (rate correlation {:.3})", l.lag_s * 1e3, l.correlation);
@@ -256,9 +254,6 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 if report.skipped() > 0 {
                     add_note(&mut note, &skipped_note(&report));
                 }
-                if let Some(gaps) = &imu_gaps {
-                    add_note(&mut note, gaps);
-                }
                 if implausible > 0 {
                     add_note(
                         &mut note,
@@ -338,27 +333,6 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         failed.join(", ")
     );
     Ok(())
-}
-
-/// Holes in the IMU stream longer than the node's gap rule (5 nominal periods) but too short
-/// for the integration to restart from the ground truth ([`imu_fsda::eval::imu_gap_limit_ns`],
-/// which the row's own note reports): every method is integrated across them with the rate
-/// before the hole, which a figure alone would hide.
-fn imu_gap_note(rec: &imu_fsda::core::Recording, opts: &EvalOptions) -> Option<String> {
-    let rate = rec.nominal_imu_rate_hz();
-    if rate <= 0.0 {
-        return None;
-    }
-    let limit_ns = (imu_fsda::infer::PipelineConfig::default().gap_periods * 1e9 / rate) as i64;
-    let restart_ns = imu_fsda::eval::imu_gap_limit_ns(&rec.imu, opts);
-    let gaps: Vec<i64> =
-        rec.imu.windows(2).map(|w| w[1].stamp_ns - w[0].stamp_ns).filter(|dt| *dt > limit_ns && *dt <= restart_ns).collect();
-    let longest = *gaps.iter().max()?;
-    Some(format!(
-        "{} hole(s) in the IMU stream (longest {:.3} s), integrated across with the last rate before each",
-        gaps.len(),
-        longest as f64 * 1e-9
-    ))
 }
 
 /// What the bag reader left out, by stream: IMU samples and ground-truth poses are not the same.
