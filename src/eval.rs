@@ -78,7 +78,7 @@ pub struct OrientationErrors {
 impl OrientationErrors {
     /// "x % of the span in ground-truth gaps, not scored" where the ground truth has gaps: a
     /// recording with mocap at its ends only (outdoors) is scored on a fraction of its span.
-    /// IMU holes are said too: the integration starts again from the ground truth after each.
+    /// IMU holes are said too: each is crossed by the ground truth's rotation over it.
     pub fn gap_note(&self) -> Option<String> {
         let gt = (self.samples_in_gaps > 0).then(|| {
             let share = 100.0 * self.samples_in_gaps as f64 / (self.samples_in_gaps + self.evaluated_samples) as f64;
