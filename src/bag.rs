@@ -432,6 +432,8 @@ pub struct LoadReport {
     pub temperature_read: u64,
     /// Messages written after one with a later log time: read in log-time order, not skipped.
     pub out_of_log_time_order: u64,
+    /// Where the first backwards IMU stamp came (ns into the stream) and how far back, ns.
+    pub first_step_back: Option<(i64, i64)>,
 }
 
 impl LoadReport {
@@ -445,7 +447,23 @@ impl LoadReport {
     /// would learn from a stream thinned to what is left, refuse from 10 %.
     pub fn stamp_problem_above(&self, fraction: f64) -> Option<String> {
         let bad = self.imu_duplicate_stamp + self.imu_backwards_stamp;
-        (self.imu_read >= 2 && bad as f64 >= fraction * self.imu_read as f64 && bad > 0).then(|| {
+        let problem = self.imu_read >= 2 && bad as f64 >= fraction * self.imu_read as f64 && bad > 0;
+        // Mostly backwards after one step of a second or more: the clock stepped back (a driver
+        // restarted), not stamps taken on arrival.
+        if let Some((at, by)) =
+            self.first_step_back.filter(|(_, by)| *by >= 1_000_000_000 && self.imu_backwards_stamp > 2 * self.imu_duplicate_stamp)
+        {
+            let (at, by) = (at as f64 * 1e-9, by as f64 * 1e-9);
+            return problem.then(|| {
+                format!(
+                    "{bad} of {} IMU samples go back from an earlier header stamp: the IMU's clock steps back by {by:.3} s at \
+                     {at:.3} s into the stream (a driver restart?), and every later sample until it passes the old time is \
+                     dropped; split the bag at the restart",
+                    self.imu_read
+                )
+            });
+        }
+        problem.then(|| {
             format!(
                 "{bad} of {} IMU samples repeat or go back from an earlier header stamp ({} repeated, {} backwards): \
                  header.stamp is not set to the sample's time (a driver stamping bursts on arrival, or leaving it at zero?); \
@@ -670,6 +688,10 @@ pub fn push_imu(imu: &mut Vec<ImuSample>, s: ImuSample, report: &mut LoadReport)
         }
         if s.stamp_ns < last.stamp_ns {
             report.imu_backwards_stamp += 1;
+            if report.imu_backwards_stamp == 1 {
+                let first = imu.first().map_or(last.stamp_ns, |f| f.stamp_ns);
+                report.first_step_back = Some((last.stamp_ns - first, last.stamp_ns - s.stamp_ns));
+            }
             return;
         }
     }
@@ -901,6 +923,31 @@ mod tests {
             read_recording(&path, &RecordingTopics { ground_truth: None, temperature: None, ..Default::default() }).unwrap();
         assert_eq!((report.skipped(), report.out_of_log_time_order), (0, 1), "{report}");
         assert_eq!(back.imu, rec.imu);
+    }
+
+    /// A driver restart steps the IMU's clock back: said as such, not as stamps taken on
+    /// arrival or left at zero.
+    #[test]
+    fn a_clock_stepping_back_is_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("restart.mcap");
+        let rec = recording();
+        let n = rec.imu.len();
+        let mut w = BagWriter::create(&path).unwrap();
+        let ch = w.channel::<Imu>(IMU_TOPIC).unwrap();
+        for (k, s) in rec.imu.iter().enumerate() {
+            let mut s = *s;
+            s.stamp_ns += 100_000_000_000;
+            if k >= n / 4 {
+                s.stamp_ns -= 30_000_000_000;
+            }
+            // Received in order: the recorder's clock did not step.
+            w.write(ch, 1_000_000_000 + k as i64 * 5_000_000, &Imu::from_sample(&s, IMU_FRAME)).unwrap();
+        }
+        w.finish().unwrap();
+        let (_, report) = read_recording(&path, &RecordingTopics { ground_truth: None, temperature: None, ..Default::default() }).unwrap();
+        let why = report.stamp_problem_above(0.1).unwrap();
+        assert!(why.contains("the IMU's clock steps back by 29.995 s at 0.620 s") && why.contains("a driver restart?"), "{why}");
     }
 
     #[test]
