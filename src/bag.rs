@@ -147,26 +147,15 @@ impl BagWriter {
         Ok(Channel { id })
     }
 
-    /// Open (or reuse) a channel with a schema taken from another bag (copying messages
-    /// through unchanged). Without a schema the channel is schemaless.
-    pub fn channel_like(&mut self, topic: &str, schema: Option<&mcap::Schema<'_>>) -> Result<Channel, BagError> {
-        let schema_id = match schema {
-            None => 0,
-            Some(s) => self.mcap().add_schema(&s.name, &s.encoding, &s.data).map_err(|e| self.mcap_err(e))?,
-        };
-        let id = self.mcap().add_channel(schema_id, topic, "cdr", &BTreeMap::new()).map_err(|e| self.mcap_err(e))?;
-        Ok(Channel { id })
-    }
-
-    /// A channel like the one `m` was read from: its topic, schema, message encoding and
+    /// A channel on `topic` like the one `m` was read from: its schema, message encoding and
     /// metadata (rosbag2's QoS profiles), for messages copied through unchanged.
-    pub fn channel_of(&mut self, m: &BagMessage) -> Result<Channel, BagError> {
+    pub fn channel_of(&mut self, topic: &str, m: &BagMessage) -> Result<Channel, BagError> {
         let schema_id = match m.schema.as_deref() {
             None => 0,
             Some(s) => self.mcap().add_schema(&s.name, &s.encoding, &s.data).map_err(|e| self.mcap_err(e))?,
         };
         let encoding = if m.channel.message_encoding.is_empty() { "cdr" } else { m.channel.message_encoding.as_str() };
-        let id = self.mcap().add_channel(schema_id, &m.topic, encoding, &m.channel.metadata).map_err(|e| self.mcap_err(e))?;
+        let id = self.mcap().add_channel(schema_id, topic, encoding, &m.channel.metadata).map_err(|e| self.mcap_err(e))?;
         Ok(Channel { id })
     }
 
@@ -474,13 +463,17 @@ impl LoadReport {
     }
 
     pub fn skipped(&self) -> u64 {
-        self.imu_non_finite
-            + self.imu_unset_stamp
-            + self.imu_duplicate_stamp
-            + self.imu_backwards_stamp
-            + self.ground_truth_invalid
-            + self.ground_truth_out_of_order
-            + self.ground_truth_frozen
+        self.imu_skipped() + self.ground_truth_skipped() + self.ground_truth_frozen
+    }
+
+    /// IMU samples left out, whatever the reason.
+    pub fn imu_skipped(&self) -> u64 {
+        self.imu_non_finite + self.imu_unset_stamp + self.imu_duplicate_stamp + self.imu_backwards_stamp
+    }
+
+    /// Ground-truth poses left out as unreadable (invalid or out of order; frozen ones apart).
+    pub fn ground_truth_skipped(&self) -> u64 {
+        self.ground_truth_invalid + self.ground_truth_out_of_order
     }
 }
 

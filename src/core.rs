@@ -63,6 +63,13 @@ pub struct Recording {
     pub temperature: Vec<TemperatureSample>,
 }
 
+/// The IMU samples stamped from `t0` to `t1`, both included (`imu` in stamp order).
+fn imu_between(imu: &[ImuSample], t0: i64, t1: i64) -> &[ImuSample] {
+    let a = imu.partition_point(|s| s.stamp_ns < t0);
+    let b = imu.partition_point(|s| s.stamp_ns <= t1);
+    &imu[a.min(b)..b]
+}
+
 /// Shortest run of one repeated ground-truth orientation that can be frozen, s.
 pub const FROZEN_MIN_S: f64 = 0.5;
 
@@ -74,9 +81,7 @@ pub const FROZEN_MIN_S: f64 = 0.5;
 /// drive is far under 0.02 rad/s; where a frozen pose is dropped, the span is unscored, not
 /// wrong.
 fn gyro_moves(imu: &[ImuSample], t0: i64, t1: i64, typical: &Vector3<f64>) -> bool {
-    let a = imu.partition_point(|s| s.stamp_ns < t0);
-    let b = imu.partition_point(|s| s.stamp_ns <= t1);
-    let span = &imu[a..b.max(a)];
+    let span = imu_between(imu, t0, t1);
     if span.len() < 10 {
         return false;
     }
@@ -108,8 +113,9 @@ impl Recording {
     /// and scored on as the truth (a car turning tens of degrees against a frozen pose). A run
     /// of [`FROZEN_MIN_S`] or more of one orientation (to 1e-12 in the quaternion's dot
     /// product, far below any real sensor's noise) counts when it ends in a jump the gyro
-    /// cannot make in that interval, or the gyro over it varies or turns: the run's last real
-    /// pose (its first) is kept unless the run opens the recording or is the identity. A platform at rest under a frozen pose keeps it: it is right.
+    /// cannot make in that interval, or the gyro turned under it ([`gyro_moves`]): the run's
+    /// last real pose (its first) is kept unless the run opens the recording or is the
+    /// identity. A platform at rest under a frozen pose keeps it: it is right.
     /// Returns the poses left out.
     pub fn drop_frozen_ground_truth(&mut self) -> usize {
         let gt = &self.ground_truth;
@@ -136,10 +142,8 @@ impl Recording {
             let jumps = j < gt.len() && {
                 // The gyro's own rotation between the two poses (vibration included).
                 let (t0, t1) = (gt[j - 1].stamp_ns, gt[j].stamp_ns);
-                let a = self.imu.partition_point(|s| s.stamp_ns < t0);
-                let b = self.imu.partition_point(|s| s.stamp_ns <= t1);
                 let turned: Vector3<f64> =
-                    self.imu[a.min(b)..b].windows(2).map(|w| w[0].gyro * ((w[1].stamp_ns - w[0].stamp_ns) as f64 * 1e-9)).sum();
+                    imu_between(&self.imu, t0, t1).windows(2).map(|w| w[0].gyro * ((w[1].stamp_ns - w[0].stamp_ns) as f64 * 1e-9)).sum();
                 gt[j].world_from_body.angle_to(&q) > 0.02 + turned.norm() + 0.2 * (t1 - t0) as f64 * 1e-9
             };
             if long && (jumps || gyro_moves(&self.imu, gt[i].stamp_ns, gt[j - 1].stamp_ns, &typical)) {

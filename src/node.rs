@@ -394,7 +394,6 @@ pub struct NodeStats {
     pub last_stamp_ns: i64,
     /// When the last input arrived, on the status clock's time line ([`StatusClock`]).
     pub last_input_ns: Option<i64>,
-    pub input_rate_hz: f64,
     pub warming_up: bool,
     pub rate_off_nominal: bool,
     pub model: String,
@@ -826,7 +825,6 @@ async fn process_loop(
     let mut received_any = false;
     let mut last_frame: Option<String> = None;
     let mut frame_warnings = FrameWarnings::default();
-    let mut rate_t0: Option<(Instant, u64)> = None;
     loop {
         // Idle counts from the first input, published or dropped (an all-NaN stream ends too).
         let next = match limits.idle_exit {
@@ -900,12 +898,6 @@ async fn process_loop(
             s.last_input_ns = Some(status_clock_ns(arrived));
             s.warming_up = result.as_ref().is_ok_and(|c| c.warming_up);
             s.rate_off_nominal = pipeline.rate_off_nominal();
-            let (t0, n0) = *rate_t0.get_or_insert((arrived, s.counters.received));
-            let dt = arrived.duration_since(t0).as_secs_f64();
-            if dt >= 1.0 {
-                s.input_rate_hz = (s.counters.received - n0) as f64 / dt;
-                rate_t0 = Some((arrived, s.counters.received));
-            }
         }
         if limits.max_messages.is_some_and(|m| published >= m) {
             return;

@@ -107,7 +107,7 @@ fn the_sim_bag_is_read_on_its_own_topics() {
         let m = m.unwrap();
         let topic = format!("/sim{}", m.topic);
         if !channels.contains_key(&topic) {
-            channels.insert(topic.clone(), w.channel_like(&topic, m.schema.as_deref()).unwrap());
+            channels.insert(topic.clone(), w.channel_of(&topic, &m).unwrap());
         }
         w.write_raw(channels[&topic], m.log_time_ns as i64, &m.data).unwrap();
     }

@@ -385,7 +385,7 @@ fn replay_keeps_the_channels_metadata() {
         let mut extras = (*m.channel).clone();
         extras.metadata.insert("offered_qos_profiles".into(), format!("{qos}# {}", m.topic));
         m.channel = std::sync::Arc::new(extras);
-        let ch = *channels.entry(m.topic.clone()).or_insert_with(|| w.channel_of(&m).unwrap());
+        let ch = *channels.entry(m.topic.clone()).or_insert_with(|| w.channel_of(&m.topic, &m).unwrap());
         w.write_raw(ch, m.log_time_ns as i64, &m.data).unwrap();
     }
     w.finish().unwrap();

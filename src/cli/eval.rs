@@ -337,8 +337,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
 
 /// What the bag reader left out, by stream: IMU samples and ground-truth poses are not the same.
 fn skipped_note(r: &imu_fsda::bag::LoadReport) -> String {
-    let imu = r.imu_non_finite + r.imu_unset_stamp + r.imu_duplicate_stamp + r.imu_backwards_stamp;
-    let gt = r.ground_truth_invalid + r.ground_truth_out_of_order;
+    let (imu, gt) = (r.imu_skipped(), r.ground_truth_skipped());
     let mut parts = Vec::new();
     if imu > 0 {
         parts.push(format!("skipped {imu} IMU samples"));

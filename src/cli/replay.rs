@@ -98,8 +98,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let mut last_frame: Option<String> = None;
     let mut decode_errors = 0u64;
     let mut last_log = 0u64;
-    // Input rate over each diagnostics period, in the bag's time (log time, receipt).
-    let mut rate_from: Option<(u64, u64)> = None;
+    // The status over the bag's time (log time, receipt): input rate, events.
     let mut clock = StatusClock::default();
     // A damaged input or Ctrl-C ends the loop; what was replayed before it is kept.
     let (mut damage, mut read) = (None, 0u64);
@@ -121,7 +120,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         let ch = match channels.get(&m.topic) {
             Some(c) => *c,
             None => {
-                let c = writer.channel_of(&m)?;
+                let c = writer.channel_of(&m.topic, &m)?;
                 channels.insert(m.topic.clone(), c);
                 c
             }
@@ -155,13 +154,8 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         stats.last_input_ns = Some(m.log_time_ns as i64);
         clock.start(m.log_time_ns as i64, pipeline.counters().received);
         let due = *next_diag.get_or_insert(m.log_time_ns + period_ns);
-        let (t0, n0) = *rate_from.get_or_insert((m.log_time_ns, pipeline.counters().received));
         if m.log_time_ns >= due {
             stats.counters = pipeline.counters().clone();
-            if m.log_time_ns > t0 {
-                stats.input_rate_hz = (stats.counters.received - n0) as f64 / ((m.log_time_ns - t0) as f64 * 1e-9);
-                rate_from = Some((m.log_time_ns, stats.counters.received));
-            }
             stats.decode_errors = decode_errors;
             stats.rate_off_nominal = pipeline.rate_off_nominal();
             stats.frame_id = last_frame.clone().unwrap_or_default();
@@ -191,7 +185,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         tracing::warn!(
             "{}: the input rate ({:.1} Hz at the end) is off the nominal {:.1} Hz by more than {:.0} %: a model runs at the rate it was trained at (its window spans another time)",
             args.input.display(),
-            stats.input_rate_hz,
+            live.input_rate_hz,
             pipeline.nominal_rate_hz().unwrap_or(f64::NAN),
             params.pipeline.rate_tolerance * 100.0
         );
