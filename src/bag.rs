@@ -423,6 +423,14 @@ pub struct LoadReport {
     pub out_of_log_time_order: u64,
     /// Where the first backwards IMU stamp came (ns into the stream) and how far back, ns.
     pub first_step_back: Option<(i64, i64)>,
+    /// Samples stamped slightly before the one received ahead of them (jittered driver
+    /// stamps, at most [`IMU_REORDER_LIMIT_NS`] back): put back in stamp order, not skipped.
+    pub imu_reordered: u64,
+    /// Samples of another sensor on the IMU topic: two frame_ids alternating (two drivers
+    /// publishing on one topic). The first frame_id's samples are read, these are left out.
+    pub imu_other_sensor: u64,
+    /// The frame_ids when the topic interleaves two sensors: (read, left out).
+    pub interleaved_frames: Option<(String, String)>,
 }
 
 impl LoadReport {
@@ -468,7 +476,29 @@ impl LoadReport {
 
     /// IMU samples left out, whatever the reason.
     pub fn imu_skipped(&self) -> u64 {
-        self.imu_non_finite + self.imu_unset_stamp + self.imu_duplicate_stamp + self.imu_backwards_stamp
+        self.imu_non_finite + self.imu_unset_stamp + self.imu_duplicate_stamp + self.imu_backwards_stamp + self.imu_other_sensor
+    }
+
+    /// What the reader did that the user should know of beyond plain skips: another sensor's
+    /// samples on the topic, and jittered stamps put back in order.
+    pub fn imu_stream_note(&self) -> Option<String> {
+        let mut parts = Vec::new();
+        if let Some((read, other)) = &self.interleaved_frames {
+            parts.push(format!(
+                "the IMU topic interleaves two sensors (frame_id {read:?} and {other:?}): read {read:?} only, {} samples of \
+                 {other:?} left out",
+                self.imu_other_sensor
+            ));
+        }
+        if self.imu_reordered > 0 {
+            parts.push(format!(
+                "{} IMU samples stamped up to {} ms before the sample received ahead of them (jittered stamps) were put back \
+                 in stamp order",
+                self.imu_reordered,
+                IMU_REORDER_LIMIT_NS / 1_000_000
+            ));
+        }
+        (!parts.is_empty()).then(|| parts.join("; "))
     }
 
     /// Ground-truth poses left out as unreadable (invalid or out of order; frozen ones apart).
@@ -486,6 +516,9 @@ impl std::fmt::Display for LoadReport {
         )?;
         if self.imu_unset_stamp > 0 {
             write!(f, ", {} unset (0) stamps", self.imu_unset_stamp)?;
+        }
+        if let Some((_, other)) = &self.interleaved_frames {
+            write!(f, ", {} of another sensor (frame_id {other:?})", self.imu_other_sensor)?;
         }
         write!(
             f,
@@ -531,7 +564,10 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
     // Decoded with their log times first: MCAP does not require a file to be in log-time order
     // (a recorder's threads interleave), and readers order it by log time, as `ros2 bag play`
     // does. In file order such a bag lost its late-written samples as "backwards stamps".
-    let mut imu: Vec<(u64, ImuSample)> = Vec::new();
+    let mut imu: Vec<(u64, (ImuSample, usize))> = Vec::new();
+    // Each IMU message's frame_id, as an index into `frames`: two sensors on one topic show as
+    // alternating frame_ids.
+    let mut frames: Vec<String> = Vec::new();
     let mut poses: Vec<(u64, Option<PoseSample>)> = Vec::new();
     let mut temperature: Vec<(u64, TemperatureSample)> = Vec::new();
     for (index, m) in BagReader::open(path)?.enumerate() {
@@ -552,7 +588,15 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
             if *m.type_name != *Imu::TYPE_NAME {
                 return Err(wrong_type(Imu::TYPE_NAME));
             }
-            imu.push((m.log_time_ns, Imu::decode(&m.data).map_err(decode_err)?.sample()));
+            let msg = Imu::decode(&m.data).map_err(decode_err)?;
+            let frame = match frames.iter().position(|f| *f == msg.header.frame_id) {
+                Some(k) => k,
+                None => {
+                    frames.push(msg.header.frame_id.clone());
+                    frames.len() - 1
+                }
+            };
+            imu.push((m.log_time_ns, (msg.sample(), frame)));
         } else if topics.ground_truth.as_deref() == Some(&*m.topic) {
             let pose = match &*m.type_name {
                 t if t == PoseStamped::TYPE_NAME => PoseStamped::decode(&m.data).map_err(decode_err)?.sample(),
@@ -575,21 +619,30 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
             temperature.push((m.log_time_ns, Temperature::decode(&m.data).map_err(decode_err)?.sample()));
         }
     }
-    report.out_of_log_time_order = in_log_time_order(&mut imu, |s| Some(s.stamp_ns))
+    report.out_of_log_time_order = in_log_time_order(&mut imu, |s| Some(s.0.stamp_ns))
         + in_log_time_order(&mut poses, |p| p.as_ref().map(|p| p.stamp_ns))
         + in_log_time_order(&mut temperature, |t| Some(t.stamp_ns));
     // Stamped 0 and followed by a clock time (the next other stamp over an hour later): not
     // set, rather than the sample's time. A simulator's clock starting at 0 goes on in steps.
     let mut next_stamp = vec![0i64; imu.len()];
     let mut next = 0i64;
-    for (k, (_, s)) in imu.iter().enumerate().rev() {
+    for (k, (_, (s, _))) in imu.iter().enumerate().rev() {
         next_stamp[k] = next;
         if s.stamp_ns != 0 {
             next = s.stamp_ns;
         }
     }
-    for ((_, s), next) in imu.into_iter().zip(next_stamp) {
+    let sensor = interleaved_sensor(&imu);
+    if let Some(read) = sensor {
+        let other = imu.iter().map(|(_, (_, f))| *f).find(|f| *f != read).unwrap_or(read);
+        report.interleaved_frames = Some((frames[read].clone(), frames[other].clone()));
+    }
+    for ((_, (s, frame)), next) in imu.into_iter().zip(next_stamp) {
         report.imu_read += 1;
+        if sensor.is_some_and(|read| frame != read) {
+            report.imu_other_sensor += 1;
+            continue;
+        }
         if s.stamp_ns == 0 && next > UNSET_STAMP_BESIDE_NS {
             report.imu_unset_stamp += 1;
             continue;
@@ -627,7 +680,21 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
     if report.skipped() > 0 {
         tracing::warn!("{}: {}", path.display(), report);
     }
+    if let Some(note) = report.imu_stream_note() {
+        tracing::warn!("{}: {note}", path.display());
+    }
     Ok((rec, report))
+}
+
+/// The frame_id changes this many times or more in a topic's messages: two sensors
+/// interleaved, not a driver renamed once.
+const INTERLEAVED_SWITCHES: usize = 10;
+
+/// When the IMU messages alternate between frame_ids (two drivers on one topic), the frame
+/// to read: the first one seen. `None` when one sensor publishes (a single rename included).
+fn interleaved_sensor(imu: &[(u64, (ImuSample, usize))]) -> Option<usize> {
+    let switches = imu.windows(2).filter(|w| w[0].1 .1 != w[1].1 .1).count();
+    (switches >= INTERLEAVED_SWITCHES).then(|| imu[0].1 .1)
 }
 
 /// An IMU stamp of 0 is taken as unset when the stream's next other stamp is past this (1 h):
@@ -668,7 +735,13 @@ fn in_log_time_order<T>(messages: &mut [(u64, T)], stamp: impl Fn(&T) -> Option<
     late
 }
 
-/// Append an IMU sample unless it is non-finite or not strictly after the last one.
+/// How far back a sample's stamp may be from the last one's and still be put back in order
+/// (20 ms): driver stamps jittered by a few ms. Further back is a clock that stepped.
+pub const IMU_REORDER_LIMIT_NS: i64 = 20_000_000;
+
+/// Append an IMU sample unless it is non-finite or repeats a stamp. A sample stamped up to
+/// [`IMU_REORDER_LIMIT_NS`] before the last one is inserted in stamp order (jittered stamps);
+/// further back it is skipped as a backwards stamp.
 pub fn push_imu(imu: &mut Vec<ImuSample>, s: ImuSample, report: &mut LoadReport) {
     if !s.is_finite() {
         report.imu_non_finite += 1;
@@ -677,6 +750,17 @@ pub fn push_imu(imu: &mut Vec<ImuSample>, s: ImuSample, report: &mut LoadReport)
     if let Some(last) = imu.last() {
         if s.stamp_ns == last.stamp_ns {
             report.imu_duplicate_stamp += 1;
+            return;
+        }
+        if s.stamp_ns < last.stamp_ns && last.stamp_ns - s.stamp_ns <= IMU_REORDER_LIMIT_NS {
+            // Binary search; the insert moves only the few samples within the limit.
+            let at = imu.partition_point(|p| p.stamp_ns < s.stamp_ns);
+            if imu[at].stamp_ns == s.stamp_ns {
+                report.imu_duplicate_stamp += 1;
+            } else {
+                imu.insert(at, s);
+                report.imu_reordered += 1;
+            }
             return;
         }
         if s.stamp_ns < last.stamp_ns {
@@ -970,6 +1054,69 @@ mod tests {
         assert_eq!(report.imu_backwards_stamp, 1);
         assert_eq!(back.imu.len(), 496);
         assert!(back.imu.windows(2).all(|w| w[1].stamp_ns > w[0].stamp_ns));
+    }
+
+    #[test]
+    fn jittered_stamps_are_put_back_in_order_and_a_clock_step_is_not() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("jitter.mcap");
+        let rec = recording();
+        let mut w = BagWriter::create(&path).unwrap();
+        let ch = w.channel::<Imu>(IMU_TOPIC).unwrap();
+        for (k, s) in rec.imu.iter().enumerate() {
+            let mut s = *s;
+            let received = s.stamp_ns;
+            // Stamped 7 ms late, so the next one (5 ms on) is 2 ms before it; sample 300
+            // repeats sample 298's stamp; sample 400 is stamped 30 ms back (past the limit).
+            match k {
+                k if k % 50 == 7 => s.stamp_ns += 7_000_000,
+                300 => s.stamp_ns -= 10_000_000,
+                400 => s.stamp_ns -= 30_000_000,
+                _ => {}
+            }
+            w.write(ch, received, &Imu::from_sample(&s, IMU_FRAME)).unwrap();
+        }
+        w.finish().unwrap();
+        let (back, report) = read_recording(&path, &RecordingTopics::default()).unwrap();
+        assert_eq!((report.imu_reordered, report.imu_duplicate_stamp, report.imu_backwards_stamp), (10, 1, 1), "{report}");
+        assert_eq!(back.imu.len(), 498);
+        assert!(back.imu.windows(2).all(|w| w[1].stamp_ns > w[0].stamp_ns));
+        // The late-stamped sample sits after the one received behind it, with its own rates.
+        let late = back.imu.iter().position(|s| s.stamp_ns == rec.imu[7].stamp_ns + 7_000_000).unwrap();
+        assert_eq!((back.imu[late - 1].stamp_ns, back.imu[late].gyro), (rec.imu[8].stamp_ns, rec.imu[7].gyro));
+        let note = report.imu_stream_note().unwrap();
+        assert!(note.contains("10 IMU samples stamped up to 20 ms before") && note.contains("put back in stamp order"), "{note}");
+    }
+
+    #[test]
+    fn a_second_sensor_on_the_imu_topic_is_left_out_and_said() {
+        let dir = tempfile::tempdir().unwrap();
+        let rec = recording();
+        let write = |name: &str, frame_of: &dyn Fn(usize) -> &'static str| {
+            let path = dir.path().join(name);
+            let mut w = BagWriter::create(&path).unwrap();
+            let ch = w.channel::<Imu>(IMU_TOPIC).unwrap();
+            for (k, s) in rec.imu.iter().enumerate() {
+                let mut s = *s;
+                if frame_of(k) == "imu2_link" {
+                    // The other sensor: its own axes and a clock 1 ms behind.
+                    s.gyro = -s.gyro;
+                    s.stamp_ns -= 1_000_000;
+                }
+                w.write(ch, s.stamp_ns, &Imu::from_sample(&s, frame_of(k))).unwrap();
+            }
+            w.finish().unwrap();
+            read_recording(&path, &RecordingTopics::default()).unwrap()
+        };
+        let (back, report) = write("two.mcap", &|k| if k % 2 == 1 { "imu2_link" } else { IMU_FRAME });
+        assert_eq!((back.imu.len(), report.imu_other_sensor, report.imu_reordered), (250, 250, 0), "{report}");
+        assert!(back.imu.iter().all(|s| s.gyro.y == -0.2));
+        assert_eq!(report.interleaved_frames, Some((IMU_FRAME.to_string(), "imu2_link".to_string())));
+        assert!(report.imu_stream_note().unwrap().contains("interleaves two sensors"));
+        assert!(report.to_string().contains("250 of another sensor (frame_id \"imu2_link\")"), "{report}");
+        // One rename mid-recording is one sensor: every sample is read.
+        let (back, report) = write("renamed.mcap", &|k| if k >= 250 { "imu2_link" } else { IMU_FRAME });
+        assert_eq!((back.imu.len(), report.imu_other_sensor, report.interleaved_frames), (500, 0, None));
     }
 
     #[test]

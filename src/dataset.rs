@@ -242,15 +242,16 @@ mod tests {
     #[test]
     fn detects_and_reads_both_layouts() {
         let d = tempfile::tempdir().unwrap();
-        let imu = format!("{IMU_HEADER}1000,0.1,0.2,0.3,9.8,0,0\n2000,nan,0.2,0.3,9.8,0,0\n2000,0.1,0.2,0.3,9.8,0,0\n3000,0.1,0.2,0.3,9.8,0,0\n2500,0.1,0.2,0.3,9.8,0,0\n");
+        let imu = format!("{IMU_HEADER}1000,0.1,0.2,0.3,9.8,0,0\n2000,nan,0.2,0.3,9.8,0,0\n2000,0.1,0.2,0.3,9.8,0,0\n3000,0.1,0.2,0.3,9.8,0,0\n2500,0.1,0.2,0.3,9.8,0,0\n100000003000,0.1,0.2,0.3,9.8,0,0\n90000000000,0.1,0.2,0.3,9.8,0,0\n");
         write(d.path(), "seqA/mav0/imu0/data.csv", &imu);
         write(d.path(), "seqA/mav0/state_groundtruth_estimate0/data.csv", "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], v_RS_R_x [m s^-1]\n1000,1,2,3,1,0,0,0,0.5\n2000,1,2,3,0,1,0,0,0.5\n");
         let (seq, rec, report) = load_sequence(&d.path().join("seqA")).unwrap();
         assert_eq!(seq.kind, DatasetKind::Euroc);
         assert_eq!(seq.name, "seqA");
-        assert_eq!(rec.imu.iter().map(|s| s.stamp_ns).collect::<Vec<_>>(), vec![1000, 2000, 3000]);
+        // 2500 is jittered (put back in order), 90 s is a clock stepped back 10 s (skipped).
+        assert_eq!(rec.imu.iter().map(|s| s.stamp_ns).collect::<Vec<_>>(), vec![1000, 2000, 2500, 3000, 100000003000]);
         assert_eq!(report.imu_non_finite, 1);
-        assert_eq!(report.imu_backwards_stamp, 1);
+        assert_eq!((report.imu_backwards_stamp, report.imu_reordered), (1, 1));
         assert_eq!(rec.ground_truth.len(), 2);
 
         write(d.path(), "room/mav0/imu0/data.csv", &imu);

@@ -496,12 +496,14 @@ fn event_list(stats: &NodeStats) -> String {
 pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, stamp: Time) -> DiagnosticArray {
     let c = &stats.counters;
     let recent = live.since_event_s.is_some_and(|s| s < EVENT_WARN_S);
-    let (level, message) = if stats.model_status != "ok" {
+    // A driver gone silent is the worst news, whatever the model's state.
+    let (level, message) = if let Some(s) = live.since_input_s.filter(|s| *s > INPUT_STALE_AFTER_S && c.received > 0) {
+        let model = if stats.model_status != "ok" { format!("; {}", stats.model_status) } else { String::new() };
+        (DiagnosticStatus::ERROR, format!("no input for {s:.1} s{model}"))
+    } else if stats.model_status != "ok" {
         (DiagnosticStatus::WARN, stats.model_status.clone())
     } else if c.received == 0 {
         (DiagnosticStatus::STALE, "no input yet".to_string())
-    } else if let Some(s) = live.since_input_s.filter(|s| *s > INPUT_STALE_AFTER_S) {
-        (DiagnosticStatus::ERROR, format!("no input for {s:.1} s"))
     } else if stats.rate_off_nominal {
         (DiagnosticStatus::WARN, "input rate off nominal".to_string())
     } else if recent {
@@ -1301,6 +1303,11 @@ mod tests {
         let (level, message, _) = status(&stats, &mut clock, 15 * s);
         assert_eq!((level, message.as_str()), (DiagnosticStatus::ERROR, "no input for 3.0 s"));
         assert_eq!(status(&stats, &mut clock, 17 * s).2, "0.00");
+        // A pass-through node's silent driver is still an error, not its model's warning.
+        stats.model_status = "no model: pass-through".into();
+        let (level, message, _) = status(&stats, &mut StatusClock::default(), 15 * s);
+        assert_eq!((level, message.as_str()), (DiagnosticStatus::ERROR, "no input for 3.0 s; no model: pass-through"));
+        stats.model_status = "ok".into();
         // A new event while running warns again, and names a frame_id change.
         stats.counters.received += 1;
         stats.last_input_ns = Some(17 * s + 1);

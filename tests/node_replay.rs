@@ -422,6 +422,40 @@ fn eval_says_where_the_imu_stream_has_a_hole() {
     assert_eq!((row["imu_gaps"].as_u64(), row["imu_gaps_held"].as_u64()), (Some(2), Some(0)), "{row}");
 }
 
+/// replay's /diagnostics tick on the bag's clock through a hole in the IMU stream, saying "no
+/// input" as the live node's timer would (they waited for the next IMU sample before).
+#[test]
+fn replay_says_no_input_through_an_imu_dropout() {
+    let d = tempfile::tempdir().unwrap();
+    let mut rec = car_recording();
+    let t0 = rec.imu[0].stamp_ns;
+    rec.imu.retain(|s| !(5_000_000_000..8_500_000_000).contains(&(s.stamp_ns - t0)));
+    let bag = d.path().join("dropout.mcap");
+    imu_fsda::bag::write_recording(&bag, &rec).unwrap();
+    let out = d.path().join("out.mcap");
+    let o = Command::new(bin()).arg("replay").arg(&bag).arg("-o").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut silent = Vec::new();
+    let mut stamps = Vec::new();
+    for m in BagReader::open(&out).unwrap() {
+        let m = m.unwrap();
+        if &*m.topic == "/diagnostics" {
+            let s = &imu_fsda::msg::DiagnosticArray::decode(&m.data).unwrap().status[0];
+            let at = (m.log_time_ns as i64 - t0) as f64 * 1e-9;
+            stamps.push(at);
+            if s.message.starts_with("no input for") {
+                assert_eq!(s.level, imu_fsda::msg::DiagnosticStatus::ERROR);
+                silent.push(at);
+            }
+        }
+    }
+    // Ticks every second; the last input before the hole is at 4.995 s, so the ticks at 6.0x,
+    // 7.0x and 8.0x s find it more than 1 s old.
+    assert_eq!(silent.len(), 3, "{silent:?}");
+    assert!(silent.iter().all(|t| (6.0..8.5).contains(t)), "{silent:?}");
+    assert!(stamps.windows(2).all(|w| w[1] - w[0] <= 1.0 + 1e-6), "{stamps:?}");
+}
+
 /// Ground truth that repeats one pose while the car turns (an INS in a tunnel) is left out as
 /// a gap: scored as if those poses were missing, and said.
 #[test]

@@ -254,6 +254,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 if report.skipped() > 0 {
                     add_note(&mut note, &skipped_note(&report));
                 }
+                if let Some(stream) = report.imu_stream_note() {
+                    add_note(&mut note, &stream);
+                }
                 if implausible > 0 {
                     add_note(
                         &mut note,
@@ -339,6 +342,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
 fn skipped_note(r: &imu_fsda::bag::LoadReport) -> String {
     let (imu, gt) = (r.imu_skipped(), r.ground_truth_skipped());
     let mut parts = Vec::new();
+    // Another sensor's samples are said by `imu_stream_note`.
+    let imu = imu - r.imu_other_sensor;
     if imu > 0 {
         parts.push(format!("skipped {imu} IMU samples"));
     }
@@ -369,6 +374,9 @@ fn bag_names(bags: &[PathBuf]) -> Vec<String> {
 
 /// Append `more` to a row's note, "; "-separated.
 fn add_note(note: &mut String, more: &str) {
+    if more.is_empty() {
+        return;
+    }
     if !note.is_empty() {
         note.push_str("; ");
     }

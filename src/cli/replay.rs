@@ -8,7 +8,7 @@ use anyhow::Context;
 use imu_fsda::bag::BagWriter;
 use imu_fsda::infer::Pipeline;
 use imu_fsda::msg::{DiagnosticArray, Imu, RosMessage, Time, Vector3Stamped};
-use imu_fsda::node::{diagnostics_message, fill_denoised, NodeStats, StatusClock};
+use imu_fsda::node::{diagnostics_message, fill_denoised, Liveness, NodeStats, StatusClock};
 
 use super::corrector::load_corrector;
 use super::node::NodeConfigArgs;
@@ -25,6 +25,26 @@ pub struct ReplayArgs {
     /// Raw IMU topic in the bag; default: the node's input topic if the bag has it, else /imu/data.
     #[arg(long)]
     pub input_topic: Option<String>,
+}
+
+/// Diagnostics ticks written over one hole in the bag at most (an hour at 1 Hz): a stray
+/// message stamped far from the rest would otherwise fill the bag with ticks.
+const MAX_HOLE_TICKS: u64 = 3600;
+
+/// The node's /diagnostics at `now_ns` (the bag's log time), from the pipeline's counters.
+fn status_at(
+    stats: &mut NodeStats,
+    clock: &mut StatusClock,
+    pipeline: &Pipeline,
+    frame: &Option<String>,
+    node_name: &str,
+    now_ns: u64,
+) -> (DiagnosticArray, Liveness) {
+    stats.counters = pipeline.counters().clone();
+    stats.rate_off_nominal = pipeline.rate_off_nominal();
+    stats.frame_id = frame.clone().unwrap_or_default();
+    let live = clock.tick(stats, now_ns as i64);
+    (diagnostics_message(stats, &live, node_name, Time::from_ns(now_ns as i64)), live)
 }
 
 pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
@@ -117,6 +137,23 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             }
         };
         read += 1;
+        // The live node's timer ticks whether or not input comes: a hole in the IMU stream
+        // shows as "no input" ticks, as on the robot (at most MAX_HOLE_TICKS per hole).
+        if let Some(due) = next_diag.as_mut() {
+            let mut ticks = 0;
+            // Strictly after: a message at the tick's own time is received before it.
+            while m.log_time_ns > *due {
+                if ticks == MAX_HOLE_TICKS {
+                    *due += (m.log_time_ns - *due) / period_ns * period_ns + period_ns;
+                    break;
+                }
+                stats.decode_errors = decode_errors;
+                let (status, _) = status_at(&mut stats, &mut clock, &pipeline, &last_frame, &args.config.node_name, *due);
+                writer.write(diag_ch, *due as i64, &status)?;
+                *due += period_ns;
+                ticks += 1;
+            }
+        }
         let ch = match channels.get(&m.topic) {
             Some(c) => *c,
             None => {
@@ -153,26 +190,11 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         }
         stats.last_input_ns = Some(m.log_time_ns as i64);
         clock.start(m.log_time_ns as i64, pipeline.counters().received);
-        let due = *next_diag.get_or_insert(m.log_time_ns + period_ns);
-        if m.log_time_ns >= due {
-            stats.counters = pipeline.counters().clone();
-            stats.decode_errors = decode_errors;
-            stats.rate_off_nominal = pipeline.rate_off_nominal();
-            stats.frame_id = last_frame.clone().unwrap_or_default();
-            let live = clock.tick(&stats, m.log_time_ns as i64);
-            writer.write(
-                diag_ch,
-                m.log_time_ns as i64,
-                &diagnostics_message(&stats, &live, &args.config.node_name, Time::from_ns(m.log_time_ns as i64)),
-            )?;
-            next_diag = Some(due + period_ns);
-        }
+        next_diag.get_or_insert(m.log_time_ns + period_ns);
     }
-    stats.counters = pipeline.counters().clone();
     stats.decode_errors = decode_errors;
-    stats.frame_id = last_frame.unwrap_or_default();
-    let live = clock.tick(&stats, last_log as i64);
-    writer.write(diag_ch, last_log as i64, &diagnostics_message(&stats, &live, &args.config.node_name, Time::from_ns(last_log as i64)))?;
+    let (status, live) = status_at(&mut stats, &mut clock, &pipeline, &last_frame, &args.config.node_name, last_log);
+    writer.write(diag_ch, last_log as i64, &status)?;
     writer.finish().with_context(|| format!("finishing {}", args.output.display()))?;
     let kept = || format!("{} holds the replay of the {read} messages before it", args.output.display());
     if let Some(e) = damage {
