@@ -254,6 +254,99 @@ pub fn burst_stamps(imu: &[ImuSample]) -> Option<String> {
     })
 }
 
+/// Separate runs of samples held at an axis's largest |value| that make it a clipped axis: a
+/// signal's own peak reaches its maximum once; a sensor at the end of its range holds the same
+/// value again at every impact or fast turn.
+const CLIP_RUNS: u32 = 3;
+/// Below these an axis is not taken as clipped: no IMU's range is narrower (125 °/s and 2 g are
+/// the smallest in use), and a quantised signal at rest repeats its values.
+const CLIP_MIN_RATE_RAD_S: f64 = 2.0;
+const CLIP_MIN_ACCEL_M_S2: f64 = 15.0;
+
+/// Samples held at the sensor's range (saturation), found per axis from the stream itself: the
+/// axis's largest |value| held in [`CLIP_RUNS`] or more separate runs. Online, one sample at a
+/// time with no allocation; a clipped sample is integrated all the same (its true value was
+/// larger), so what it gets is a count and a warning.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ClipDetector {
+    /// Per axis (gyro x, y, z, accel x, y, z): largest |value|, separate runs at it, in a run.
+    limit: [f64; 6],
+    runs: [u32; 6],
+    in_run: [bool; 6],
+}
+
+/// Axis `k` of a sample (gyro x, y, z, accel x, y, z) and the least range it can clip at.
+fn clip_axis(s: &ImuSample, k: usize) -> (f64, f64) {
+    if k < 3 {
+        (s.gyro[k].abs(), CLIP_MIN_RATE_RAD_S)
+    } else {
+        (s.accel[k - 3].abs(), CLIP_MIN_ACCEL_M_S2)
+    }
+}
+
+impl ClipDetector {
+    /// Feed one sample; true when one of its axes sits at a range the stream has shown clipped.
+    pub fn push(&mut self, s: &ImuSample) -> bool {
+        for k in 0..6 {
+            let (a, _) = clip_axis(s, k);
+            if a > self.limit[k] {
+                (self.limit[k], self.runs[k], self.in_run[k]) = (a, 1, true);
+            } else if a == self.limit[k] {
+                self.runs[k] += u32::from(!self.in_run[k]);
+                self.in_run[k] = true;
+            } else {
+                self.in_run[k] = false;
+            }
+        }
+        self.at_range(s, 0..6)
+    }
+
+    /// True when axis `k` has shown clipping.
+    fn clipped(&self, k: usize, min: f64) -> bool {
+        self.runs[k] >= CLIP_RUNS && self.limit[k] >= min
+    }
+
+    /// True when one of `axes` of `s` sits at that axis's clipped range.
+    pub fn at_range(&self, s: &ImuSample, axes: std::ops::Range<usize>) -> bool {
+        axes.into_iter().any(|k| {
+            let (a, min) = clip_axis(s, k);
+            self.clipped(k, min) && a == self.limit[k]
+        })
+    }
+
+    /// The largest clipped range of the gyro (rad/s) and of the accelerometer (m/s²).
+    pub fn ranges(&self) -> (Option<f64>, Option<f64>) {
+        let range = |ks: std::ops::Range<usize>, min: f64| ks.filter(|&k| self.clipped(k, min)).map(|k| self.limit[k]).reduce(f64::max);
+        (range(0..3, CLIP_MIN_RATE_RAD_S), range(3..6, CLIP_MIN_ACCEL_M_S2))
+    }
+}
+
+/// Samples of a recording held at the sensor's range (the whole stream's ranges, so its first
+/// clipped samples count too); what to say, `None` when nothing is clipped.
+pub fn clipped_samples(imu: &[ImuSample]) -> Option<String> {
+    let mut scan = ClipDetector::default();
+    for s in imu {
+        scan.push(s);
+    }
+    let (gyro, accel) = scan.ranges();
+    let count = |axes: std::ops::Range<usize>| imu.iter().filter(|s| scan.at_range(s, axes.clone())).count();
+    let mut parts = Vec::new();
+    if let Some(r) = gyro {
+        parts.push(format!("{} gyro samples at ±{r:.3} rad/s", count(0..3)));
+    }
+    if let Some(r) = accel {
+        parts.push(format!("{} accelerometer samples at ±{r:.2} m/s²", count(3..6)));
+    }
+    (!parts.is_empty()).then(|| {
+        format!(
+            "{} of {} IMU samples clipped at the sensor's range ({}): their true values were larger, and they are used as recorded",
+            count(0..6),
+            imu.len(),
+            parts.join(", ")
+        )
+    })
+}
+
 /// `std::fs::create_dir_all`, but when a file stands where a folder of the path must be, the
 /// error names that file ("File exists" alone sent users looking for the folder).
 pub fn create_dir_all(dir: &std::path::Path) -> std::io::Result<()> {
@@ -270,6 +363,44 @@ mod tests {
 
     /// Bursts stamped on arrival: 5 samples 10 µs apart every 25 ms are a 200-Hz stream
     /// (it read as 100 kHz), and said; a regular stream with a gap or rounded stamps is not.
+    /// A gyro turning past its range and impacts past the accelerometer's are counted; a
+    /// signal's own peaks, even quantised, and a quantised rest are not.
+    #[test]
+    fn clipping_is_a_value_held_at_the_range_again_and_again() {
+        let quantised = |x: f64, lsb: f64| (x / lsb).round() * lsb;
+        let stream = |gyro: &dyn Fn(f64) -> f64, accel: &dyn Fn(f64) -> f64| -> Vec<ImuSample> {
+            (0..10_000)
+                .map(|k| {
+                    let t = k as f64 * 1e-3;
+                    ImuSample { stamp_ns: k * 1_000_000, gyro: Vector3::new(gyro(t), 0.01, -0.02), accel: Vector3::new(0.1, 0.2, accel(t)) }
+                })
+                .collect()
+        };
+        // 12 rad/s swings clipped at 8.727 (500 °/s), 1 kHz, 16-bit; 8 g impacts every 0.5 s
+        // clipped at 4 g.
+        // The sensors' noise (uniform, ±0.01 rad/s and ±0.05 m/s²); impacts of 60–80 m/s².
+        let noise = |t: f64, size: f64| ((((t * 1e3).round() as u64 * 2_654_435_761) % 1000) as f64 / 1000.0 - 0.5) * 2.0 * size;
+        let lsb = 8.727 / 32768.0;
+        let swing = |t: f64| 12.0 * (2.0 * t).sin() + noise(t, 0.01);
+        let gyro = |t: f64| quantised(swing(t).clamp(-8.727, 8.727), lsb);
+        let impact = |t: f64| -> f64 { 9.81 + noise(t, 0.05) + if (t % 0.5) < 0.004 { 70.0 + noise(t + 0.3, 10.0) } else { 0.0 } };
+        let clipped = stream(&gyro, &|t| quantised(impact(t).min(39.24), 0.0048));
+        let note = clipped_samples(&clipped).unwrap();
+        assert!(note.contains("gyro samples at ±8.727 rad/s") && note.contains("accelerometer samples at ±39.24 m/s²"), "{note}");
+        // Samples at the limit: |12 sin(2t)| beyond 8.727 48 % of the time, in runs of 0.76 s;
+        // 20 impacts of 4 samples.
+        let mut online = ClipDetector::default();
+        let flagged = clipped.iter().filter(|s| online.push(s)).count();
+        let total: usize = note.split(" of ").next().unwrap().parse().unwrap();
+        assert!((4700..4950).contains(&total), "{note}");
+        // Online, the first two runs of each axis are not yet known as clipping.
+        assert!(flagged < total && flagged + 2 * 800 + 8 > total, "{flagged} of {total}");
+        // Unclipped: the same swings and impacts whole, quantised; a quantised rest.
+        assert_eq!(clipped_samples(&stream(&|t| quantised(swing(t), 2.0 * lsb), &|t| quantised(impact(t), 0.0096))), None);
+        let rest = stream(&|t| quantised(0.001 * (t * 9.0).sin(), lsb), &|t| quantised(9.81 + 0.004 * (t * 31.0).sin(), 0.0048));
+        assert_eq!(clipped_samples(&rest), None);
+    }
+
     #[test]
     fn bursts_stamped_on_arrival_are_the_mean_rate() {
         let at = |stamps: &mut dyn Iterator<Item = i64>| -> Vec<ImuSample> {

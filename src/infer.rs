@@ -5,7 +5,7 @@
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
-use crate::core::{ImuSample, STANDARD_GRAVITY};
+use crate::core::{ClipDetector, ImuSample, STANDARD_GRAVITY};
 use crate::so3::{exp, renormalize};
 
 /// Something that corrects a gyro stream sample by sample (causal, stateful).
@@ -20,6 +20,10 @@ pub trait GyroCorrector: Send {
     fn rate_hz(&self) -> Option<f64>;
     /// Short name for diagnostics.
     fn name(&self) -> &str;
+    /// True when the output is the input unchanged: its noise is the sensor's own.
+    fn passes_through(&self) -> bool {
+        false
+    }
 }
 
 /// The identity: the raw gyro minus a constant bias. The baseline and the model-free mode.
@@ -60,6 +64,9 @@ impl GyroCorrector for PassThrough {
     }
     fn name(&self) -> &str {
         "pass-through (no model)"
+    }
+    fn passes_through(&self) -> bool {
+        true
     }
 }
 
@@ -263,6 +270,9 @@ pub struct Counters {
     /// Samples missing from holes shorter than a gap, estimated from the stamps of a regular
     /// stream (best-effort DDS dropping a burst, a driver's buffer overrun): bridged, not reset.
     pub missed_samples: u64,
+    /// Samples with an axis held at the sensor's range ([`ClipDetector`]): used as recorded,
+    /// their true values were larger.
+    pub saturated_samples: u64,
 }
 
 impl Counters {
@@ -284,6 +294,9 @@ pub struct CorrectedImu {
     pub accel: Vector3<f64>,
     /// Variance of each corrected gyro axis, (rad/s)².
     pub gyro_variance: f64,
+    /// The gyro is the input's unchanged (no model): the input's own covariance, where it
+    /// gives one, is the output's.
+    pub passed_through: bool,
     /// Integrated `world_from_body` and its covariance (rad², about world x, y, z); `None`
     /// until the initial attitude is known.
     pub orientation: Option<(UnitQuaternion<f64>, Matrix3<f64>)>,
@@ -367,6 +380,7 @@ pub struct Pipeline {
     first_dts: [i64; 8],
     n_first_dts: usize,
     backwards_run: BackwardsRun,
+    clipping: ClipDetector,
     /// Consecutive intervals longer than a gap: a few in a row are a rate, not a hole.
     consecutive_gaps: u32,
     /// Whether the nominal period came from the first intervals (not the model or config).
@@ -428,6 +442,7 @@ impl Pipeline {
             first_dts: [0; 8],
             n_first_dts: 0,
             backwards_run: BackwardsRun::default(),
+            clipping: ClipDetector::default(),
             consecutive_gaps: 0,
             period_learned: false,
             slow_period_ns: None,
@@ -457,6 +472,16 @@ impl Pipeline {
     /// Nominal input period, s, once known.
     pub fn nominal_rate_hz(&self) -> Option<f64> {
         self.nominal_period_ns.map(|p| 1e9 / p)
+    }
+
+    /// The input's smoothed rate, Hz, once measured.
+    pub fn input_rate_hz(&self) -> Option<f64> {
+        (self.smoothed_period_ns > 0.0).then(|| 1e9 / self.smoothed_period_ns)
+    }
+
+    /// The rate the corrector was made for, Hz, if it has one.
+    pub fn corrector_rate_hz(&self) -> Option<f64> {
+        self.corrector.rate_hz()
     }
 
     /// True while the smoothed input rate is off nominal by more than the tolerance.
@@ -526,6 +551,9 @@ impl Pipeline {
             }
             self.last_dt_ns = dt_ns;
         }
+        if self.clipping.push(s) {
+            self.counters.saturated_samples += 1;
+        }
         let gyro = self.corrector.step(&s.gyro, &s.accel);
         let warming_up = self.since_reset < self.corrector.window() as u64;
         if warming_up {
@@ -542,6 +570,7 @@ impl Pipeline {
             correction: gyro - s.gyro,
             accel: s.accel,
             gyro_variance: self.cfg.angular_velocity_stddev * self.cfg.angular_velocity_stddev,
+            passed_through: self.corrector.passes_through(),
             orientation,
             warming_up,
             after_gap,

@@ -291,7 +291,12 @@ pub fn sensor_data_qos(depth: usize) -> QosProfile {
 /// Fill an output Imu from the input message (header kept) and a corrected sample.
 pub fn fill_denoised(msg: &mut Imu, c: &CorrectedImu) {
     msg.angular_velocity = c.gyro.into();
-    msg.angular_velocity_covariance.0 = [c.gyro_variance, 0.0, 0.0, 0.0, c.gyro_variance, 0.0, 0.0, 0.0, c.gyro_variance];
+    // REP 145 / sensor_msgs: all zeros is "unknown", −1 first "not measured".
+    let input = &msg.angular_velocity_covariance.0;
+    let input_known = input[0] >= 0.0 && input.iter().any(|v| *v != 0.0) && input.iter().all(|v| v.is_finite());
+    if !(c.passed_through && input_known) {
+        msg.angular_velocity_covariance.0 = [c.gyro_variance, 0.0, 0.0, 0.0, c.gyro_variance, 0.0, 0.0, 0.0, c.gyro_variance];
+    }
     msg.linear_acceleration = c.accel.into();
     match &c.orientation {
         Some((q, cov)) => {
@@ -444,7 +449,7 @@ pub struct Liveness {
 /// Events that put the status at WARN while recent.
 fn events(stats: &NodeStats) -> u64 {
     let c = &stats.counters;
-    c.dropped() + c.gaps + c.clock_jumps + c.missed_samples + stats.frame_changes
+    c.dropped() + c.gaps + c.clock_jumps + c.missed_samples + c.saturated_samples + stats.frame_changes
 }
 
 impl StatusClock {
@@ -488,6 +493,9 @@ fn event_list(stats: &NodeStats) -> String {
     }
     if stats.frame_changes > 0 {
         parts.push(format!("{} input frame_id changes (two IMUs on one topic?)", stats.frame_changes));
+    }
+    if c.saturated_samples > 0 {
+        parts.push(format!("{} samples clipped at the sensor's range", c.saturated_samples));
     }
     parts.join(", ")
 }
@@ -537,6 +545,7 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("frame_id_changes", stats.frame_changes.to_string()),
         kv("warmup_samples", c.warmup_samples.to_string()),
         kv("missed_samples", c.missed_samples.to_string()),
+        kv("saturated_samples", c.saturated_samples.to_string()),
     ];
     let mut values = values;
     if !stats.adapt_status.is_empty() {
@@ -899,6 +908,15 @@ async fn process_loop(
             s.last_stamp_ns = sample.stamp_ns;
             s.last_input_ns = Some(status_clock_ns(arrived));
             s.warming_up = result.as_ref().is_ok_and(|c| c.warming_up);
+            // Said once in the log when it starts: /diagnostics alone was easy to miss.
+            if pipeline.rate_off_nominal() && !s.rate_off_nominal {
+                tracing::warn!(
+                    "input rate off nominal: {:.1} Hz against the {:.1} Hz {}; a model counts samples, so its window now spans another time",
+                    pipeline.input_rate_hz().unwrap_or(f64::NAN),
+                    pipeline.nominal_rate_hz().unwrap_or(f64::NAN),
+                    if pipeline.corrector_rate_hz().is_some() { "the model was trained at" } else { "first measured" }
+                );
+            }
             s.rate_off_nominal = pipeline.rate_off_nominal();
         }
         if limits.max_messages.is_some_and(|m| published >= m) {
@@ -1223,6 +1241,40 @@ impl Job {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Without a model the input's own gyro covariance is published, where it gives one; a
+    /// model's output, or an input that says "unknown", gets the configured variance.
+    #[test]
+    fn a_pass_through_keeps_the_inputs_gyro_covariance() {
+        let s = crate::core::ImuSample {
+            stamp_ns: 5,
+            gyro: nalgebra::Vector3::new(0.1, 0.2, 0.3),
+            accel: nalgebra::Vector3::new(0.0, 0.0, 9.8),
+        };
+        let c = CorrectedImu {
+            stamp_ns: 5,
+            gyro: s.gyro,
+            correction: nalgebra::Vector3::zeros(),
+            accel: s.accel,
+            gyro_variance: 2.5e-5,
+            passed_through: true,
+            orientation: None,
+            warming_up: false,
+            after_gap: false,
+        };
+        let own = [1e-4, 2e-6, 0.0, 2e-6, 1e-4, 0.0, 0.0, 0.0, 3e-4];
+        let published = |input: [f64; 9], c: &CorrectedImu| {
+            let mut msg = Imu::from_sample(&s, "imu");
+            msg.angular_velocity_covariance.0 = input;
+            fill_denoised(&mut msg, c);
+            msg.angular_velocity_covariance.0
+        };
+        let configured = [2.5e-5, 0.0, 0.0, 0.0, 2.5e-5, 0.0, 0.0, 0.0, 2.5e-5];
+        assert_eq!(published(own, &c), own);
+        assert_eq!(published([0.0; 9], &c), configured);
+        assert_eq!(published([-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], &c), configured);
+        assert_eq!(published(own, &CorrectedImu { passed_through: false, ..c }), configured);
+    }
 
     #[test]
     fn params_from_ros2_yaml() {

@@ -168,6 +168,9 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     if let Some(problem) = report.stamp_problem_above(0.1).or_else(|| imu_fsda::core::burst_stamps(&rec.imu)) {
         anyhow::bail!("{}: {problem}", args.bag.display());
     }
+    if let Some(clipped) = imu_fsda::core::clipped_samples(&rec.imu) {
+        tracing::warn!("{}: {clipped}; the adapted correction learns from them too", args.bag.display());
+    }
     anyhow::ensure!(
         report.imu_non_finite == 0 && report.ground_truth_invalid == 0,
         "{}: {} non-finite IMU samples, {} invalid poses: fix the bag first",

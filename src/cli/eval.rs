@@ -136,6 +136,11 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             let before = rec.imu.len();
             rec.imu.retain(ImuSample::is_plausible);
             let implausible = before - rec.imu.len();
+            // Clipped samples are scored as recorded (the node integrates them too), and said.
+            let clipped = imu_fsda::core::clipped_samples(&rec.imu);
+            if let Some(c) = &clipped {
+                tracing::warn!("{}: {c}", bag.display());
+            }
             if implausible > 0 {
                 tracing::warn!("{}: dropped {implausible} IMU samples beyond what any IMU measures", bag.display());
             }
@@ -256,6 +261,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 }
                 if let Some(stream) = report.imu_stream_note() {
                     add_note(&mut note, &stream);
+                }
+                if let Some(clipped) = &clipped {
+                    add_note(&mut note, clipped);
                 }
                 if implausible > 0 {
                     add_note(

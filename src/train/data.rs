@@ -222,6 +222,11 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
     if let Some(problem) = report.stamp_problem_above(0.1).or_else(|| crate::core::burst_stamps(&rec.imu)) {
         return Err(DataError::Load { source_name: described, msg: problem });
     }
+    // Clipped samples teach a correction for a gyro that reads too small: trained on all the
+    // same (the rest of the recording is good), and said.
+    if let Some(clipped) = crate::core::clipped_samples(&rec.imu) {
+        tracing::warn!("{described}: {clipped}");
+    }
     if report.imu_non_finite > 0 {
         return Err(DataError::NonFinite { name, what: "non-finite (NaN/inf) IMU samples", count: report.imu_non_finite });
     }
