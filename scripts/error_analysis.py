@@ -45,6 +45,11 @@ Run with the project's venv (scripts/env.sh: $PYTHON has numpy, torch and mcap):
                                        its own constant (give one IMU's bags per run). The
                                        session mean is the most a model could know that identifies
                                        the session from the data but not the recording
+  error_analysis.py longmean BAG...    whether a long running mean of the raw gyro could carry a
+                                       recording's constant bias into a model: per bag, its own
+                                       constant (fitted as in `floors`) and the mean true body
+                                       rate over the first S s and the whole recording (the
+                                       raw mean's error as a bias estimate), mrad/s
   error_analysis.py probe --positive PATTERN --train BAG... --test BAG...
                                        whether a window of raw IMU tells which recordings it
                                        comes from: a logistic regression on the log band powers
@@ -575,6 +580,23 @@ def probe(args):
         print(f"| {name} | {(names == name).sum()} | {pt[names == name].mean():.2f} |")
 
 
+def longmean(args):
+    print("| bag | s | own constant b (ω + b), mrad/s | mean true rate, first "
+          f"{args.seconds:.0f} s, mrad/s | mean true rate, whole recording, mrad/s |")
+    print("|---|---|---|---|---|")
+    for path in args.bags:
+        d = read_bag(path, ("/imu/data", "/ground_truth/pose"))
+        imu, gt = d["/imu/data"], d["/ground_truth/pose"]
+        t, w = imu[:, 0], imu[:, 1:4]
+        _, b = fit_calibration(Increments(t, w, gt, args.increment), False)
+        # The raw mean minus the bias it would estimate: the net rotation the robot itself made.
+        first = w[: np.searchsorted(t, t[0] + args.seconds * 1e9)].mean(0) + b
+        whole = w.mean(0) + b
+        name = os.path.splitext(os.path.basename(path))[0]
+        fmt = lambda v: "[" + ", ".join(f"{x * 1e3:.2f}" for x in v) + "]"
+        print(f"| {name} | {(t[-1] - t[0]) * 1e-9:.0f} | {fmt(b)} | {fmt(first)} | {fmt(whole)} |", flush=True)
+
+
 def main():
     torch.set_num_threads(1)
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -617,6 +639,11 @@ def main():
     r.add_argument("--test", nargs="+", required=True)
     r.add_argument("--increment", type=int, default=1024, help="J, samples")
     r.set_defaults(run=restshift)
+    m = sub.add_parser("longmean")
+    m.add_argument("bags", nargs="+")
+    m.add_argument("--seconds", type=float, default=60.0, help="the first span, s")
+    m.add_argument("--increment", type=int, default=1024, help="J, samples")
+    m.set_defaults(run=longmean)
     q = sub.add_parser("probe")
     q.add_argument("--positive", required=True, help="a file-name substring, e.g. V2_")
     q.add_argument("--train", nargs="+", required=True)
