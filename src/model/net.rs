@@ -434,7 +434,7 @@ impl InferenceNet {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use tch::{nn::VarStore, Device};
 

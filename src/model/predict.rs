@@ -43,6 +43,31 @@ pub fn with_correction_gain(imu: &[ImuSample], mut corrected: Vec<Vector3<f64>>,
     corrected
 }
 
+/// Samples per forward of a long recording (5.5 min at 200 Hz): the activations of one
+/// forward grow with its length (1.45 kB a sample, 2.6 GB for 30 min at 1 kHz in one).
+const FORWARD_CHUNK: usize = 1 << 16;
+
+/// A causal net's output over `imu`, forwarded in chunks of [`FORWARD_CHUNK`] samples, each
+/// after the `window − 1` samples before it: the net sees what the whole-sequence forward
+/// sees, so the output is the same (bar float rounding), at a bounded memory.
+fn forward_in_chunks(
+    imu: &[ImuSample],
+    window: usize,
+    chunk: usize,
+    forward: impl Fn(&[ImuSample]) -> Result<Vec<Vector3<f64>>, ModelError>,
+) -> Result<Vec<Vector3<f64>>, ModelError> {
+    let mut out = Vec::with_capacity(imu.len());
+    let mut start = 0;
+    while start < imu.len() {
+        let end = (start + chunk).min(imu.len());
+        let from = start.saturating_sub(window.saturating_sub(1));
+        let part = forward(&imu[from..end])?;
+        out.extend_from_slice(&part[start - from..]);
+        start = end;
+    }
+    Ok(out)
+}
+
 /// A model file given as `.pt`, `.ot` or `.json`: the metadata path beside it. A folder is
 /// returned as it is, for the loader to refuse by name (`models/` is not `models.json`).
 pub fn metadata_path(model: &Path) -> PathBuf {
@@ -64,8 +89,9 @@ pub fn correct_with_torchscript(
     if imu.is_empty() {
         return Ok((Vec::new(), ts.metadata));
     }
-    let out = ts.forward(&imu_tensor(imu, Kind::Float))?;
-    Ok((to_vectors(&out)?, ts.metadata))
+    let window = ts.metadata.window_n.max(1) as usize;
+    let corrected = forward_in_chunks(imu, window, FORWARD_CHUNK, |part| to_vectors(&ts.forward(&imu_tensor(part, Kind::Float))?))?;
+    Ok((corrected, ts.metadata))
 }
 
 /// Corrected gyro from an exported model's weights, in f64 (the exact reference).
@@ -78,6 +104,40 @@ pub fn correct_with_weights_f64(
     loaded.select_imu(imu_name)?;
     let net = loaded.net.inference().to_kind(Kind::Double);
     let gain = loaded.correction_gain();
-    let corrected = correct_with_net(&net, imu)?;
+    let window = loaded.metadata.window_n.max(1) as usize;
+    let corrected = forward_in_chunks(imu, window, FORWARD_CHUNK, |part| correct_with_net(&net, part))?;
     Ok((with_correction_gain(imu, corrected, gain), loaded.metadata))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::Mode;
+
+    /// In chunks with the window's history before each, a random causal net gives the
+    /// whole-sequence forward's output.
+    #[test]
+    fn a_chunked_forward_is_the_whole_one() {
+        let (_vs, net) = crate::model::net::tests::random_net(Mode::FsdaF, 3, Kind::Double);
+        let window = net.receptive_field() as usize;
+        let net = net.inference();
+        let imu: Vec<ImuSample> = (0..3000)
+            .map(|k| {
+                let t = k as f64 * 5e-3;
+                ImuSample {
+                    stamp_ns: k * 5_000_000,
+                    gyro: Vector3::new((t * 3.0).sin(), (t * 1.3).cos() * 0.5, 0.02 * t),
+                    accel: Vector3::new(0.3 * (t * 7.0).sin(), 0.1, 9.81),
+                }
+            })
+            .collect();
+        let whole = correct_with_net(&net, &imu).unwrap();
+        let chunked = forward_in_chunks(&imu, window, 700, |part| correct_with_net(&net, part)).unwrap();
+        assert_eq!(chunked.len(), whole.len());
+        let worst = whole.iter().zip(&chunked).map(|(a, b)| (a - b).norm()).fold(0.0, f64::max);
+        assert!(worst < 1e-12, "{worst}");
+        // One sample too little history and the chunks' starts differ.
+        let short = forward_in_chunks(&imu, window - 1, 700, |part| correct_with_net(&net, part)).unwrap();
+        assert!(whole.iter().zip(&short).any(|(a, b)| (a - b).norm() > 1e-9));
+    }
 }
