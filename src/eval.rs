@@ -360,7 +360,15 @@ fn lag_search(
         })
         .collect();
     peaks.sort_by(|a, b| b.1.total_cmp(&a.1));
+    // Of peaks that tie with the best (exactly periodic motion), the nearest to zero either
+    // side are visited too: the pick below prefers them.
+    let top = peaks.first().map_or(f64::NAN, |p| p.1);
+    let ties = |positive: bool| {
+        peaks.iter().filter(|p| (p.0 > 0) == positive && p.0 != 0 && ties_with(p.1, top)).min_by_key(|p| p.0.abs()).copied()
+    };
+    let nearest = [ties(true), ties(false)];
     peaks.truncate(COARSE_PEAKS);
+    peaks.extend(nearest.into_iter().flatten());
     peaks.push((0, f64::NAN));
     peaks.sort_by_key(|p| p.0);
     // The fine search, at every sample, covers two blocks either side of each (within ±1 s
@@ -383,13 +391,32 @@ fn lag_search(
     }
     let corr: Vec<Option<f64>> =
         lags.iter().map(|&l| if l == i64::MIN { None } else { lag_correlation(&gyro_norm, &gt_rate, l, MIN_LAG_PAIRS) }).collect();
-    let (best, c) = corr.iter().enumerate().filter_map(|(i, c)| c.map(|c| (i, c))).max_by(|a, b| a.1.total_cmp(&b.1))?;
+    let (_, top) = corr.iter().enumerate().filter_map(|(i, c)| c.map(|c| (i, c))).max_by(|a, b| a.1.total_cmp(&b.1))?;
+    // Peaks as high as the best within what the data can tell (exactly periodic motion: a gait
+    // on a treadmill), the one nearest zero: clocks are far more often aligned than a whole
+    // number of periods apart (a query span picked 20 s from peaks at 0, 10 and 20 s, r 0.998).
+    let is_peak = |i: usize| {
+        let c = corr[i].unwrap_or(f64::NEG_INFINITY);
+        let side = |j: Option<usize>| j.and_then(|j| corr.get(j).copied().flatten()).unwrap_or(f64::NEG_INFINITY);
+        c >= side(i.checked_sub(1)) && c >= side(Some(i + 1))
+    };
+    let (best, c) = (0..corr.len())
+        .filter(|&i| corr[i].is_some_and(|c| ties_with(c, top)) && is_peak(i))
+        .map(|i| (i, corr[i].unwrap_or(top)))
+        .min_by_key(|&(i, _)| lags[i].unsigned_abs())?;
     // Sub-sample peak: the parabola through the best lag and its neighbours.
     let shift = match (best.checked_sub(1).and_then(|i| corr[i]), corr.get(best + 1).copied().flatten()) {
         (Some(l), Some(r)) if l - 2.0 * c + r < 0.0 => (0.5 * (l - r) / (l - 2.0 * c + r)).clamp(-0.5, 0.5),
         _ => 0.0,
     };
     Some(GroundTruthLag { lag_s: (lags[best] as f64 + shift) * period, correlation: c })
+}
+
+/// A correlation `c` ties with the best one `top` ([`lag_search`]) when it is below it by at
+/// most a tenth of the best one's unexplained share (1 − r), plus 1e-5 for float rounding of
+/// near-perfect ones: what the data cannot tell apart.
+fn ties_with(c: f64, top: f64) -> bool {
+    top - c <= 0.1 * (1.0 - top) + 1e-5
 }
 
 /// Block length (s) and reach (s, either way) of [`ground_truth_lag`]'s coarse search.
@@ -672,6 +699,15 @@ mod tests {
             let got =
                 ground_truth_lag(&moving(trot, bias, (lag_ms * 1e6) as i64), &EvalOptions::default(), GROUND_TRUTH_LAG_SEARCH_S).unwrap();
             assert!((got.lag_s * 1e3 - lag_ms).abs() < 2.0, "{lag_ms} ms: {got:?}");
+        }
+        // Exactly periodic (a treadmill; the rate's norm repeats every 0.5 s): every whole
+        // period is as good a lag as none, and none is what is said; a lag under half a period
+        // is still found (300 ms could not be told from −200 ms).
+        let treadmill = |t: f64| Vector3::new(0.3 * (tau * t).sin(), 0.25 * (tau * t).cos(), 0.05 * (2.0 * tau * t).sin());
+        for lag_ms in [0.0, 150.0, -100.0] {
+            let got = ground_truth_lag(&moving(treadmill, bias, (lag_ms * 1e6) as i64), &EvalOptions::default(), GROUND_TRUTH_LAG_SEARCH_S)
+                .unwrap();
+            assert!((got.lag_s * 1e3 - lag_ms).abs() < 2.0, "treadmill {lag_ms} ms: {got:?}");
         }
     }
 
