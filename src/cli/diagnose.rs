@@ -171,11 +171,18 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
     }
     let d = diagnose(&aligned, opts)?;
     report::write_all(&args.out, &aligned, &d)?;
-    if d.findings.is_empty() {
-        out!("nothing left out")?;
+    // The verdict first: when the catalogue does not explain the recording, the terms below
+    // are its best fit, and must not read as a diagnosis.
+    for a in &d.artefacts {
+        out!("recording artefact: {a}")?;
     }
+    out!("{}", d.verdict.statement)?;
+    let label = if d.verdict.explained { "" } else { "best catalogue fit, not a diagnosis: " };
     for f in &d.findings {
-        out!("{}: {}", f.term, f.params)?;
+        out!("{label}{}: {}", f.term, f.params)?;
+    }
+    for f in &d.implausible {
+        out!("implausible, not a finding: {}: {} ({})", f.term, f.params, f.implausible.as_deref().unwrap_or_default())?;
     }
     out!("report: {} ({:.2} s)", args.out.join("report.md").display(), d.seconds)?;
     Ok(())
@@ -358,6 +365,10 @@ mod score {
         imu_fsda::core::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let (mut truths, mut found, mut spurious, mut reported, mut within) = (0usize, 0usize, 0usize, 0usize, 0usize);
+        // Every generated case is inside the catalogue: a "not explained" verdict is a false
+        // alarm of the adequacy test, an implausible flag a datasheet range the generator's
+        // detectability-sized terms went beyond.
+        let (mut not_explained, mut implausible) = (0usize, 0usize);
         let mut errors = Vec::new();
         let mut csv = String::from("case,profile,grade,rate_hz,seconds,truth,found,effect_errors,seconds_taken\n");
         let grades = [Grade::Mpu9250, Grade::Bmi160, Grade::Adis16448, Grade::Mti600];
@@ -427,6 +438,8 @@ mod score {
             let d = diagnose(&a, opts)?;
             truths += truth.len();
             reported += d.terms.len();
+            not_explained += !d.verdict.explained as usize;
+            implausible += d.implausible.len();
             let mut errs = Vec::new();
             for t in &truth {
                 if let Some(e) = d.terms.iter().find(|e| e.name() == t.name()) {
@@ -449,13 +462,19 @@ mod score {
                 errs.join(" "),
                 d.seconds
             );
-            tracing::info!("truth {truth:?}; found {:?}; steps {:?}", d.terms, d.steps);
+            tracing::info!("truth {truth:?}; found {:?}; steps {:?}; {}", d.terms, d.steps, d.verdict.statement);
+            let flags: Vec<String> = (!d.verdict.explained)
+                .then(|| format!("NOT EXPLAINED: {}", d.verdict.unexplained_channels.join(" ")))
+                .into_iter()
+                .chain(d.implausible.iter().map(|f| format!("implausible {}", f.term)))
+                .collect();
             out!(
-                "case {case:3} {profile:9} {:10} {rate:6} Hz {seconds:5.0} s  truth [{}]  found [{}]  {}",
+                "case {case:3} {profile:9} {:10} {rate:6} Hz {seconds:5.0} s  truth [{}]  found [{}]  {}{}",
                 grade.name(),
                 tn.join(", "),
                 fnm.join(", "),
-                errs.join(", ")
+                errs.join(", "),
+                if flags.is_empty() { String::new() } else { format!("  [{}]", flags.join("; ")) }
             )?;
         }
         errors.sort_by(|a, b| a.total_cmp(b));
@@ -468,6 +487,8 @@ mod score {
             "spurious_rate": spurious as f64 / reported.max(1) as f64,
             "parameters_within_20pct": within as f64 / found.max(1) as f64,
             "median_effect_error": median,
+            "cases_not_explained": not_explained,
+            "terms_flagged_implausible": implausible,
         });
         out!("{}", serde_json::to_string_pretty(&summary)?)?;
         std::fs::write(out.join("score.json"), serde_json::to_string_pretty(&summary)?)?;

@@ -36,6 +36,12 @@ pub struct Aligned {
     pub temperature_c: Option<Vec<f64>>,
     /// What was done to align, and what is missing.
     pub notes: Vec<String>,
+    /// Stamp artefacts of the real stream (its driver's or recording's, not the sensor's
+    /// physics), one sentence each, measured before any fit.
+    pub artefacts: Vec<String>,
+    /// Per common stamp: true inside a gap of the real stream (no real sample there, only an
+    /// interpolation across the gap), which the fit leaves out. Empty: no gap.
+    pub in_real_gap: Vec<bool>,
     /// The sim recording as read (for writing the corrected bag).
     pub sim_recording: Recording,
 }
@@ -163,6 +169,106 @@ pub fn interpolate(t: &[f64], x: &[f64], q: &[f64]) -> Vec<f64> {
         .collect()
 }
 
+/// An interval of the real stream longer than 1.5 nominal ones.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Gap {
+    /// Stamps of the samples either side, s (on the caller's time axis).
+    pub from: f64,
+    pub to: f64,
+    /// Samples missing at the nominal interval.
+    pub missing: usize,
+    /// The gap is a whole number of intervals (within a tenth): samples dropped from a
+    /// stream whose clock ran on, rather than a restart of its clock.
+    pub on_grid: bool,
+}
+
+/// Stamp artefacts of a stream: nominal interval, the spread of the intervals around it, gaps.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StampArtefacts {
+    pub nominal_interval_s: f64,
+    /// Robust spread (1.4826 × median absolute deviation) of the intervals within half a
+    /// nominal interval of it, s: jitter of the stamps; 0 for a regular clock.
+    pub interval_spread_s: f64,
+    pub gaps: Vec<Gap>,
+}
+
+/// Interval spread (share of the nominal interval) above which stamps are called jittered: a
+/// sample clock's stamps are regular to its ppm-level drift and ns rounding, far below 1 %.
+pub const JITTER_SHARE: f64 = 0.01;
+
+/// Measure the stamp artefacts of stamps `t` (s, increasing) with the stream's nominal rate.
+pub fn stamp_artefacts(t: &[f64], nominal_rate_hz: f64) -> StampArtefacts {
+    let m = 1.0 / nominal_rate_hz;
+    let d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    let mut dev: Vec<f64> = d.iter().filter(|x| (**x - m).abs() <= 0.5 * m).map(|x| (x - m).abs()).collect();
+    let spread = if dev.is_empty() {
+        0.0
+    } else {
+        let mid = dev.len() / 2;
+        1.4826 * *dev.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1
+    };
+    let gaps = d
+        .iter()
+        .enumerate()
+        .filter(|(_, x)| **x > 1.5 * m)
+        .map(|(i, x)| {
+            let k = x / m;
+            Gap { from: t[i], to: t[i + 1], missing: (k.round() as usize).saturating_sub(1), on_grid: (k - k.round()).abs() < 0.1 }
+        })
+        .collect();
+    StampArtefacts { nominal_interval_s: m, interval_spread_s: spread, gaps }
+}
+
+impl StampArtefacts {
+    /// The artefacts as sentences for the report (none for a regular stream without gaps).
+    pub fn sentences(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let m = self.nominal_interval_s;
+        if self.interval_spread_s > JITTER_SHARE * m {
+            out.push(format!(
+                "real stamps jitter: interval {:.3} ms ± {:.3} ms (robust σ, {:.0} % of the interval) — host-side stamping, not the sensor's sample clock",
+                m * 1e3,
+                self.interval_spread_s * 1e3,
+                100.0 * self.interval_spread_s / m
+            ));
+        }
+        if !self.gaps.is_empty() {
+            let missing: usize = self.gaps.iter().map(|g| g.missing).sum();
+            let on_grid = self.gaps.iter().filter(|g| g.on_grid).count();
+            let list: Vec<String> = self
+                .gaps
+                .iter()
+                .take(5)
+                .map(|g| {
+                    format!("{:.3}–{:.3} s ({} missing{})", g.from, g.to, g.missing, if g.on_grid { "" } else { ", off the sample grid" })
+                })
+                .collect();
+            out.push(format!(
+                "real stream has {} gap(s), {missing} samples missing ({on_grid} on the sample grid: dropped samples, the clock ran on){}: {}{} — a driver or recording artefact; the sim samples inside them are left out of the fit, not interpolated across",
+                self.gaps.len(),
+                if on_grid < self.gaps.len() { "; the others are not whole intervals: a clock restart or a stamp jump" } else { "" },
+                list.join(", "),
+                if self.gaps.len() > 5 { ", …" } else { "" }
+            ));
+        }
+        out
+    }
+}
+
+/// Stamps on the least-squares line t = a + b·k through `t` against the sample index k (a gap
+/// of g intervals advancing k by g).
+pub fn regular_grid(t: &[f64], interval: f64) -> Vec<f64> {
+    let mut k = vec![0.0; t.len()];
+    for i in 1..t.len() {
+        k[i] = k[i - 1] + ((t[i] - t[i - 1]) / interval).round().max(1.0);
+    }
+    let n = t.len() as f64;
+    let (mk, mt) = (k.iter().sum::<f64>() / n, t.iter().sum::<f64>() / n);
+    let (sxy, sxx) = k.iter().zip(t).fold((0.0, 0.0), |(sxy, sxx), (x, y)| (sxy + (x - mk) * (y - mt), sxx + (x - mk) * (x - mk)));
+    let b = if sxx > 0.0 { sxy / sxx } else { interval };
+    k.iter().map(|x| mt + b * (x - mk)).collect()
+}
+
 /// The lag (in sim samples, real = sim shifted later by the lag) that best lines up the gyro
 /// norms, searched within ±`max_lag` samples.
 fn coarse_lag(sim_t: &[f64], sim_norm: &[f64], real_t: &[f64], real_norm: &[f64], dt: f64, max_lag: i64) -> i64 {
@@ -240,10 +346,23 @@ pub fn align(sim: Recording, real: Recording, stated: Option<(f64, f64)>, mut no
     let mut real_t: Vec<f64> = real.imu.iter().map(|s| (s.stamp_ns - t0) as f64 * 1e-9).collect();
     let sim_ch = channels(&sim.imu);
     let real_ch = channels(&real.imu);
-    let (sim_rate, real_rate) = (sim.imu_rate_hz(), real.imu_rate_hz());
+    // Nominal rates (median-based): a gap or dropped samples must not read as another rate.
+    let (sim_rate, real_rate) = (sim.nominal_imu_rate_hz(), real.nominal_imu_rate_hz());
+    let stamps = stamp_artefacts(&real_t, real_rate);
+    let mut artefacts = stamps.sentences();
+    if stamps.interval_spread_s > JITTER_SHARE * stamps.nominal_interval_s {
+        // Jittered stamps of an evenly sampling sensor: interpolating at them would read the
+        // jitter as noise (ω̇·δt). The samples are put on the straight line through their
+        // stamps against their sample index (a clock drift stays in its slope).
+        real_t = regular_grid(&real_t, stamps.nominal_interval_s);
+        artefacts.push(
+            "the real samples are taken as evenly sampled and re-stamped on the least-squares line through their stamps (sample index counted across gaps); a sensor that really samples unevenly would be misread by this".into(),
+        );
+    }
     let dt = sim.imu_seconds() / (sim.imu.len() - 1) as f64;
 
     let same_stamps = sim.imu.len() == real.imu.len() && sim.imu.iter().zip(&real.imu).all(|(a, b)| a.stamp_ns == b.stamp_ns);
+    let mut in_real_gap = Vec::new();
     let (stamps_ns, real_on_grid): (Vec<i64>, [Vec<f64>; 6]) = if same_stamps {
         (sim.imu.iter().map(|s| s.stamp_ns).collect(), real_ch)
     } else {
@@ -277,6 +396,12 @@ pub fn align(sim: Recording, real: Recording, stated: Option<(f64, f64)>, mut no
         }
         let q: Vec<f64> = keep.iter().map(|&i| sim_t[i]).collect();
         let real_on: [Vec<f64>; 6] = std::array::from_fn(|c| interpolate(&real_t, &real_ch[c], &q));
+        // Inside a real gap the interpolant is made up: those stamps leave the fit.
+        let m = 1.0 / real_rate;
+        let gaps: Vec<(f64, f64)> = real_t.windows(2).filter(|w| w[1] - w[0] > 1.5 * m).map(|w| (w[0], w[1])).collect();
+        if !gaps.is_empty() {
+            in_real_gap = q.iter().map(|&t| gaps.iter().any(|&(a, b)| t > a + 0.5 * m && t < b - 0.5 * m)).collect();
+        }
         (keep.iter().map(|&i| sim.imu[i].stamp_ns).collect(), real_on)
     };
     let first = sim.imu.iter().position(|s| s.stamp_ns == stamps_ns[0]).unwrap_or(0);
@@ -344,6 +469,73 @@ pub fn align(sim: Recording, real: Recording, stated: Option<(f64, f64)>, mut no
         world_from_imu,
         temperature_c,
         notes,
+        artefacts,
+        in_real_gap,
         sim_recording: sim,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    /// A 200 Hz recording of a 1 Hz rotation (ω̇ up to 6 rad/s², so a 1 ms stamp error is
+    /// 6e-3 rad/s) with white noise of σ 1e-3 rad/s, 0.01 m/s², stamped at `stamp(k)`.
+    fn recording(seed: u64, n: usize, stamp: impl Fn(usize) -> i64, keep: impl Fn(usize) -> bool) -> Recording {
+        let mut u = crate::diagnose::residual::tests::uniform(seed);
+        let mut g = move || (0..12).map(|_| u()).sum::<f64>() - 6.0;
+        let imu = (0..n)
+            .filter(|&k| keep(k))
+            .map(|k| {
+                let t = k as f64 * 0.005;
+                let w = (std::f64::consts::TAU * t).sin();
+                ImuSample {
+                    stamp_ns: stamp(k),
+                    gyro: Vector3::new(w + 1e-3 * g(), 0.5 * w + 1e-3 * g(), 1e-3 * g()),
+                    accel: Vector3::new(0.01 * g(), 0.01 * g(), 9.81 + 0.01 * g()),
+                }
+            })
+            .collect();
+        Recording { name: "t".into(), imu, ground_truth: vec![], temperature: vec![] }
+    }
+
+    const VAR: (f64, f64) = (1e-6, 1e-4);
+
+    /// 50 samples dropped mid-stream: named as a gap on the sample grid, the rate still read
+    /// as the sim's (no "differs" note), and only the sim stamps inside the gap are masked.
+    #[test]
+    fn dropped_samples_are_a_gap_not_a_rate_and_are_not_fitted() {
+        let n = 4000;
+        let sim = recording(1, n, |k| k as i64 * 5_000_000, |_| true);
+        let real = recording(2, n, |k| k as i64 * 5_000_000, |k| !(2000..2050).contains(&k));
+        let a = align(sim, real, Some(VAR), vec![]).unwrap();
+        assert!(a.notes.iter().all(|n| !n.contains("differs from the sim rate")), "{:?}", a.notes);
+        assert_eq!(a.real_variance, VAR);
+        assert_eq!(a.artefacts.len(), 1, "{:?}", a.artefacts);
+        assert!(a.artefacts[0].contains("1 gap(s), 50 samples missing (1 on the sample grid"), "{}", a.artefacts[0]);
+        let masked: Vec<usize> = (0..a.len()).filter(|&i| a.in_real_gap[i]).collect();
+        assert_eq!(masked, (2000..2050).collect::<Vec<_>>());
+    }
+
+    /// ±1 ms uniform stamp jitter on an evenly sampled stream: named as jitter, and after the
+    /// re-stamping the residual's white noise is the two draws' (2σ²), where interpolating at
+    /// the jittered stamps would add (ω̇ δ)² ≈ 20σ².
+    #[test]
+    fn jittered_stamps_are_named_and_not_read_as_noise() {
+        let n = 4000;
+        let mut u = crate::diagnose::residual::tests::uniform(9);
+        let jitter: Vec<i64> = (0..n).map(|_| ((u() - 0.5) * 2e6) as i64).collect();
+        let sim = recording(1, n, |k| k as i64 * 5_000_000, |_| true);
+        let real = recording(2, n, |k| k as i64 * 5_000_000 + jitter[k], |_| true);
+        let a = align(sim, real, Some(VAR), vec![]).unwrap();
+        assert!(a.artefacts.iter().any(|s| s.contains("real stamps jitter")), "{:?}", a.artefacts);
+        assert!(a.in_real_gap.is_empty());
+        let r: Vec<f64> = a.real[0].iter().zip(&a.sim[0]).map(|(x, y)| x - y).collect();
+        let white = white_variance_from_data(&r[10..r.len() - 10]);
+        assert!(white < 1.5 * 2.0 * VAR.0, "residual white variance {white:.3e} against 2σ² = {:.3e}", 2.0 * VAR.0);
+        // A regular stream has no artefact.
+        let regular = stamp_artefacts(&(0..n).map(|k| k as f64 * 0.005).collect::<Vec<_>>(), 200.0);
+        assert!(regular.sentences().is_empty(), "{:?}", regular.sentences());
+    }
 }

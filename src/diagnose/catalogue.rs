@@ -407,3 +407,262 @@ pub fn detect_saturation(real: &[Vec<f64>], sim: &[Vec<f64>], sim_sigma: f64) ->
         (m, idx)
     })
 }
+
+/// The physically plausible range of one catalogue term's size, with why. A fit outside it
+/// (or pinned at a bound of its own search) is the best the catalogue can do with a mismatch
+/// it does not hold, not a property of a sensor, and is reported apart from the findings.
+#[derive(Debug, Clone, Copy)]
+pub struct Plausible {
+    pub term: &'static str,
+    /// What is compared (as [`plausibility_measure`] computes it).
+    pub quantity: &'static str,
+    pub lo: f64,
+    pub hi: f64,
+    pub unit: &'static str,
+    /// The range as a person reads it.
+    pub shown: &'static str,
+    pub why: &'static str,
+}
+
+/// Datasheet-level ranges, one per term (those without one, e.g. `mount_rotation`,
+/// `quantization`, `saturation`, can have any size or are read off the samples).
+pub const PLAUSIBLE: &[Plausible] = &[
+    Plausible {
+        term: "gyro_bias",
+        shown: "|bias| ≤ 0.175 rad/s (10 °/s)",
+        quantity: "largest |bias|",
+        lo: 0.0,
+        hi: 0.175,
+        unit: "rad/s",
+        why: "MEMS gyro turn-on bias is within ±5 °/s on consumer datasheets; 10 °/s is twice that",
+    },
+    Plausible {
+        term: "accel_bias",
+        shown: "|bias| ≤ 1.5 m/s²",
+        quantity: "largest |bias|",
+        lo: 0.0,
+        hi: 1.5,
+        unit: "m/s²",
+        why: "MEMS accelerometer zero-g offset is within ±150 mg (1.5 m/s²) on consumer datasheets",
+    },
+    Plausible {
+        term: "gyro_scale",
+        shown: "|scale| ≤ 0.05",
+        quantity: "largest |scale|",
+        lo: 0.0,
+        hi: 0.05,
+        unit: "",
+        why: "gyro sensitivity tolerance is ±1–3 % on MEMS datasheets",
+    },
+    Plausible {
+        term: "accel_scale",
+        shown: "|scale| ≤ 0.05",
+        quantity: "largest |scale|",
+        lo: 0.0,
+        hi: 0.05,
+        unit: "",
+        why: "accelerometer sensitivity tolerance is ±1–3 % on MEMS datasheets",
+    },
+    Plausible {
+        term: "gyro_misalignment",
+        shown: "|off-diagonal| ≤ 0.03",
+        quantity: "largest |off-diagonal|",
+        lo: 0.0,
+        hi: 0.03,
+        unit: "",
+        why: "cross-axis sensitivity is ±1–2 % on MEMS datasheets (a larger rotation of the whole frame is mount_rotation)",
+    },
+    Plausible {
+        term: "accel_misalignment",
+        shown: "|off-diagonal| ≤ 0.03",
+        quantity: "largest |off-diagonal|",
+        lo: 0.0,
+        hi: 0.03,
+        unit: "",
+        why: "cross-axis sensitivity is ±1–2 % on MEMS datasheets (a larger rotation of the whole frame is mount_rotation)",
+    },
+    Plausible {
+        term: "gyro_g_sensitivity",
+        shown: "|element| ≤ 1e-3 rad/s per m/s²",
+        quantity: "largest |element|",
+        lo: 0.0,
+        hi: 1e-3,
+        unit: "rad/s per m/s²",
+        why: "MEMS gyro linear-g sensitivity is 0.01–0.1 °/s/g (2e-5–2e-4 rad/s per m/s²) on datasheets; 1e-3 is 5× the worst",
+    },
+    Plausible {
+        term: "gyro_bias_temperature",
+        shown: "|coefficient| ≤ 3e-3 rad/s per K",
+        quantity: "largest |coefficient|",
+        lo: 0.0,
+        hi: 3e-3,
+        unit: "rad/s per K",
+        why: "consumer MEMS gyro bias drifts up to ≈ 0.15 °/s per K (3e-3 rad/s per K) over temperature",
+    },
+    Plausible {
+        term: "lever_arm",
+        shown: "|offset| ≤ 2 m",
+        quantity: "|offset|",
+        lo: 0.0,
+        hi: 2.0,
+        unit: "m",
+        why: "an IMU sits within a couple of metres of its body's reference point, even on a car",
+    },
+    Plausible {
+        term: "time_offset",
+        shown: "|offset| ≤ 1 sample period",
+        quantity: "|seconds| / sample period",
+        lo: 0.0,
+        hi: 1.0,
+        unit: "samples",
+        why: "whole-sample lags are removed by the alignment, and the catalogue's delay is first-order, good well within one sample",
+    },
+    Plausible {
+        term: "gravity_magnitude",
+        shown: "9.76 ≤ g ≤ 9.84 m/s²",
+        quantity: "g",
+        lo: 9.76,
+        hi: 9.84,
+        unit: "m/s²",
+        why: "gravity on the Earth's surface is 9.780 (equator) to 9.832 (poles), a little less on mountains",
+    },
+    Plausible {
+        term: "earth_rotation",
+        shown: "|latitude| < π/2",
+        quantity: "|latitude|",
+        lo: 0.0,
+        hi: std::f64::consts::FRAC_PI_2 - 1e-6,
+        unit: "rad",
+        why: "a latitude pinned at ±π/2 is the bound the fit is clamped to when no latitude fits (its cos-latitude part came out negative)",
+    },
+    Plausible {
+        term: "vibration",
+        shown: "frequency ≥ 2 Hz",
+        quantity: "frequency",
+        lo: 2.0,
+        hi: f64::INFINITY,
+        unit: "Hz",
+        why: "rotors, engines and structures vibrate above a few Hz; a slower accelerometer line is the body's motion (steps, gait, waves)",
+    },
+    Plausible {
+        term: "gyro_noise_density",
+        shown: "0.5 ≤ factor ≤ 4",
+        quantity: "factor",
+        lo: 0.5,
+        hi: 4.0,
+        unit: "× the sim's",
+        why: "datasheet noise densities are typical values, units differ by tens of % and vibration can double it; beyond 4× the sim's noise model itself is wrong",
+    },
+    Plausible {
+        term: "low_pass",
+        shown: "cutoff below Nyquist (half the sample rate)",
+        quantity: "cutoff / sample rate",
+        lo: 0.0,
+        hi: 0.5,
+        unit: "",
+        why: "above the Nyquist frequency a first-order filter's effect on the samples is a sub-sample delay, and its cutoff is not identified",
+    },
+];
+
+/// The quantity of `term` its [`PLAUSIBLE`] range compares (None: the term has no range).
+pub fn plausibility_measure(term: &Term, sample_rate_hz: f64) -> Option<f64> {
+    let max_abs = |v: &[f64]| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    let off = |m: &[[f64; 3]; 3]| OFF_DIAGONAL.iter().fold(0.0f64, |a, &(r, c)| a.max(m[r][c].abs()));
+    Some(match term {
+        Term::GyroBias(t) => max_abs(&t.bias),
+        Term::AccelBias(t) => max_abs(&t.bias),
+        Term::GyroScale(t) => max_abs(&t.scale),
+        Term::AccelScale(t) => max_abs(&t.scale),
+        Term::GyroMisalignment(t) => off(&t.matrix),
+        Term::AccelMisalignment(t) => off(&t.matrix),
+        Term::GyroGSensitivity(t) => max_abs(t.matrix.as_flattened()),
+        Term::GyroBiasTemperature(t) => max_abs(&t.coefficient),
+        Term::LeverArm(t) => t.offset.iter().map(|x| x * x).sum::<f64>().sqrt(),
+        Term::TimeOffset(t) => t.seconds.abs() * sample_rate_hz,
+        Term::GravityMagnitude(t) => t.g,
+        Term::EarthRotation(t) => t.latitude_rad.abs(),
+        Term::Vibration(t) => t.frequency_hz,
+        Term::GyroNoiseDensity(t) => t.factor,
+        Term::LowPass(t) => t.cutoff_hz / sample_rate_hz,
+        _ => return None,
+    })
+}
+
+/// Why a fitted term is not physically plausible (None when it is, or has no range).
+pub fn implausible(term: &Term, sample_rate_hz: f64) -> Option<String> {
+    let range = PLAUSIBLE.iter().find(|p| p.term == term.name())?;
+    let v = plausibility_measure(term, sample_rate_hz)?;
+    // NaN fails both comparisons: not plausible either.
+    (!(v >= range.lo && v <= range.hi)).then(|| {
+        let unit = if range.unit.is_empty() { String::new() } else { format!(" {}", range.unit) };
+        format!("{} {}{unit}, where plausible is {}: {}", range.quantity, short(v), range.shown, range.why)
+    })
+}
+
+/// A number with 4 significant digits, without trailing zeros.
+fn short(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() {
+        return format!("{x}");
+    }
+    if !(1e-3..1e5).contains(&x.abs()) {
+        return format!("{x:.3e}");
+    }
+    let decimals = (3 - x.abs().log10().floor() as i32).max(0) as usize;
+    let s = format!("{x:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::physics::*;
+
+    /// Values of the size real sensors have pass; the tester's out-of-catalogue fits (a
+    /// g-sensitivity of 0.18 rad/s per m/s², gravity 9.988, a 130 Hz low-pass at 200 Hz, a
+    /// latitude pinned at π/2, a 13 % gyro scale) are flagged, each with its range's why.
+    #[test]
+    fn datasheet_sized_terms_pass_and_absurd_fits_are_flagged() {
+        let fs = 200.0;
+        let mut g = [[0.0; 3]; 3];
+        g[0][1] = 1.6e-4;
+        let plausible = [
+            Term::GyroGSensitivity(GyroGSensitivity { matrix: g }),
+            Term::GyroScale(GyroScale { scale: [3e-4, -7e-4, 8e-4] }),
+            Term::LeverArm(LeverArm { offset: [-0.02, 0.03, -0.03] }),
+            Term::TimeOffset(TimeOffset { seconds: 7e-5 }),
+            Term::Vibration(Vibration { frequency_hz: 56.4, accel_amplitude: [0.01, 0.02, 0.02], phase_rad: [0.0; 3] }),
+            Term::GyroBiasTemperature(GyroBiasTemperature { coefficient: [2.6e-4, 7.5e-4, 3.9e-4], reference_c: 25.0 }),
+            Term::GravityMagnitude(GravityMagnitude { g: 9.806 }),
+            Term::EarthRotation(EarthRotation { latitude_rad: 0.83, rate_rad_s: earth_rotation::EARTH_RATE }),
+            Term::LowPass(LowPass { cutoff_hz: 45.0, sensor: LowPassSensor::Both }),
+            Term::GyroNoiseDensity(GyroNoiseDensity { factor: 1.5 }),
+            Term::AccelBias(AccelBias { bias: [0.05, -0.07, 0.07] }),
+        ];
+        for t in &plausible {
+            assert_eq!(implausible(t, fs), None, "{t:?}");
+        }
+        g[0][1] = -0.1765;
+        let absurd = [
+            (Term::GyroGSensitivity(GyroGSensitivity { matrix: g }), "0.1765 rad/s per m/s²"),
+            (Term::GravityMagnitude(GravityMagnitude { g: 9.988 }), "9.988 m/s²"),
+            (Term::LowPass(LowPass { cutoff_hz: 130.4, sensor: LowPassSensor::Both }), "Nyquist"),
+            (Term::EarthRotation(EarthRotation { latitude_rad: std::f64::consts::FRAC_PI_2, rate_rad_s: 7.29e-5 }), "pinned"),
+            (Term::GyroScale(GyroScale { scale: [-0.057, -0.0097, 0.1316] }), "0.1316"),
+            (Term::TimeOffset(TimeOffset { seconds: -0.009 }), "1.8 samples"),
+            (Term::Vibration(Vibration { frequency_hz: 1.09, accel_amplitude: [0.0, 0.0, 0.04], phase_rad: [0.0; 3] }), "motion"),
+        ];
+        for (t, says) in &absurd {
+            let why = implausible(t, fs).unwrap_or_else(|| panic!("{t:?} passed"));
+            assert!(why.contains(says), "{t:?}: {why}");
+        }
+        // Every range names a vocabulary term, once.
+        for (i, p) in PLAUSIBLE.iter().enumerate() {
+            assert!(Term::NAMES.contains(&p.term), "{}", p.term);
+            assert!(PLAUSIBLE[..i].iter().all(|q| q.term != p.term), "{} twice", p.term);
+        }
+    }
+}

@@ -195,6 +195,8 @@ mod tests {
             world_from_imu: None,
             temperature_c: None,
             notes: vec![],
+            artefacts: vec![],
+            in_real_gap: vec![],
             sim_recording: Recording { name: "t".into(), imu: vec![], ground_truth: vec![], temperature: vec![] },
         }
     }

@@ -7,7 +7,13 @@
 //! - segment: the same over windows of [`SEGMENT_S`], per sensor (three axes pooled),
 //!   reported when Bonferroni-significant;
 //! - band: Welch PSD of the whitened residual against its flat null level, per octave band;
-//!   the band-power ratio with its z-score (Welch bins of K segments ≈ χ²_{2K}/2K).
+//!   the band-power ratio with its z-score (Welch bins of K segments ≈ χ²_{2K}/2K; the Hann
+//!   window correlates neighbouring bins and the 50 % overlap neighbouring segments, so the
+//!   band's degrees of freedom are fewer than 2K per bin, see [`band_dof`]).
+//!
+//! z-scores are the Wilson–Hilferty normal equivalents of the χ² tails: a band of a few bins
+//! has few degrees of freedom, where the plain normal approximation of χ² understates the tail
+//! (false claims at α = 1e-3 were common on null recordings).
 
 use serde::Serialize;
 
@@ -35,6 +41,29 @@ pub struct Located {
     /// Excess as a z-score, and its one-sided p-value.
     pub z: f64,
     pub p_value: f64,
+    /// Excess power over the noise model, as a share of the model's (χ²/n − 1, band power
+    /// ratio − 1).
+    pub excess: f64,
+}
+
+/// Normal equivalent of a χ² with `dof` degrees of freedom observed at `chi2`
+/// (Wilson–Hilferty: (χ²/k)^{1/3} is nearly normal, mean 1 − 2/9k, variance 2/9k).
+pub fn chi2_z(chi2: f64, dof: f64) -> f64 {
+    let v = 2.0 / (9.0 * dof);
+    ((chi2 / dof).max(0.0).cbrt() - (1.0 - v)) / v.sqrt()
+}
+
+/// Equivalent degrees of freedom of the sum of `bins` adjacent Welch bins over `segments`
+/// Hann segments with 50 % overlap, on white noise. Each bin of one segment is χ²₂; the Hann
+/// window makes adjacent bins' powers correlate by (2/3)² = 4/9 and bins two apart by
+/// (1/6)² = 1/36, and 50 % overlapping segments by (1/6)² (Welch 1967), which inflates the
+/// variance of the sum over independent bins by those covariances.
+pub fn band_dof(bins: usize, segments: usize) -> f64 {
+    let b = bins as f64;
+    let var_bins = b + 2.0 * (b - 1.0).max(0.0) * 4.0 / 9.0 + 2.0 * (b - 2.0).max(0.0) / 36.0;
+    let k = segments as f64;
+    let var_segments = k + 2.0 * (k - 1.0).max(0.0) / 36.0;
+    2.0 * b * b * k * k / (var_bins * var_segments)
 }
 
 /// Complementary error function (Numerical Recipes erfcc, relative error < 1.2e-7).
@@ -64,7 +93,7 @@ pub fn normal_tail(z: f64) -> f64 {
 fn chi2_claim(kind: &str, channel: &str, from: f64, to: f64, w: &[&[f64]]) -> Located {
     let n: f64 = w.iter().map(|x| x.len() as f64).sum();
     let chi2: f64 = w.iter().flat_map(|x| x.iter()).map(|v| v * v).sum();
-    let z = (chi2 - n) / (2.0 * n).sqrt();
+    let z = chi2_z(chi2, n);
     Located {
         kind: kind.into(),
         channel: channel.into(),
@@ -74,6 +103,7 @@ fn chi2_claim(kind: &str, channel: &str, from: f64, to: f64, w: &[&[f64]]) -> Lo
         value: chi2,
         z,
         p_value: normal_tail(z),
+        excess: chi2 / n - 1.0,
     }
 }
 
@@ -102,7 +132,7 @@ pub fn locate(w: &[Vec<f64>; 6], dt: f64) -> Vec<Located> {
     }
     // Octave bands from 0.05 Hz to Nyquist.
     let segn = ((20.0 / dt) as usize).next_power_of_two().min(n.next_power_of_two() / 2).max(64);
-    let k_segments = (2 * n / segn).saturating_sub(1).max(1) as f64;
+    let k_segments = (2 * n / segn).saturating_sub(1).max(1);
     for (c, name) in CHANNELS.iter().enumerate() {
         let (f, p) = welch(&w[c], dt, segn);
         let level = 2.0 * dt; // one-sided PSD of unit-variance white noise
@@ -114,8 +144,8 @@ pub fn locate(w: &[Vec<f64>; 6], dt: f64) -> Vec<Located> {
             let bins: Vec<f64> = f.iter().zip(&p).filter(|(fr, _)| **fr >= lo && **fr < hi).map(|(_, v)| *v).collect();
             if !bins.is_empty() {
                 let ratio = bins.iter().sum::<f64>() / (bins.len() as f64 * level);
-                let dof = 2.0 * k_segments * bins.len() as f64 * 0.9;
-                let z = (ratio - 1.0) * (dof / 2.0).sqrt();
+                let dof = band_dof(bins.len(), k_segments);
+                let z = chi2_z(ratio * dof, dof);
                 let pv = normal_tail(z);
                 if pv < ALPHA / (6 * nb) as f64 {
                     out.push(Located {
@@ -127,6 +157,7 @@ pub fn locate(w: &[Vec<f64>; 6], dt: f64) -> Vec<Located> {
                         value: ratio,
                         z,
                         p_value: pv,
+                        excess: ratio - 1.0,
                     });
                 }
             }

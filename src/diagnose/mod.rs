@@ -9,6 +9,7 @@
 //! 2. [`residual`]: r = real − sim, its noise model (white + an estimated bias walk) and the
 //!    Kalman whitening that makes generalised least squares of any regressor cheap;
 //! 3. [`locate`]: per axis, time segment and frequency band, χ² and band-power statistics;
+//!    [`adequacy`]: the same tests after the fit, the verdict whether the terms explain it;
 //! 4. [`catalogue`]: the candidate terms as regressors built by the physics terms themselves;
 //! 5. [`select`]: greedy forward/backward selection on held-out log-likelihood ([`fit`]);
 //! 6. [`report`]: `report.json`, `report.md`, CSVs, the simulator patch and the corrected bag;
@@ -23,6 +24,7 @@
 //! # let _ = aligned;
 //! ```
 
+pub mod adequacy;
 pub mod align;
 pub mod allan;
 pub mod catalogue;
@@ -133,6 +135,9 @@ pub struct Finding {
     /// 1-σ uncertainty of each parameter, same layout as `params` where it applies.
     pub uncertainty: serde_json::Value,
     pub evidence: serde_json::Value,
+    /// Why the fitted value is not physically plausible (a term in `Diagnosis::implausible`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub implausible: Option<String>,
 }
 
 /// Residual figures before or after the fitted terms.
@@ -169,8 +174,17 @@ pub struct Curves {
 #[derive(Debug, Clone)]
 pub struct Diagnosis {
     pub notes: Vec<String>,
+    /// Stamp artefacts of the real stream (driver / recording, not physics), before any fit.
+    pub artefacts: Vec<String>,
+    /// The fitted terms whose values are physically plausible.
     pub findings: Vec<Finding>,
-    /// The fitted terms (the simulator patch).
+    /// Fitted terms outside their plausible range ([`catalogue::PLAUSIBLE`]): in the fit (and
+    /// `terms`), not findings.
+    pub implausible: Vec<Finding>,
+    /// Whether the fit explains the recording ([`adequacy`]).
+    pub verdict: adequacy::Verdict,
+    /// Every fitted term (the corrected bag and the before/after residual are this fit; the
+    /// simulator patch leaves out the implausible ones).
     pub terms: Vec<Term>,
     pub located: Vec<Located>,
     pub residual_before: ResidualSummary,
@@ -289,7 +303,12 @@ fn diagnose_in_frame(
 
     // Terms read directly off the real samples.
     let mut direct: Vec<(Term, serde_json::Value)> = Vec::new();
-    let mut mask = vec![true; n];
+    // Stamps inside a gap of the real stream hold an interpolation across it, not a sample.
+    let mut mask: Vec<bool> = (0..n).map(|i| !a.in_real_gap.get(i).copied().unwrap_or(false)).collect();
+    let in_gaps = mask.iter().filter(|m| !**m).count();
+    if in_gaps > 0 {
+        notes.push(format!("{in_gaps} sim stamps inside gaps of the real stream left out of the fit"));
+    }
     let mut white_real = [a.real_variance.0, a.real_variance.1];
     let sim_var = [a.sim_variance.0, a.sim_variance.1];
     let mut ranges = [f64::INFINITY; 2];
@@ -359,6 +378,7 @@ fn diagnose_in_frame(
         }
     }
     let mut findings = Vec::new();
+    let mut implausible = Vec::new();
     let mut terms = Vec::new();
     for (term, sd) in &fitted {
         // A linear fit can land where no sensor can be (a gain 1 + s below 0): that is not a
@@ -377,7 +397,13 @@ fn diagnose_in_frame(
             "runner_up": step.and_then(|s| s.runner_up.clone()).map(|(t, g)| serde_json::json!({"term": t, "heldout_loglik_gain": g})),
             "rule": format!("added while the held-out log-likelihood gain exceeded {} + {} per parameter", opts.select.threshold, opts.select.per_param),
         });
-        findings.push(Finding { term: term.name().into(), params: catalogue::params_json(term), uncertainty, evidence });
+        let why = catalogue::implausible(term, 1.0 / dt);
+        let f = Finding { term: term.name().into(), params: catalogue::params_json(term), uncertainty, evidence, implausible: why };
+        if f.implausible.is_some() {
+            implausible.push(f)
+        } else {
+            findings.push(f)
+        }
         terms.push(term.clone());
     }
     for (term, evidence) in direct {
@@ -386,6 +412,7 @@ fn diagnose_in_frame(
             params: catalogue::params_json(&term),
             uncertainty: serde_json::json!(null),
             evidence,
+            implausible: None,
         });
         terms.push(term);
     }
@@ -421,6 +448,12 @@ fn diagnose_in_frame(
         "real − (sim + fitted terms), each time block predicted by a fit on the other blocks; noise terms included in the model",
     );
 
+    // The same tests on the residual after the fit: what is left there, the catalogue does
+    // not explain.
+    let mut located_after = adequacy::claims_after(&w1, dt);
+    located_after.retain(|l| (0..2).any(|s| opts.sensors.judges(s) && l.channel.starts_with(["gyro", "accel"][s])));
+    let verdict = adequacy::judge(located_after, &residual_after.chi2_per_sample, terms.len());
+
     let mut curves = Curves::default();
     for c in 0..6 {
         let ab = allan::allan_deviation(&y_all[c], dt);
@@ -446,7 +479,10 @@ fn diagnose_in_frame(
     Ok((
         Diagnosis {
             notes,
+            artefacts: a.artefacts.clone(),
             findings,
+            implausible,
+            verdict,
             terms,
             located,
             residual_before,
@@ -557,6 +593,8 @@ mod tests {
             world_from_imu: None,
             temperature_c: None,
             notes: vec![],
+            artefacts: vec![],
+            in_real_gap: vec![],
             sim_recording: crate::core::Recording { name: "t".into(), imu: vec![], ground_truth: vec![], temperature: vec![] },
         }
     }

@@ -18,10 +18,16 @@ fn write(path: &Path, text: &str) -> Result<(), DiagnoseError> {
     std::fs::write(path, text).map_err(|source| DiagnoseError::Io { path: path.to_path_buf(), source })
 }
 
-/// `report.json`: `{findings, located, residual_before, residual_after}` plus context.
+/// `report.json`: `{verdict, findings, implausible, located, residual_before, residual_after}`
+/// plus context. When `verdict.explained` is false the findings are the best catalogue fit,
+/// not a diagnosis (`findings_are`).
 pub fn json(d: &Diagnosis) -> serde_json::Value {
     serde_json::json!({
+        "recording_artefacts": d.artefacts,
+        "verdict": d.verdict,
+        "findings_are": if d.verdict.explained { "a diagnosis: the fitted terms explain the recording" } else { "the best catalogue fit, not a diagnosis: the catalogue does not explain the recording (see verdict)" },
         "findings": d.findings,
+        "implausible": d.implausible,
         "located": d.located,
         "residual_before": d.residual_before,
         "residual_after": d.residual_after,
@@ -32,10 +38,19 @@ pub fn json(d: &Diagnosis) -> serde_json::Value {
     })
 }
 
-/// The simulator patch: the fitted terms as the simulator config's `terms:` list.
+/// The simulator patch: the fitted terms as the simulator config's `terms:` list, without the
+/// implausible ones (no sensor has them), and saying so when the fit does not explain the
+/// recording.
 pub fn patch_yaml(d: &Diagnosis) -> String {
     let mut s = String::from("# Terms the simulator left out, fitted by `imu-fsda diagnose`; paste under `terms:`.\n");
-    s.push_str(&serde_yaml::to_string(&d.terms).unwrap_or_default());
+    if !d.verdict.explained {
+        s.push_str("# NOT A DIAGNOSIS: the catalogue does not explain the recording (report.json `verdict`); these are its best fit.\n");
+    }
+    for f in &d.implausible {
+        let _ = writeln!(s, "# left out, implausible: {} ({})", f.term, f.implausible.as_deref().unwrap_or_default());
+    }
+    let keep: Vec<&Term> = d.terms.iter().filter(|t| !d.implausible.iter().any(|f| f.term == t.name())).collect();
+    s.push_str(&serde_yaml::to_string(&keep).unwrap_or_default());
     s
 }
 
@@ -49,6 +64,13 @@ pub fn markdown(d: &Diagnosis) -> String {
 pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>, String>>) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# Sim-vs-real diagnosis\n");
+    if !d.artefacts.is_empty() {
+        let _ = writeln!(s, "## Recording artefacts (driver / recording, not physics)\n");
+        for a in &d.artefacts {
+            let _ = writeln!(s, "- {a}");
+        }
+        s.push('\n');
+    }
     if !d.notes.is_empty() {
         let _ = writeln!(s, "## Input notes\n");
         for n in &d.notes {
@@ -56,11 +78,31 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
         }
         s.push('\n');
     }
-    let _ = writeln!(s, "## What was left out\n");
+    let _ = writeln!(s, "## Verdict\n");
+    let _ = writeln!(s, "**{}**\n", d.verdict.statement);
+    if !d.verdict.explained {
+        let _ = writeln!(s, "Left unexplained after the fit (each block predicted by the fit that did not see it):\n");
+        let _ = writeln!(s, "| kind | channel | from | to | statistic | value | z | p |\n|---|---|---|---|---|---|---|---|");
+        for l in &d.verdict.located_after {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.3} | {:.3} | {} | {:.4} | {:.1} | {:.2e} |",
+                l.kind, l.channel, l.from, l.to, l.statistic, l.value, l.z, l.p_value
+            );
+        }
+        s.push('\n');
+    }
+    let heading = if d.verdict.explained { "What was left out" } else { "Best catalogue fit (not a diagnosis)" };
+    let _ = writeln!(s, "## {heading}\n");
     if d.findings.is_empty() {
         let _ = writeln!(
             s,
-            "**Nothing left out**: no term of the catalogue predicts held-out time blocks better than the simulator's own noise model.\n"
+            "{}\n",
+            if d.verdict.explained && d.implausible.is_empty() {
+                "**Nothing left out**: no term of the catalogue predicts held-out time blocks better than the simulator's own noise model."
+            } else {
+                "No plausible catalogue term."
+            }
         );
     } else {
         let _ = writeln!(s, "| term | parameters | 1σ | evidence |\n|---|---|---|---|");
@@ -73,6 +115,17 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
                 f.uncertainty,
                 f.evidence.get("heldout_loglik_gain").map(|g| format!("held-out Δlog L = {g}")).unwrap_or_else(|| f.evidence.to_string())
             );
+        }
+        s.push('\n');
+    }
+    if !d.implausible.is_empty() {
+        let _ = writeln!(
+            s,
+            "## Fitted but implausible (not findings)\n\nIn the fit (and the corrected bag), left out of `patch.yaml`: no sensor has these values, so they stand for something the catalogue does not hold.\n"
+        );
+        let _ = writeln!(s, "| term | parameters | why not plausible |\n|---|---|---|");
+        for f in &d.implausible {
+            let _ = writeln!(s, "| {} | `{}` | {} |", f.term, f.params, f.implausible.as_deref().unwrap_or_default());
         }
         s.push('\n');
     }
