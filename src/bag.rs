@@ -431,6 +431,10 @@ pub struct LoadReport {
     pub imu_other_sensor: u64,
     /// The frame_ids when the topic interleaves two sensors: (read, left out).
     pub interleaved_frames: Option<(String, String)>,
+    /// The stamps stepped back past the reorder limit and have not yet passed the last kept
+    /// one: what follows is the stepped clock's, dropped, not reordered.
+    #[serde(skip)]
+    pub stepped_back: bool,
 }
 
 impl LoadReport {
@@ -690,11 +694,38 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
 /// interleaved, not a driver renamed once.
 const INTERLEAVED_SWITCHES: usize = 10;
 
-/// When the IMU messages alternate between frame_ids (two drivers on one topic), the frame
-/// to read: the first one seen. `None` when one sensor publishes (a single rename included).
+/// When the IMU messages alternate between frame_ids from two sensors (two drivers on one
+/// topic), the frame to read: the one with the most samples. `None` for one sensor: a single
+/// rename, rare glitched frame_ids (another frame under a tenth of the samples), or frame_ids
+/// alternating on one continuous signal (consecutive samples of different frames no further
+/// apart than samples two apart of one frame).
 fn interleaved_sensor(imu: &[(u64, (ImuSample, usize))]) -> Option<usize> {
+    let frame = |k: usize| imu[k].1 .1;
     let switches = imu.windows(2).filter(|w| w[0].1 .1 != w[1].1 .1).count();
-    (switches >= INTERLEAVED_SWITCHES).then(|| imu[0].1 .1)
+    if switches < INTERLEAVED_SWITCHES {
+        return None;
+    }
+    let mut counts: BTreeMap<usize, usize> = BTreeMap::new();
+    for k in 0..imu.len() {
+        *counts.entry(frame(k)).or_default() += 1;
+    }
+    // The most samples, the first seen on a tie (frame indices are in order of appearance).
+    let (&read, _) = counts.iter().max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0)))?;
+    let others = imu.len() - counts[&read];
+    if others * 10 < imu.len() {
+        return None;
+    }
+    let gyro = |k: usize| imu[k].1 .0.gyro;
+    let median = |mut v: Vec<f64>| {
+        let mid = v.len() / 2;
+        (!v.is_empty()).then(|| *v.select_nth_unstable_by(mid, f64::total_cmp).1)
+    };
+    let across = median((1..imu.len()).filter(|&k| frame(k) != frame(k - 1)).map(|k| (gyro(k) - gyro(k - 1)).norm()).collect());
+    let within = median((2..imu.len()).filter(|&k| frame(k) == frame(k - 2)).map(|k| (gyro(k) - gyro(k - 2)).norm()).collect());
+    match (across, within) {
+        (Some(a), Some(w)) if a <= 2.0 * w + 1e-9 => None,
+        _ => Some(read),
+    }
 }
 
 /// An IMU stamp of 0 is taken as unset when the stream's next other stamp is past this (1 h):
@@ -752,7 +783,7 @@ pub fn push_imu(imu: &mut Vec<ImuSample>, s: ImuSample, report: &mut LoadReport)
             report.imu_duplicate_stamp += 1;
             return;
         }
-        if s.stamp_ns < last.stamp_ns && last.stamp_ns - s.stamp_ns <= IMU_REORDER_LIMIT_NS {
+        if s.stamp_ns < last.stamp_ns && last.stamp_ns - s.stamp_ns <= IMU_REORDER_LIMIT_NS && !report.stepped_back {
             // Binary search; the insert moves only the few samples within the limit.
             let at = imu.partition_point(|p| p.stamp_ns < s.stamp_ns);
             if imu[at].stamp_ns == s.stamp_ns {
@@ -764,6 +795,7 @@ pub fn push_imu(imu: &mut Vec<ImuSample>, s: ImuSample, report: &mut LoadReport)
             return;
         }
         if s.stamp_ns < last.stamp_ns {
+            report.stepped_back = true;
             report.imu_backwards_stamp += 1;
             if report.imu_backwards_stamp == 1 {
                 let first = imu.first().map_or(last.stamp_ns, |f| f.stamp_ns);
@@ -772,6 +804,7 @@ pub fn push_imu(imu: &mut Vec<ImuSample>, s: ImuSample, report: &mut LoadReport)
             return;
         }
     }
+    report.stepped_back = false;
     imu.push(s);
 }
 
@@ -1072,14 +1105,17 @@ mod tests {
                 k if k % 50 == 7 => s.stamp_ns += 7_000_000,
                 300 => s.stamp_ns -= 10_000_000,
                 400 => s.stamp_ns -= 30_000_000,
+                // A clock stepped back 32.5 ms: the 6 samples until it passes the last kept
+                // stamp are dropped, none put among the older ones.
+                k if k >= 460 => s.stamp_ns -= 32_500_000,
                 _ => {}
             }
             w.write(ch, received, &Imu::from_sample(&s, IMU_FRAME)).unwrap();
         }
         w.finish().unwrap();
         let (back, report) = read_recording(&path, &RecordingTopics::default()).unwrap();
-        assert_eq!((report.imu_reordered, report.imu_duplicate_stamp, report.imu_backwards_stamp), (10, 1, 1), "{report}");
-        assert_eq!(back.imu.len(), 498);
+        assert_eq!((report.imu_reordered, report.imu_duplicate_stamp, report.imu_backwards_stamp), (10, 1, 7), "{report}");
+        assert_eq!(back.imu.len(), 492);
         assert!(back.imu.windows(2).all(|w| w[1].stamp_ns > w[0].stamp_ns));
         // The late-stamped sample sits after the one received behind it, with its own rates.
         let late = back.imu.iter().position(|s| s.stamp_ns == rec.imu[7].stamp_ns + 7_000_000).unwrap();
@@ -1116,6 +1152,12 @@ mod tests {
         assert!(report.to_string().contains("250 of another sensor (frame_id \"imu2_link\")"), "{report}");
         // One rename mid-recording is one sensor: every sample is read.
         let (back, report) = write("renamed.mcap", &|k| if k >= 250 { "imu2_link" } else { IMU_FRAME });
+        assert_eq!((back.imu.len(), report.imu_other_sensor, report.interleaved_frames), (500, 0, None));
+        // One driver alternating two frame_ids on one continuous signal: all read.
+        let (back, report) = write("alternate.mcap", &|k| if k % 2 == 1 { "" } else { IMU_FRAME });
+        assert_eq!((back.imu.len(), report.imu_other_sensor, report.interleaved_frames), (500, 0, None));
+        // Glitched frame_ids on one sensor, the first message among them: all read.
+        let (back, report) = write("glitch.mcap", &|k| if k % 40 == 0 { "imu_glitch" } else { IMU_FRAME });
         assert_eq!((back.imu.len(), report.imu_other_sensor, report.interleaved_frames), (500, 0, None));
     }
 

@@ -254,7 +254,7 @@ pub fn burst_stamps(imu: &[ImuSample]) -> Option<String> {
     })
 }
 
-/// Separate runs of samples held at an axis's largest |value| that make it a clipped axis: a
+/// Separate runs of samples held at an axis's largest value that make it a clipped axis: a
 /// signal's own peak reaches its maximum once; a sensor at the end of its range holds the same
 /// value again at every impact or fast turn.
 const CLIP_RUNS: u32 = 3;
@@ -262,62 +262,102 @@ const CLIP_RUNS: u32 = 3;
 /// the smallest in use), and a quantised signal at rest repeats its values.
 const CLIP_MIN_RATE_RAD_S: f64 = 2.0;
 const CLIP_MIN_ACCEL_M_S2: f64 = 15.0;
+/// The band just under the limit (a share of it): a clipped signal crosses it on its way to
+/// the range and stays at the limit, so more samples sit at the limit than in the band; a
+/// signal that merely peaks there (a rate table at a constant speed, its noise under an LSB)
+/// has most of its samples in the band.
+const CLIP_BAND: f64 = 0.01;
 
-/// Samples held at the sensor's range (saturation), found per axis from the stream itself: the
-/// axis's largest |value| held in [`CLIP_RUNS`] or more separate runs. Online, one sample at a
-/// time with no allocation; a clipped sample is integrated all the same (its true value was
-/// larger), so what it gets is a count and a warning.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct ClipDetector {
-    /// Per axis (gyro x, y, z, accel x, y, z): largest |value|, separate runs at it, in a run.
-    limit: [f64; 6],
-    runs: [u32; 6],
-    in_run: [bool; 6],
+/// Full-scale ranges IMUs are sold with (°/s for gyros, g for accelerometers): a held value
+/// within [`FULL_SCALE_TOLERANCE`] of one can be a range; a rate table held at 286 °/s with
+/// noise under an LSB repeats its top value like a clipped signal, and is not one.
+const GYRO_RANGES_DEG_S: [f64; 9] = [125.0, 250.0, 300.0, 400.0, 450.0, 500.0, 1000.0, 2000.0, 4000.0];
+const ACCEL_RANGES_G: [f64; 16] = [2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 18.0, 24.0, 32.0, 40.0, 50.0, 100.0, 200.0];
+/// A driver's scale and bias move the held value off the nominal range by a little.
+const FULL_SCALE_TOLERANCE: f64 = 0.03;
+
+/// True when `limit` (rad/s for the gyro, m/s² for the accelerometer) is near a full-scale range.
+fn near_full_scale(limit: f64, gyro: bool) -> bool {
+    let (ranges, unit): (&[f64], f64) =
+        if gyro { (&GYRO_RANGES_DEG_S, std::f64::consts::PI / 180.0) } else { (&ACCEL_RANGES_G, STANDARD_GRAVITY) };
+    ranges.iter().any(|r| (limit / (r * unit) - 1.0).abs() <= FULL_SCALE_TOLERANCE)
 }
 
-/// Axis `k` of a sample (gyro x, y, z, accel x, y, z) and the least range it can clip at.
-fn clip_axis(s: &ImuSample, k: usize) -> (f64, f64) {
-    if k < 3 {
-        (s.gyro[k].abs(), CLIP_MIN_RATE_RAD_S)
+/// Samples held at the sensor's range (saturation), found per axis and sign from the stream
+/// itself: the largest value held in [`CLIP_RUNS`] or more separate runs, with more samples at
+/// it than just under it. Online, one sample at a time with no allocation; a clipped sample is
+/// integrated all the same (its true value was larger), so what it gets is a count and a
+/// warning.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ClipDetector {
+    /// Per axis and sign (gyro x, y, z, accel x, y, z; + then −).
+    slots: [ClipSlot; 12],
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct ClipSlot {
+    /// The largest value seen (for the − sign, of −v).
+    limit: f64,
+    /// Separate runs at the limit, samples at it, samples in the band under it.
+    runs: u32,
+    at: u64,
+    band: u64,
+    in_run: bool,
+}
+
+impl ClipSlot {
+    fn push(&mut self, v: f64) {
+        if v > self.limit {
+            // The band's earlier samples are not known any more: counted from here.
+            *self = ClipSlot { limit: v, runs: 1, at: 1, band: 0, in_run: true };
+        } else if v == self.limit {
+            self.runs += u32::from(!self.in_run);
+            self.at += 1;
+            self.in_run = true;
+        } else {
+            self.band += u64::from(v >= (1.0 - CLIP_BAND) * self.limit);
+            self.in_run = false;
+        }
+    }
+
+    fn clipped(&self, min: f64) -> bool {
+        self.runs >= CLIP_RUNS && self.limit >= min && self.at > self.band && near_full_scale(self.limit, min == CLIP_MIN_RATE_RAD_S)
+    }
+}
+
+/// Slot `k` of a sample (axis k / 2, + for even k): its signed value and the least range.
+fn clip_value(s: &ImuSample, k: usize) -> (f64, f64) {
+    let axis = k / 2;
+    let sign = if k.is_multiple_of(2) { 1.0 } else { -1.0 };
+    if axis < 3 {
+        (sign * s.gyro[axis], CLIP_MIN_RATE_RAD_S)
     } else {
-        (s.accel[k - 3].abs(), CLIP_MIN_ACCEL_M_S2)
+        (sign * s.accel[axis - 3], CLIP_MIN_ACCEL_M_S2)
     }
 }
 
 impl ClipDetector {
     /// Feed one sample; true when one of its axes sits at a range the stream has shown clipped.
     pub fn push(&mut self, s: &ImuSample) -> bool {
-        for k in 0..6 {
-            let (a, _) = clip_axis(s, k);
-            if a > self.limit[k] {
-                (self.limit[k], self.runs[k], self.in_run[k]) = (a, 1, true);
-            } else if a == self.limit[k] {
-                self.runs[k] += u32::from(!self.in_run[k]);
-                self.in_run[k] = true;
-            } else {
-                self.in_run[k] = false;
-            }
+        for k in 0..12 {
+            self.slots[k].push(clip_value(s, k).0);
         }
-        self.at_range(s, 0..6)
+        self.at_range(s, 0..3) || self.at_range(s, 3..6)
     }
 
-    /// True when axis `k` has shown clipping.
-    fn clipped(&self, k: usize, min: f64) -> bool {
-        self.runs[k] >= CLIP_RUNS && self.limit[k] >= min
-    }
-
-    /// True when one of `axes` of `s` sits at that axis's clipped range.
+    /// True when one of `axes` (0–2 gyro, 3–5 accel) of `s` sits at a clipped range.
     pub fn at_range(&self, s: &ImuSample, axes: std::ops::Range<usize>) -> bool {
-        axes.into_iter().any(|k| {
-            let (a, min) = clip_axis(s, k);
-            self.clipped(k, min) && a == self.limit[k]
+        (2 * axes.start..2 * axes.end).any(|k| {
+            let (v, min) = clip_value(s, k);
+            self.slots[k].clipped(min) && v == self.slots[k].limit
         })
     }
 
     /// The largest clipped range of the gyro (rad/s) and of the accelerometer (m/s²).
     pub fn ranges(&self) -> (Option<f64>, Option<f64>) {
-        let range = |ks: std::ops::Range<usize>, min: f64| ks.filter(|&k| self.clipped(k, min)).map(|k| self.limit[k]).reduce(f64::max);
-        (range(0..3, CLIP_MIN_RATE_RAD_S), range(3..6, CLIP_MIN_ACCEL_M_S2))
+        let range =
+            |ks: std::ops::Range<usize>, min: f64| ks.filter(|&k| self.slots[k].clipped(min)).map(|k| self.slots[k].limit).reduce(f64::max);
+        (range(0..6, CLIP_MIN_RATE_RAD_S), range(6..12, CLIP_MIN_ACCEL_M_S2))
     }
 }
 
@@ -393,12 +433,23 @@ mod tests {
         let flagged = clipped.iter().filter(|s| online.push(s)).count();
         let total: usize = note.split(" of ").next().unwrap().parse().unwrap();
         assert!((4700..4950).contains(&total), "{note}");
-        // Online, the first two runs of each axis are not yet known as clipping.
-        assert!(flagged < total && flagged + 2 * 800 + 8 > total, "{flagged} of {total}");
+        // Online, the first two runs of each axis and sign are not yet known as clipping.
+        assert!(flagged < total && flagged + 4 * 800 + 8 > total, "{flagged} of {total}");
         // Unclipped: the same swings and impacts whole, quantised; a quantised rest.
         assert_eq!(clipped_samples(&stream(&|t| quantised(swing(t), 2.0 * lsb), &|t| quantised(impact(t), 0.0096))), None);
         let rest = stream(&|t| quantised(0.001 * (t * 9.0).sin(), lsb), &|t| quantised(9.81 + 0.004 * (t * 31.0).sin(), 0.0048));
         assert_eq!(clipped_samples(&rest), None);
+        // A rate table at 5 rad/s (286 °/s), a ±2000 °/s 16-bit gyro whose noise is under an
+        // LSB: its top value recurs like a clipped one's, but 286 °/s is no gyro's range.
+        let lsb2000 = 34.9 / 32768.0;
+        let table = stream(&|t| quantised(5.0 + noise(t, 0.4 * lsb2000), lsb2000), &|_| 9.81);
+        assert_eq!(clipped_samples(&table), None);
+        // A range off centre (a driver that subtracts a bias): both signs found, each at its own
+        // limit (+8.707 and −8.747 rad/s, 499 and 501 °/s).
+        let shifted = stream(&|t| quantised(swing(t).clamp(-8.727, 8.727) - 0.02, lsb), &|_| 9.81);
+        let note = clipped_samples(&shifted).unwrap();
+        let total: usize = note.split(" of ").next().unwrap().parse().unwrap();
+        assert!((4700..4950).contains(&total), "{note}");
     }
 
     #[test]

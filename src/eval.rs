@@ -413,10 +413,11 @@ fn lag_search(
 }
 
 /// A correlation `c` ties with the best one `top` ([`lag_search`]) when it is below it by at
-/// most a tenth of the best one's unexplained share (1 − r), plus 1e-5 for float rounding of
-/// near-perfect ones: what the data cannot tell apart.
+/// most 1e-4: exactly periodic motion, whose peaks differ only by the edges of the overlap.
+/// Noisy data never ties this closely (a tolerance scaled by 1 − r took a noisy trot's true
+/// 2-s lag for 0).
 fn ties_with(c: f64, top: f64) -> bool {
-    top - c <= 0.1 * (1.0 - top) + 1e-5
+    top - c <= 1e-4
 }
 
 /// Block length (s) and reach (s, either way) of [`ground_truth_lag`]'s coarse search.

@@ -164,11 +164,30 @@ fn diagnose_out_dir_holds_the_figures() {
     for f in ["psd.png", "allan.png", "residual.png"] {
         assert!(md.contains(&format!("]({f})")), "report.md does not show {f}");
     }
-    // report.json keeps its structure.
+    // report.json keeps its structure (session 40 added the verdict, implausible fits and the
+    // real recording's stamp artefacts).
     let j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap()).unwrap();
     let mut keys: Vec<&str> = j.as_object().unwrap().keys().map(String::as_str).collect();
     keys.sort_unstable();
-    assert_eq!(keys, ["findings", "located", "not_judged", "notes", "residual_after", "residual_before", "seconds", "selection_steps"]);
+    assert_eq!(
+        keys,
+        [
+            "findings",
+            "findings_are",
+            "implausible",
+            "located",
+            "not_judged",
+            "notes",
+            "recording_artefacts",
+            "residual_after",
+            "residual_before",
+            "seconds",
+            "selection_steps",
+            "verdict"
+        ]
+    );
+    // The simulator's own handheld bag against its own simulation: explained.
+    assert_eq!(j["verdict"]["explained"], serde_json::Value::Bool(true), "{}", j["verdict"]);
 
     // Without a font the diagnosis is still written, and the report says why.
     let out_dir = d.path().join("nofont");

@@ -56,5 +56,9 @@ pub fn run(args: ImportArgs) -> anyhow::Result<()> {
     if report.skipped() > 0 {
         out!("skipped: {report}")?;
     }
+    // The bag is written in stamp order: the source's jitter would not show later.
+    if let Some(note) = report.imu_stream_note() {
+        out!("note: {note}")?;
+    }
     Ok(())
 }
