@@ -427,14 +427,14 @@ pub struct LoadReport {
     /// stamps, at most [`IMU_REORDER_LIMIT_NS`] back): put back in stamp order, not skipped.
     pub imu_reordered: u64,
     /// Samples of another sensor on the IMU topic: two frame_ids alternating (two drivers
-    /// publishing on one topic). The first frame_id's samples are read, these are left out.
+    /// publishing on one topic). The frame_id with the most samples is read, these are left out.
     pub imu_other_sensor: u64,
     /// The frame_ids when the topic interleaves two sensors: (read, left out).
     pub interleaved_frames: Option<(String, String)>,
     /// The stamps stepped back past the reorder limit and have not yet passed the last kept
     /// one: what follows is the stepped clock's, dropped, not reordered.
     #[serde(skip)]
-    pub stepped_back: bool,
+    pub(crate) stepped_back: bool,
 }
 
 impl LoadReport {
@@ -706,8 +706,8 @@ fn interleaved_sensor(imu: &[(u64, (ImuSample, usize))]) -> Option<usize> {
         return None;
     }
     let mut counts: BTreeMap<usize, usize> = BTreeMap::new();
-    for k in 0..imu.len() {
-        *counts.entry(frame(k)).or_default() += 1;
+    for (_, (_, f)) in imu {
+        *counts.entry(*f).or_default() += 1;
     }
     // The most samples, the first seen on a tie (frame indices are in order of appearance).
     let (&read, _) = counts.iter().max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0)))?;

@@ -298,6 +298,9 @@ pub struct ClipDetector {
 struct ClipSlot {
     /// The largest value seen (for the − sign, of −v).
     limit: f64,
+    /// The limit is one a sensor can clip at: at least the smallest range, near a full scale
+    /// (set when the limit moves, not per sample).
+    a_range: bool,
     /// Separate runs at the limit, samples at it, samples in the band under it.
     runs: u32,
     at: u64,
@@ -306,10 +309,12 @@ struct ClipSlot {
 }
 
 impl ClipSlot {
-    fn push(&mut self, v: f64) {
+    fn push(&mut self, v: f64, gyro: bool) {
         if v > self.limit {
             // The band's earlier samples are not known any more: counted from here.
-            *self = ClipSlot { limit: v, runs: 1, at: 1, band: 0, in_run: true };
+            let min = if gyro { CLIP_MIN_RATE_RAD_S } else { CLIP_MIN_ACCEL_M_S2 };
+            let a_range = v >= min && near_full_scale(v, gyro);
+            *self = ClipSlot { limit: v, a_range, runs: 1, at: 1, band: 0, in_run: true };
         } else if v == self.limit {
             self.runs += u32::from(!self.in_run);
             self.at += 1;
@@ -320,19 +325,19 @@ impl ClipSlot {
         }
     }
 
-    fn clipped(&self, min: f64) -> bool {
-        self.runs >= CLIP_RUNS && self.limit >= min && self.at > self.band && near_full_scale(self.limit, min == CLIP_MIN_RATE_RAD_S)
+    fn clipped(&self) -> bool {
+        self.a_range && self.runs >= CLIP_RUNS && self.at > self.band
     }
 }
 
-/// Slot `k` of a sample (axis k / 2, + for even k): its signed value and the least range.
-fn clip_value(s: &ImuSample, k: usize) -> (f64, f64) {
+/// Slot `k` of a sample (axis k / 2, + for even k): its signed value, and whether it is a gyro's.
+fn clip_value(s: &ImuSample, k: usize) -> (f64, bool) {
     let axis = k / 2;
     let sign = if k.is_multiple_of(2) { 1.0 } else { -1.0 };
     if axis < 3 {
-        (sign * s.gyro[axis], CLIP_MIN_RATE_RAD_S)
+        (sign * s.gyro[axis], true)
     } else {
-        (sign * s.accel[axis - 3], CLIP_MIN_ACCEL_M_S2)
+        (sign * s.accel[axis - 3], false)
     }
 }
 
@@ -340,24 +345,21 @@ impl ClipDetector {
     /// Feed one sample; true when one of its axes sits at a range the stream has shown clipped.
     pub fn push(&mut self, s: &ImuSample) -> bool {
         for k in 0..12 {
-            self.slots[k].push(clip_value(s, k).0);
+            let (v, gyro) = clip_value(s, k);
+            self.slots[k].push(v, gyro);
         }
-        self.at_range(s, 0..3) || self.at_range(s, 3..6)
+        self.at_range(s, 0..6)
     }
 
     /// True when one of `axes` (0–2 gyro, 3–5 accel) of `s` sits at a clipped range.
     pub fn at_range(&self, s: &ImuSample, axes: std::ops::Range<usize>) -> bool {
-        (2 * axes.start..2 * axes.end).any(|k| {
-            let (v, min) = clip_value(s, k);
-            self.slots[k].clipped(min) && v == self.slots[k].limit
-        })
+        (2 * axes.start..2 * axes.end).any(|k| self.slots[k].clipped() && clip_value(s, k).0 == self.slots[k].limit)
     }
 
     /// The largest clipped range of the gyro (rad/s) and of the accelerometer (m/s²).
     pub fn ranges(&self) -> (Option<f64>, Option<f64>) {
-        let range =
-            |ks: std::ops::Range<usize>, min: f64| ks.filter(|&k| self.slots[k].clipped(min)).map(|k| self.slots[k].limit).reduce(f64::max);
-        (range(0..6, CLIP_MIN_RATE_RAD_S), range(6..12, CLIP_MIN_ACCEL_M_S2))
+        let range = |ks: std::ops::Range<usize>| ks.filter(|&k| self.slots[k].clipped()).map(|k| self.slots[k].limit).reduce(f64::max);
+        (range(0..6), range(6..12))
     }
 }
 
@@ -369,22 +371,29 @@ pub fn clipped_samples(imu: &[ImuSample]) -> Option<String> {
         scan.push(s);
     }
     let (gyro, accel) = scan.ranges();
-    let count = |axes: std::ops::Range<usize>| imu.iter().filter(|s| scan.at_range(s, axes.clone())).count();
+    if gyro.is_none() && accel.is_none() {
+        return None;
+    }
+    // One pass: samples with a clipped gyro axis, accelerometer axis, either.
+    let (mut n_gyro, mut n_accel, mut n_any) = (0usize, 0usize, 0usize);
+    for s in imu {
+        let (g, a) = (scan.at_range(s, 0..3), scan.at_range(s, 3..6));
+        n_gyro += usize::from(g);
+        n_accel += usize::from(a);
+        n_any += usize::from(g || a);
+    }
     let mut parts = Vec::new();
     if let Some(r) = gyro {
-        parts.push(format!("{} gyro samples at ±{r:.3} rad/s", count(0..3)));
+        parts.push(format!("{n_gyro} gyro samples at ±{r:.3} rad/s"));
     }
     if let Some(r) = accel {
-        parts.push(format!("{} accelerometer samples at ±{r:.2} m/s²", count(3..6)));
+        parts.push(format!("{n_accel} accelerometer samples at ±{r:.2} m/s²"));
     }
-    (!parts.is_empty()).then(|| {
-        format!(
-            "{} of {} IMU samples clipped at the sensor's range ({}): their true values were larger, and they are used as recorded",
-            count(0..6),
-            imu.len(),
-            parts.join(", ")
-        )
-    })
+    Some(format!(
+        "{n_any} of {} IMU samples clipped at the sensor's range ({}): their true values were larger, and they are used as recorded",
+        imu.len(),
+        parts.join(", ")
+    ))
 }
 
 /// `std::fs::create_dir_all`, but when a file stands where a folder of the path must be, the
@@ -401,8 +410,6 @@ mod tests {
     use super::*;
     use nalgebra::{UnitQuaternion, Vector3};
 
-    /// Bursts stamped on arrival: 5 samples 10 µs apart every 25 ms are a 200-Hz stream
-    /// (it read as 100 kHz), and said; a regular stream with a gap or rounded stamps is not.
     /// A gyro turning past its range and impacts past the accelerometer's are counted; a
     /// signal's own peaks, even quantised, and a quantised rest are not.
     #[test]
@@ -417,8 +424,7 @@ mod tests {
                 .collect()
         };
         // 12 rad/s swings clipped at 8.727 (500 °/s), 1 kHz, 16-bit; 8 g impacts every 0.5 s
-        // clipped at 4 g.
-        // The sensors' noise (uniform, ±0.01 rad/s and ±0.05 m/s²); impacts of 60–80 m/s².
+        // clipped at 4 g. The sensors' noise (uniform, ±0.01 rad/s and ±0.05 m/s²); impacts of 60–80 m/s².
         let noise = |t: f64, size: f64| ((((t * 1e3).round() as u64 * 2_654_435_761) % 1000) as f64 / 1000.0 - 0.5) * 2.0 * size;
         let lsb = 8.727 / 32768.0;
         let swing = |t: f64| 12.0 * (2.0 * t).sin() + noise(t, 0.01);
@@ -452,6 +458,8 @@ mod tests {
         assert!((4700..4950).contains(&total), "{note}");
     }
 
+    /// Bursts stamped on arrival: 5 samples 10 µs apart every 25 ms are a 200-Hz stream
+    /// (it read as 100 kHz), and said; a regular stream with a gap or rounded stamps is not.
     #[test]
     fn bursts_stamped_on_arrival_are_the_mean_rate() {
         let at = |stamps: &mut dyn Iterator<Item = i64>| -> Vec<ImuSample> {

@@ -37,10 +37,12 @@ fn status_at(
     clock: &mut StatusClock,
     pipeline: &Pipeline,
     frame: &Option<String>,
+    decode_errors: u64,
     node_name: &str,
     now_ns: u64,
 ) -> (DiagnosticArray, Liveness) {
     stats.counters = pipeline.counters().clone();
+    stats.decode_errors = decode_errors;
     stats.rate_off_nominal = pipeline.rate_off_nominal();
     stats.frame_id = frame.clone().unwrap_or_default();
     let live = clock.tick(stats, now_ns as i64);
@@ -147,8 +149,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
                     *due += (m.log_time_ns - *due) / period_ns * period_ns + period_ns;
                     break;
                 }
-                stats.decode_errors = decode_errors;
-                let (status, _) = status_at(&mut stats, &mut clock, &pipeline, &last_frame, &args.config.node_name, *due);
+                let (status, _) = status_at(&mut stats, &mut clock, &pipeline, &last_frame, decode_errors, &args.config.node_name, *due);
                 writer.write(diag_ch, *due as i64, &status)?;
                 *due += period_ns;
                 ticks += 1;
@@ -192,8 +193,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         clock.start(m.log_time_ns as i64, pipeline.counters().received);
         next_diag.get_or_insert(m.log_time_ns + period_ns);
     }
-    stats.decode_errors = decode_errors;
-    let (status, live) = status_at(&mut stats, &mut clock, &pipeline, &last_frame, &args.config.node_name, last_log);
+    let (status, live) = status_at(&mut stats, &mut clock, &pipeline, &last_frame, decode_errors, &args.config.node_name, last_log);
     writer.write(diag_ch, last_log as i64, &status)?;
     writer.finish().with_context(|| format!("finishing {}", args.output.display()))?;
     let kept = || format!("{} holds the replay of the {read} messages before it", args.output.display());
