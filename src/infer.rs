@@ -6,6 +6,7 @@
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::core::{ClipDetector, ImuSample, STANDARD_GRAVITY};
+use crate::resample::PeriodMeans;
 use crate::so3::{exp, renormalize};
 
 /// Something that corrects a gyro stream sample by sample (causal, stateful).
@@ -199,6 +200,10 @@ pub struct PipelineConfig {
     /// rate off the model's): a MEMS gyro's own turn-on bias, rad/s. At 1 mrad/s a consumer
     /// gyro's pass-through attitude claimed σ 5.8° where it was 14.8° off after 100 s.
     pub uncorrected_bias_stddev: f64,
+    /// Feed a model an input whose rate is off the model's in the model's periods
+    /// ([`crate::resample`]); false runs it on the samples as they come (its window then spans
+    /// another time, and the orientation's covariance allows for an uncorrected bias).
+    pub resample_to_model_rate: bool,
 }
 
 impl Default for PipelineConfig {
@@ -214,6 +219,7 @@ impl Default for PipelineConfig {
             gap_variance_per_second: 0.25,
             bias_stddev: 1e-3,
             uncorrected_bias_stddev: 1e-2,
+            resample_to_model_rate: true,
         }
     }
 }
@@ -397,6 +403,12 @@ pub struct Pipeline {
     slow_period_ns: Option<f64>,
     /// The interval before the last, ns: a hole is counted only in a regular stream.
     last_dt_ns: i64,
+    /// The model's periods, when the corrector has a rate ([`crate::resample`]).
+    periods: Option<PeriodMeans>,
+    /// The stream is fed to the model in its periods: its rate is off the model's.
+    resampling: bool,
+    /// The correction of the last period completed, rad/s (while resampling).
+    period_correction: Vector3<f64>,
 }
 
 /// Consecutive samples, advancing among themselves but behind the last accepted stamp, after
@@ -435,7 +447,7 @@ impl Pipeline {
     pub fn new(corrector: Box<dyn GyroCorrector>, cfg: PipelineConfig) -> Self {
         let rate = if cfg.nominal_rate_hz > 0.0 { Some(cfg.nominal_rate_hz) } else { corrector.rate_hz() };
         let nominal_period_ns = rate.map(|r| 1e9 / r);
-        Pipeline {
+        let mut p = Pipeline {
             corrector,
             cfg,
             nominal_period_ns,
@@ -453,7 +465,19 @@ impl Pipeline {
             period_learned: false,
             slow_period_ns: None,
             last_dt_ns: 0,
-        }
+            periods: None,
+            resampling: false,
+            period_correction: Vector3::zeros(),
+        };
+        p.set_periods();
+        p
+    }
+
+    /// The model's periods, for a corrector with a rate that is not a pass-through.
+    fn set_periods(&mut self) {
+        self.periods = self.corrector.rate_hz().filter(|r| *r > 0.0 && !self.corrector.passes_through()).map(PeriodMeans::new);
+        self.resampling = false;
+        self.period_correction = Vector3::zeros();
     }
 
     /// Set the initial attitude from an external source (an initial-pose topic).
@@ -493,7 +517,7 @@ impl Pipeline {
     /// The gyro bias the attitude's covariance allows for: the residual after a model at its
     /// rate, else the sensor's own.
     fn bias_stddev(&self) -> f64 {
-        if self.corrector.passes_through() || (self.rate_off && self.corrector.rate_hz().is_some()) {
+        if self.corrector.passes_through() || (self.rate_off && self.corrector.rate_hz().is_some() && !self.resampling) {
             self.cfg.uncorrected_bias_stddev.max(self.cfg.bias_stddev)
         } else {
             self.cfg.bias_stddev
@@ -505,11 +529,43 @@ impl Pipeline {
         self.rate_off
     }
 
+    /// True while the input is fed to the model in the model's periods, its rate being off the
+    /// model's ([`crate::resample`]).
+    pub fn resampling(&self) -> bool {
+        self.resampling
+    }
+
+    /// Decides whether to feed the model in its periods: when the smoothed input rate is off the
+    /// model's by more than [`crate::model::RATE_TOLERANCE`], back at half that (a rate at the
+    /// edge would reset the model at every wobble). A switch restarts the model's warm-up.
+    fn update_resampling(&mut self) {
+        let Some(model_rate) = self.corrector.rate_hz().filter(|_| self.periods.is_some()) else {
+            return;
+        };
+        if !self.cfg.resample_to_model_rate || self.smoothed_period_ns <= 0.0 {
+            return;
+        }
+        let off = (1e9 / self.smoothed_period_ns / model_rate - 1.0).abs();
+        let tolerance = if self.resampling { 0.5 } else { 1.0 } * crate::model::RATE_TOLERANCE;
+        if (off > tolerance) != self.resampling {
+            self.resampling = !self.resampling;
+            self.period_correction = Vector3::zeros();
+            self.corrector.reset();
+            self.since_reset = 0;
+            self.counters.resets += 1;
+        }
+    }
+
     /// Swap the corrector (after adaptation). The history is replayed by the caller if it
     /// wants continuity; here the new corrector simply starts its own warm-up.
     pub fn replace_corrector(&mut self, corrector: Box<dyn GyroCorrector>) -> Box<dyn GyroCorrector> {
         self.since_reset = 0;
-        std::mem::replace(&mut self.corrector, corrector)
+        let old = std::mem::replace(&mut self.corrector, corrector);
+        // The new model starts in the periods the stream needed, not at the next rate update.
+        let resampling = self.resampling;
+        self.set_periods();
+        self.resampling = resampling && self.periods.is_some();
+        old
     }
 
     /// Process one raw sample.
@@ -550,6 +606,10 @@ impl Pipeline {
                 self.counters.resets += 1;
                 self.corrector.reset();
                 self.since_reset = 0;
+                if let Some(p) = self.periods.as_mut() {
+                    p.reset();
+                }
+                self.period_correction = Vector3::zeros();
                 // Hold the attitude over the hole: integrating a stale rate would invent motion.
                 // A clock that went back says nothing of how long: a second's worth of gap.
                 let held_s = if jumped_back { 1.0 } else { dt_ns as f64 * 1e-9 };
@@ -570,12 +630,31 @@ impl Pipeline {
         if self.clipping.push(s) {
             self.counters.saturated_samples += 1;
         }
-        let gyro = self.corrector.step(&s.gyro, &s.accel);
-        let warming_up = self.since_reset < self.corrector.window() as u64;
+        self.update_resampling();
+        let window = self.corrector.window() as u64;
+        // The periods run from the stream's start (or its last gap) whether the model is fed
+        // them or not: a switch to them keeps their grid, as `eval` lays it over a recording.
+        if let Some(periods) = self.periods.as_mut() {
+            let (resampling, corrector, correction, steps) =
+                (self.resampling, &mut self.corrector, &mut self.period_correction, &mut self.since_reset);
+            periods.push(s, |_, gyro, accel| {
+                if resampling {
+                    *correction = corrector.step(&gyro, &accel) - gyro;
+                    *steps += 1;
+                }
+            });
+        }
+        let (gyro, warming_up) = if self.resampling {
+            // Warm until the model has seen a window of its periods.
+            (s.gyro + self.period_correction, self.since_reset < window)
+        } else {
+            let warming_up = self.since_reset < window;
+            self.since_reset += 1;
+            (self.corrector.step(&s.gyro, &s.accel), warming_up)
+        };
         if warming_up {
             self.counters.warmup_samples += 1;
         }
-        self.since_reset += 1;
         self.last = Some((s.stamp_ns, gyro));
         self.counters.processed += 1;
         self.init_attitude(s);
@@ -968,5 +1047,94 @@ mod tests {
         assert_eq!(p.nominal_rate_hz().map(|r| r.round()), Some(200.0));
         assert_eq!(p.counters().rate_changes, 1);
         assert!(p.rate_off_nominal());
+    }
+
+    /// A corrector made for 200 Hz whose correction depends on how many samples its window
+    /// holds: minus half the mean of its last 8 inputs.
+    struct WindowMean(std::collections::VecDeque<Vector3<f64>>);
+
+    impl GyroCorrector for WindowMean {
+        fn step(&mut self, gyro: &Vector3<f64>, _accel: &Vector3<f64>) -> Vector3<f64> {
+            self.0.push_back(*gyro);
+            if self.0.len() > 8 {
+                self.0.pop_front();
+            }
+            gyro - self.0.iter().sum::<Vector3<f64>>() / (2.0 * self.0.len() as f64)
+        }
+        fn reset(&mut self) {
+            self.0.clear();
+        }
+        fn window(&self) -> usize {
+            8
+        }
+        fn rate_hz(&self) -> Option<f64> {
+            Some(200.0)
+        }
+        fn name(&self) -> &str {
+            "window mean"
+        }
+    }
+
+    /// Each sample of `slow` held five times over the interval to the next, at 1 kHz.
+    fn held_five_times(slow: &[ImuSample]) -> Vec<ImuSample> {
+        let dt = (slow[1].stamp_ns - slow[0].stamp_ns) / 5;
+        slow.iter().flat_map(|s| (0..5).map(move |j| ImuSample { stamp_ns: s.stamp_ns + j * dt, ..*s })).collect()
+    }
+
+    /// A 1-kHz stream into a 200-Hz model is fed to it in its 5-ms periods: the five samples
+    /// of a period get the correction the model gives the period before on the 200-Hz stream,
+    /// and the warm-up lasts the model's window in periods.
+    #[test]
+    fn a_faster_stream_runs_the_model_in_its_periods() {
+        let slow = stream(400, 5_000_000);
+        let cfg = PipelineConfig { gravity_init_seconds: 0.0, ..Default::default() };
+        let mut at_rate = Pipeline::new(Box::new(WindowMean(Default::default())), cfg.clone());
+        let reference: Vec<CorrectedImu> = slow.iter().map(|s| at_rate.push(s).unwrap()).collect();
+        assert!(!at_rate.resampling());
+        let fast = held_five_times(&slow);
+        let mut p = Pipeline::new(Box::new(WindowMean(Default::default())), cfg.clone());
+        let out: Vec<CorrectedImu> = fast.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!(p.resampling() && p.rate_off_nominal(), "{:?}", p.counters());
+        // The switch came within the first samples; from 8 periods after it the windows agree.
+        for n in 40..slow.len() {
+            let (first, last) = (&out[5 * n], &out[5 * n + 4]);
+            assert_eq!(first.stamp_ns, slow[n].stamp_ns);
+            let want = reference[n - 1].correction;
+            assert!((first.correction - want).norm() < 1e-12, "period {n}: {} against {want}", first.correction);
+            assert!((last.correction - want).norm() < 1e-12 && (first.gyro - slow[n].gyro - want).norm() < 1e-12, "period {n}");
+        }
+        let warm = out.iter().rposition(|o| o.warming_up).unwrap();
+        assert!((35..60).contains(&warm), "warm until sample {warm}: 8 periods are 40 samples");
+        // The covariance allows for what a model corrects, as at its rate.
+        let sigma = |o: &CorrectedImu| o.orientation.unwrap().1[(0, 0)].sqrt();
+        assert!(sigma(out.last().unwrap()) < 1.1 * sigma(reference.last().unwrap()));
+        // Without resampling the model counts samples: another output, and the larger bias.
+        let mut direct = Pipeline::new(Box::new(WindowMean(Default::default())), PipelineConfig { resample_to_model_rate: false, ..cfg });
+        let raw: Vec<CorrectedImu> = fast.iter().map(|s| direct.push(s).unwrap()).collect();
+        assert!(!direct.resampling() && direct.rate_off_nominal());
+        assert!((raw[5 * 300].gyro - reference[300].gyro).norm() > 1e-3);
+        assert!(sigma(raw.last().unwrap()) > 2.0 * sigma(reference.last().unwrap()));
+    }
+
+    /// A gap restarts the periods and the model's warm-up; a stream back at the model's rate
+    /// is fed to it sample by sample again.
+    #[test]
+    fn resampling_restarts_after_a_gap_and_ends_at_the_models_rate() {
+        let mut fast = held_five_times(&stream(200, 5_000_000));
+        let t_end = fast.last().unwrap().stamp_ns;
+        fast.extend(stream(200, 1_000_000).into_iter().map(|s| ImuSample { stamp_ns: s.stamp_ns + t_end + 1_000_000_000, ..s }));
+        let t_end = fast.last().unwrap().stamp_ns;
+        let slow = stream(600, 5_000_000);
+        let mut p = Pipeline::new(Box::new(WindowMean(Default::default())), PipelineConfig::default());
+        let mut out = Vec::new();
+        for s in &fast {
+            out.push(p.push(s).unwrap());
+        }
+        let gap = out.iter().position(|o| o.after_gap).unwrap();
+        assert!(p.resampling() && out[gap].warming_up && out[gap + 30].warming_up && !out[gap + 60].warming_up);
+        for s in &slow {
+            p.push(&ImuSample { stamp_ns: s.stamp_ns + t_end, ..*s }).unwrap();
+        }
+        assert!(!p.resampling(), "{:?}", p.counters());
     }
 }

@@ -17,6 +17,7 @@ pub mod msg;
 pub mod node;
 pub mod physics;
 pub mod plot;
+pub mod resample;
 pub mod sim;
 pub mod so3;
 pub mod train;

@@ -401,6 +401,8 @@ pub struct NodeStats {
     pub last_input_ns: Option<i64>,
     pub warming_up: bool,
     pub rate_off_nominal: bool,
+    /// The input is fed to the model in the model's periods ([`crate::resample`]).
+    pub resampling: bool,
     pub model: String,
     pub window: usize,
     pub model_status: String,
@@ -512,7 +514,7 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         (DiagnosticStatus::WARN, stats.model_status.clone())
     } else if c.received == 0 {
         (DiagnosticStatus::STALE, "no input yet".to_string())
-    } else if stats.rate_off_nominal {
+    } else if stats.rate_off_nominal && !stats.resampling {
         (DiagnosticStatus::WARN, "input rate off nominal".to_string())
     } else if recent {
         // Before "warming up": a stream whose every sample is a gap warms up for ever.
@@ -530,6 +532,7 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("model", stats.model.clone()),
         kv("window_samples", stats.window.to_string()),
         kv("input_rate_hz", format!("{:.2}", live.input_rate_hz)),
+        kv("resampled_to_model_rate", stats.resampling.to_string()),
         kv("latency_p50_us", format!("{:.0}", stats.latency.quantile_us(0.5))),
         kv("latency_p99_us", format!("{:.0}", stats.latency.quantile_us(0.99))),
         kv("received", c.received.to_string()),
@@ -909,7 +912,15 @@ async fn process_loop(
             s.last_input_ns = Some(status_clock_ns(arrived));
             s.warming_up = result.as_ref().is_ok_and(|c| c.warming_up);
             // Said once in the log when it starts: /diagnostics alone was easy to miss.
-            if pipeline.rate_off_nominal() && !s.rate_off_nominal {
+            if pipeline.resampling() && !s.resampling {
+                tracing::info!(
+                    "input at {:.1} Hz, the model at {:.1} Hz: the input is fed to the model in its periods (the mean rate over each), and each sample gets the last period's correction",
+                    pipeline.input_rate_hz().unwrap_or(f64::NAN),
+                    pipeline.corrector_rate_hz().unwrap_or(f64::NAN)
+                );
+            }
+            s.resampling = pipeline.resampling();
+            if pipeline.rate_off_nominal() && !s.rate_off_nominal && !pipeline.resampling() {
                 tracing::warn!(
                     "input rate off nominal: {:.1} Hz against the {:.1} Hz {}; a model counts samples, so its window now spans another time",
                     pipeline.input_rate_hz().unwrap_or(f64::NAN),
@@ -1360,6 +1371,15 @@ mod tests {
         let (level, message, _) = status(&stats, &mut StatusClock::default(), 15 * s);
         assert_eq!((level, message.as_str()), (DiagnosticStatus::ERROR, "no input for 3.0 s; no model: pass-through"));
         stats.model_status = "ok".into();
+        // An input off the model's rate fed to it in its periods is running, not a warning.
+        let mut fast = NodeStats { model_status: "ok".into(), rate_off_nominal: true, last_input_ns: Some(s), ..Default::default() };
+        fast.counters.received = 1000;
+        let live = StatusClock::default().tick(&fast, s);
+        assert_eq!(diagnostics_message(&fast, &live, "n", Time::from_ns(s)).status[0].level, DiagnosticStatus::WARN);
+        fast.resampling = true;
+        let d = diagnostics_message(&fast, &live, "n", Time::from_ns(s));
+        assert_eq!(d.status[0].level, DiagnosticStatus::OK, "{}", d.status[0].message);
+        assert!(d.status[0].values.iter().any(|kv| kv.key == "resampled_to_model_rate" && kv.value == "true"));
         // A new event while running warns again, and names a frame_id change.
         stats.counters.received += 1;
         stats.last_input_ns = Some(17 * s + 1);

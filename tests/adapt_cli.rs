@@ -233,26 +233,8 @@ fn calibration_head_learns_a_bias_the_embedding_cannot() {
     let o =
         run(&["simulate", "--profile", "car", "--grade", "mpu-9250", "--seconds", "100", "--seed", "3", "--output", car.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let (mut rec, _) = read_recording(&car, &RecordingTopics::default()).unwrap();
-    for s in &mut rec.imu {
-        s.gyro.z += 0.02; // 1.15 °/s on the vertical axis: a heading drift of 69° a minute
-    }
-    let biased = d.join("biased.mcap");
-    write_recording(&biased, &rec).unwrap();
-
-    tch::manual_seed(11);
-    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
-    let cfg = Config::for_mode(Mode::FsdaF);
-    let net = Net::new(&cfg, &vs.root()).unwrap();
-    net.set_normalization(&[0.0, 0.0, 0.0, 0.0, 0.0, 9.81], &[0.5, 0.5, 0.5, 2.0, 2.0, 2.0]).unwrap();
-    let last = cfg.generator.kernel_sizes.len() - 1;
-    let vars = vs.variables();
-    tch::no_grad(|| {
-        for leaf in ["weight", "bias"] {
-            let _ = vars[&format!("generator.conv{last}.{leaf}")].shallow_clone().zero_();
-        }
-    });
-    let model = export_model(d, "zero", &vs, &net, &ExportInfo::default()).unwrap().torchscript;
+    let biased = biased_by(&car, d.join("biased.mcap"));
+    let model = zero_correction_model(d);
     let (m, b) = (model.to_str().unwrap(), biased.to_str().unwrap());
 
     let o =
@@ -267,6 +249,86 @@ fn calibration_head_learns_a_bias_the_embedding_cannot() {
     let after = report["query_after"]["aoe_deg"].as_f64().unwrap();
     eprintln!("biased car / zero-correction model, calibration head: query AOE {before:.3}° → {after:.3}°");
     assert!(after < 0.3 * before, "{before} → {after}");
+}
+
+/// `rec` at `car` with 0.02 rad/s added to the vertical gyro (1.15 °/s: a heading drift of 69°
+/// a minute), written to `out`.
+fn biased_by(car: &Path, out: PathBuf) -> PathBuf {
+    let (mut rec, _) = read_recording(car, &RecordingTopics::default()).unwrap();
+    for s in &mut rec.imu {
+        s.gyro.z += 0.02;
+    }
+    write_recording(&out, &rec).unwrap();
+    out
+}
+
+/// An FSDA-F model for 200 Hz whose Generator's last layer is zero: no correction.
+fn zero_correction_model(d: &Path) -> PathBuf {
+    tch::manual_seed(11);
+    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+    let cfg = Config::for_mode(Mode::FsdaF);
+    let net = Net::new(&cfg, &vs.root()).unwrap();
+    net.set_normalization(&[0.0, 0.0, 0.0, 0.0, 0.0, 9.81], &[0.5, 0.5, 0.5, 2.0, 2.0, 2.0]).unwrap();
+    let last = cfg.generator.kernel_sizes.len() - 1;
+    let vars = vs.variables();
+    tch::no_grad(|| {
+        for leaf in ["weight", "bias"] {
+            let _ = vars[&format!("generator.conv{last}.{leaf}")].shallow_clone().zero_();
+        }
+    });
+    export_model(d, "zero", &vs, &net, &ExportInfo::default()).unwrap().torchscript
+}
+
+/// The same on a 1-kHz IMU: the 200-Hz model adapts in its 5-ms periods, learns the bias as
+/// well, and the adapted model replays on the 1-kHz bag in its periods.
+#[test]
+fn a_faster_imu_adapts_in_the_models_periods() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let car = d.join("car1k.mcap");
+    let o = run(&[
+        "simulate",
+        "--profile",
+        "car",
+        "--grade",
+        "mpu-9250",
+        "--rate",
+        "1000",
+        "--seconds",
+        "100",
+        "--seed",
+        "3",
+        "--output",
+        car.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let biased = biased_by(&car, d.join("biased1k.mcap"));
+    let model = zero_correction_model(d);
+    let out = d.join("c1k.pt");
+    let o = run(&[
+        "-v",
+        "adapt",
+        "--model",
+        model.to_str().unwrap(),
+        "--bag",
+        biased.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--steps",
+        "60",
+        "--json",
+    ]);
+    let e = stderr(&o);
+    assert!(o.status.success(), "{e}");
+    assert!(e.contains("Hz IMU is adapted on in the model's 200 Hz periods"), "{e}");
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let before = report["query_before"]["aoe_deg"].as_f64().unwrap();
+    let after = report["query_after"]["aoe_deg"].as_f64().unwrap();
+    eprintln!("biased 1-kHz car / zero-correction 200-Hz model: query AOE {before:.3}° → {after:.3}°");
+    assert!(after < 0.3 * before, "{before} → {after}");
+    let replayed = d.join("replayed1k.mcap");
+    let o = run(&["-v", "replay", biased.to_str().unwrap(), "--model", out.to_str().unwrap(), "-o", replayed.to_str().unwrap()]);
+    assert!(o.status.success() && stderr(&o).contains("in its periods"), "replay: {}", stderr(&o));
 }
 
 /// An uncalibrated consumer gyro (the simulator's datasheet biases, ~0.04–0.07 rad/s) on a car

@@ -509,8 +509,9 @@ fn eval_leaves_out_frozen_ground_truth() {
     assert!(m["samples_in_gaps"].as_u64().unwrap() > 700, "{m}");
 }
 
-/// A model run on an IMU at another rate than it was trained for is scored, with the reason
-/// its figure is out of the model's domain on the row (a number alone before).
+/// A model on an IMU at another rate than it was trained for runs in its own periods, and
+/// the row says so (before: run sample by sample, with the reason its figure was out of the
+/// model's domain; a number alone before that).
 #[test]
 fn eval_says_when_the_imu_rate_is_not_the_models() {
     let d = tempfile::tempdir().unwrap();
@@ -520,7 +521,7 @@ fn eval_says_when_the_imu_rate_is_not_the_models() {
     imu_fsda::bag::write_recording(&bag, &rec).unwrap();
     let model = export_random_model(d.path(), Mode::FsdaF, 31, false);
     let row = eval_first_row(d.path(), &bag, &["--model", model.to_str().unwrap()]);
-    assert!(row["note"].as_str().unwrap().contains("for a 200 Hz IMU and this one runs at 100.0 Hz"), "{row}");
+    assert!(row["note"].as_str().unwrap().contains("the 100.0 Hz input run in the model's 200 Hz periods"), "{row}");
 }
 
 /// Recordings that cannot be scored as they are (a gyro in °/s, an accelerometer in g,
@@ -755,4 +756,76 @@ fn a_replay_that_ends_early_keeps_what_it_replayed() {
     assert_eq!(std::os::unix::process::ExitStatusExt::signal(&o.status), Some(libc::SIGKILL));
     assert!(std::fs::read(&out_term).unwrap() == earlier, "a killed replay changed the earlier output");
     assert_eq!(partials(), 1);
+}
+
+/// A 1-kHz IMU into a 200-Hz model (V1_01 re-stamped on an exact 5-ms grid, each sample held
+/// five times over its interval with noise that sums to zero over the five): the node feeds
+/// the model the 5-ms periods, which are the 200-Hz samples again, so each 1-kHz sample is
+/// corrected with what the model gives the 200-Hz recording one period before; `eval`'s
+/// offline form gives the same; /diagnostics says it, at OK.
+#[test]
+fn a_faster_imu_runs_the_model_in_its_periods_online_as_offline() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(bag) = euroc_bag(dir.path()) else { return };
+    let (mut slow, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
+    let t0 = slow.imu[0].stamp_ns;
+    for (n, s) in slow.imu.iter_mut().enumerate() {
+        s.stamp_ns = t0 + n as i64 * 5_000_000;
+    }
+    let zero_sum = [2.0, -1.0, 0.5, -1.0, -0.5];
+    let mut fast = slow.clone();
+    fast.imu = slow
+        .imu
+        .iter()
+        .flat_map(|s| {
+            zero_sum.iter().enumerate().map(move |(j, e)| imu_fsda::core::ImuSample {
+                stamp_ns: s.stamp_ns + j as i64 * 1_000_000,
+                gyro: s.gyro + nalgebra::Vector3::new(1.0, -1.0, 0.5) * (5e-3 * e),
+                accel: s.accel + nalgebra::Vector3::new(0.5, 1.0, -1.0) * (5e-2 * e),
+            })
+        })
+        .collect();
+    let fast_bag = dir.path().join("v101_1khz.mcap");
+    imu_fsda::bag::write_recording(&fast_bag, &fast).unwrap();
+    let model = export_random_model(dir.path(), Mode::FsdaF, 13, false);
+    let out_bag = dir.path().join("replayed_1khz.mcap");
+    let out = Command::new(bin()).args(["-v", "replay", "--model"]).arg(&model).arg(&fast_bag).arg("-o").arg(&out_bag).output().unwrap();
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{log}");
+    assert!(log.contains("fed to the 200.0 Hz model in its periods"), "{log}");
+
+    let mut corrections = Vec::new();
+    let mut last_status = None;
+    for m in BagReader::open(&out_bag).unwrap() {
+        let m = m.unwrap();
+        match &*m.topic {
+            "/imu/gyro_correction" => corrections.push(nalgebra::Vector3::from(Vector3Stamped::decode(&m.data).unwrap().vector)),
+            "/diagnostics" => last_status = Some(imu_fsda::msg::DiagnosticArray::decode(&m.data).unwrap().status.remove(0)),
+            _ => {}
+        }
+    }
+    assert_eq!(corrections.len(), fast.imu.len());
+    let status = last_status.unwrap();
+    assert_eq!(status.level, imu_fsda::msg::DiagnosticStatus::OK, "{}", status.message);
+    assert!(status.values.iter().any(|kv| kv.key == "resampled_to_model_rate" && kv.value == "true"), "{:?}", status.values);
+
+    // The node switched within the first samples and restarted its model: from a window of
+    // periods after that, period n's five samples carry the 200-Hz correction of period n − 1.
+    let (reference, meta) = correct_with_weights_f64(&model, &slow.imu, None).unwrap();
+    let warm = 2 * meta.window_n as usize;
+    let mut worst: f64 = 0.0;
+    for n in warm..slow.imu.len() {
+        let want = reference[n - 1] - slow.imu[n - 1].gyro;
+        for c in &corrections[5 * n..5 * n + 5] {
+            worst = worst.max((c - want).amax());
+        }
+    }
+    eprintln!("1 kHz online vs the 200-Hz offline correction a period before: max |Δ| = {worst:.2e} rad/s");
+    assert!(worst < 1e-9, "{worst}");
+    // Offline, as `eval --model` runs it: the same, from the start of the recording.
+    let run = imu_fsda::model::predict::correct_with_torchscript_at_model_rate(&model, &fast.imu, None).unwrap();
+    assert!(run.resampled_from_hz.is_some_and(|r| (r - 1000.0).abs() < 1.0), "{:?}", run.resampled_from_hz);
+    let offline = run.corrected;
+    let worst = (5 * warm..fast.imu.len()).map(|k| (offline[k] - fast.imu[k].gyro - corrections[k]).amax()).fold(0.0, f64::max);
+    assert!(worst < 1e-5, "{worst}");
 }

@@ -390,15 +390,20 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     let t_all = Instant::now();
     cfg.validate().map_err(AdaptError::Other)?;
     let meta = &loaded.metadata;
-    if let Some(why) = crate::model::rate_mismatch(meta.rate_hz, support.nominal_imu_rate_hz(), meta.window_n) {
-        tracing::warn!("{why}: the adaptation can only partly make up for it, and the node will report the input rate off nominal");
-    }
     let mode = loaded.metadata.mode;
     if !mode.has_embedding() {
         return Err(AdaptError::NoEmbedding(mode));
     }
     let mut support = support.clone();
     let mut query = query.clone();
+    // The model adapts at its own rate, on the input's periods, as the node runs it.
+    for rec in [&mut support, &mut query] {
+        let rate = rec.nominal_imu_rate_hz();
+        if rec.imu.len() >= 2 && crate::model::rate_is_off(meta.rate_hz, rate) {
+            tracing::info!("{}: the {rate:.1} Hz IMU is adapted on in the model's {:.0} Hz periods", rec.name, meta.rate_hz);
+            rec.imu = crate::resample::to_model_rate(&rec.imu, meta.rate_hz).0;
+        }
+    }
     let s_task0 = to_task(&support, "support", cfg)?;
     // Seconds with ground truth, not the span: gaps in it are not data to adapt on.
     require_covered(&s_task0, "support", cfg.min_support_seconds)?;

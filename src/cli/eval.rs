@@ -7,7 +7,7 @@ use imu_fsda::bag::{read_recording, RecordingTopics};
 use imu_fsda::core::ImuSample;
 use imu_fsda::eval::{evaluate_with_path, mean_rate_error, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector};
 use imu_fsda::model::export::load_metadata;
-use imu_fsda::model::predict::{correct_with_torchscript, metadata_path};
+use imu_fsda::model::predict::{correct_with_torchscript_at_model_rate, metadata_path};
 use nalgebra::Vector3;
 
 #[derive(Debug, clap::Args)]
@@ -227,15 +227,17 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             let imu = imu_for_bag(&args.imus, bag);
             for (model_index, (model, &per_imu)) in args.models.iter().zip(&per_imu).enumerate() {
                 let imu = imu.filter(|_| per_imu);
-                let (gyro, meta) = correct_with_torchscript(model, &rec.imu, imu).with_context(|| format!("model {}", model.display()))?;
+                let run =
+                    correct_with_torchscript_at_model_rate(model, &rec.imu, imu).with_context(|| format!("model {}", model.display()))?;
+                let (gyro, meta) = (run.corrected, run.metadata);
                 let calib = imu.map_or(String::new(), |n| match meta.imu_correction_gains.get(n).filter(|_| meta.adapted_from.is_none()) {
                     Some(g) => format!(", as on IMU {n} (correction gain {g:.3})"),
                     None => format!(", Ĉ_ω of {n}"),
                 });
                 let mut note = format!("{:?}, N = {}{calib}", meta.mode, meta.window_n);
-                if let Some(why) = imu_fsda::model::rate_mismatch(meta.rate_hz, rec.nominal_imu_rate_hz(), meta.window_n) {
-                    tracing::warn!("{name}: {why}");
-                    add_note(&mut note, &why);
+                // As the node runs it: in the model's periods (the mean rate over each).
+                if let Some(rate) = run.resampled_from_hz {
+                    add_note(&mut note, &format!("the {rate:.1} Hz input run in the model's {:.0} Hz periods", meta.rate_hz));
                 }
                 let label = labels[model_index].clone();
                 let non_finite = gyro.iter().filter(|g| !g.iter().all(|v| v.is_finite())).count();

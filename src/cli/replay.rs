@@ -44,6 +44,7 @@ fn status_at(
     stats.counters = pipeline.counters().clone();
     stats.decode_errors = decode_errors;
     stats.rate_off_nominal = pipeline.rate_off_nominal();
+    stats.resampling = pipeline.resampling();
     stats.frame_id = frame.clone().unwrap_or_default();
     let live = clock.tick(stats, now_ns as i64);
     (diagnostics_message(stats, &live, node_name, Time::from_ns(now_ns as i64)), live)
@@ -203,7 +204,14 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     if super::interrupts::requested() {
         return Err(super::interrupts::Interrupted(kept()).into());
     }
-    if pipeline.rate_off_nominal() {
+    if pipeline.resampling() {
+        tracing::info!(
+            "{}: the input ({:.1} Hz at the end) was fed to the {:.1} Hz model in its periods",
+            args.input.display(),
+            live.input_rate_hz,
+            pipeline.corrector_rate_hz().unwrap_or(f64::NAN)
+        );
+    } else if pipeline.rate_off_nominal() {
         tracing::warn!(
             "{}: the input rate ({:.1} Hz at the end) is off the nominal {:.1} Hz by more than {:.0} %: a model runs at the rate it was trained at (its window spans another time)",
             args.input.display(),

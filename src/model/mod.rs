@@ -395,10 +395,15 @@ impl From<tch::TchError> for ModelError {
 /// model is 0.3 % off): the network counts samples, so beyond this its window spans another time.
 pub const RATE_TOLERANCE: f64 = 0.05;
 
+/// True when an IMU at `imu_rate_hz` is off a model's `model_rate_hz` by more than
+/// [`RATE_TOLERANCE`]: the model must run on it in its own periods ([`crate::resample`]).
+pub fn rate_is_off(model_rate_hz: f64, imu_rate_hz: f64) -> bool {
+    imu_rate_hz > 0.0 && model_rate_hz > 0.0 && (imu_rate_hz / model_rate_hz - 1.0).abs() > RATE_TOLERANCE
+}
+
 /// Why a model for `model_rate_hz` is out of its domain on an IMU at `imu_rate_hz`, if it is.
 pub fn rate_mismatch(model_rate_hz: f64, imu_rate_hz: f64, window_n: i64) -> Option<String> {
-    let off = (imu_rate_hz / model_rate_hz - 1.0).abs();
-    (imu_rate_hz > 0.0 && model_rate_hz > 0.0 && off > RATE_TOLERANCE).then(|| {
+    rate_is_off(model_rate_hz, imu_rate_hz).then(|| {
         format!(
             "the model is for a {model_rate_hz:.0} Hz IMU and this one runs at {imu_rate_hz:.1} Hz: its {window_n}-sample window spans {:.2} s instead of {:.2} s",
             window_n as f64 / imu_rate_hz,

@@ -86,12 +86,42 @@ pub fn correct_with_torchscript(
 ) -> Result<(Vec<Vector3<f64>>, ModelMetadata), ModelError> {
     let mut ts = load_torchscript(&metadata_path(model))?;
     ts.select_imu(imu_name)?;
+    let corrected = forward_torchscript(&ts, imu)?;
+    Ok((corrected, ts.metadata))
+}
+
+/// A model's corrected gyro for every input sample, as the node runs it.
+pub struct AtModelRate {
+    pub corrected: Vec<Vector3<f64>>,
+    pub metadata: ModelMetadata,
+    /// The input's rate, Hz, when it was off the model's and run in the model's periods.
+    pub resampled_from_hz: Option<f64>,
+}
+
+/// [`correct_with_torchscript`] on an IMU at any rate, as the node runs it: off the model's
+/// rate ([`crate::model::rate_is_off`]), the model runs on the input's periods at its rate and
+/// each sample gets the last period's correction ([`crate::resample`]).
+pub fn correct_with_torchscript_at_model_rate(model: &Path, imu: &[ImuSample], imu_name: Option<&str>) -> Result<AtModelRate, ModelError> {
+    let mut ts = load_torchscript(&metadata_path(model))?;
+    ts.select_imu(imu_name)?;
+    let rate = crate::core::nominal_rate_hz(imu);
+    if imu.len() < 2 || !crate::model::rate_is_off(ts.metadata.rate_hz, rate) {
+        let corrected = forward_torchscript(&ts, imu)?;
+        return Ok(AtModelRate { corrected, metadata: ts.metadata, resampled_from_hz: None });
+    }
+    let (periods, last_period) = crate::resample::to_model_rate(imu, ts.metadata.rate_hz);
+    let corrected = forward_torchscript(&ts, &periods)?;
+    let corrected = crate::resample::corrections_to_input(imu, &periods, &corrected, &last_period);
+    Ok(AtModelRate { corrected, metadata: ts.metadata, resampled_from_hz: Some(rate) })
+}
+
+/// The TorchScript model's corrected gyro for every sample of `imu`, forwarded in chunks.
+fn forward_torchscript(ts: &super::export::TorchScriptModel, imu: &[ImuSample]) -> Result<Vec<Vector3<f64>>, ModelError> {
     if imu.is_empty() {
-        return Ok((Vec::new(), ts.metadata));
+        return Ok(Vec::new());
     }
     let window = ts.metadata.window_n.max(1) as usize;
-    let corrected = forward_in_chunks(imu, window, FORWARD_CHUNK, |part| to_vectors(&ts.forward(&imu_tensor(part, Kind::Float))?))?;
-    Ok((corrected, ts.metadata))
+    forward_in_chunks(imu, window, FORWARD_CHUNK, |part| to_vectors(&ts.forward(&imu_tensor(part, Kind::Float))?))
 }
 
 /// Corrected gyro from an exported model's weights, in f64 (the exact reference).
