@@ -829,3 +829,31 @@ fn a_faster_imu_runs_the_model_in_its_periods_online_as_offline() {
     let worst = (5 * warm..fast.imu.len()).map(|k| (offline[k] - fast.imu[k].gyro - corrections[k]).amax()).fold(0.0, f64::max);
     assert!(worst < 1e-5, "{worst}");
 }
+
+/// `eval --start-s` scores a span of what ran over the whole recording, as the node would have
+/// run it: static-bias takes the initial rest before the span (before, it found none after
+/// it), and a model's output over the span is its whole-recording output (before, it warmed up
+/// again at the span's start).
+#[test]
+fn eval_scores_a_span_of_the_whole_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(bag) = euroc_bag(dir.path()) else { return };
+    let model = export_random_model(dir.path(), Mode::FsdaF, 17, false);
+    let args = ["--method", "static-bias", "--model", model.to_str().unwrap()];
+    let whole = eval_first_row(dir.path(), &bag, &args);
+    let json = dir.path().join("span.json");
+    let out = Command::new(bin()).arg("eval").args(args).args(["--start-s", "60", "--json"]).arg(&json).arg(&bag).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rows: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let (bias, model_row) = (&rows["rows"][0], &rows["rows"][1]);
+    assert!(bias["aoe_deg"].is_f64(), "{bias}");
+    assert_eq!(bias["note"], whole["note"], "the same rest and bias");
+
+    let (rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
+    let (gyro, _) = correct_with_torchscript(&model, &rec.imu, None).unwrap();
+    let span = rec.crop_after_ground_truth_start(Some(60.0), None).unwrap();
+    let start = rec.imu.iter().position(|s| s.stamp_ns == span.imu[0].stamp_ns).unwrap();
+    let want = imu_fsda::eval::evaluate(&span, &gyro[start..start + span.imu.len()], &Default::default()).unwrap();
+    let got = model_row["aoe_deg"].as_f64().unwrap();
+    assert!((got - want.aoe_deg).abs() < 1e-9, "{got} against {}", want.aoe_deg);
+}

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
-use imu_fsda::core::ImuSample;
+use imu_fsda::core::{ImuSample, Recording};
 use imu_fsda::eval::{evaluate_with_path, mean_rate_error, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector};
 use imu_fsda::model::export::load_metadata;
 use imu_fsda::model::predict::{correct_with_torchscript_at_model_rate, metadata_path};
@@ -41,7 +41,9 @@ pub struct EvalArgs {
     pub max_gap_ms: f64,
     /// Score only from this many seconds after the first IMU sample covered by ground truth
     /// (the trainer's and `adapt`'s clock: `--start-s 60` is the query set after a 60 s
-    /// support set). Integration starts there, from the ground-truth attitude.
+    /// support set). Integration starts there, from the ground-truth attitude. Methods and
+    /// models run over the whole recording, as the node would have (the initial rest and a
+    /// model's window lie before the span), and are scored on the span.
     #[arg(long, value_parser = super::finite)]
     pub start_s: Option<f64>,
     /// Score only up to this many seconds after the first IMU sample covered by ground truth.
@@ -163,7 +165,11 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                     );
                 }
             }
-            let rec = if args.start_s.is_some() || args.end_s.is_some() {
+            // The methods and models run over the whole recording, as the node would have (the
+            // initial rest and a model's window lie before a scored span), and are scored on the
+            // span: before, a model warmed up again at --start-s, and static-bias found no rest.
+            let whole = (args.start_s.is_some() || args.end_s.is_some()).then(|| rec.clone());
+            let rec = if whole.is_some() {
                 rec.crop_after_ground_truth_start(args.start_s, args.end_s).with_context(|| {
                     format!(
                         "{}: fewer than 2 IMU samples between --start-s {} and --end-s {} after the ground truth starts ({:.1} s recorded)",
@@ -215,10 +221,12 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 }
             };
             // Every method's and model's gyro stream (or why it has none), then one scoring loop.
+            let source = whole.as_ref().unwrap_or(&rec);
+            let span = scored_span(source, &rec);
             let mut streams: Vec<(String, Stream)> = Vec::new();
             for &m in &methods {
-                let got = match m.apply(&rec, &detector) {
-                    Ok(g) => Ok(g),
+                let got = match m.apply(source, &detector) {
+                    Ok((g, note)) => Ok((g[span.clone()].to_vec(), note)),
                     Err(imu_fsda::eval::EvalError::Method { why, .. }) => Err(why),
                     Err(e) => Err(e.to_string()),
                 };
@@ -227,9 +235,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             let imu = imu_for_bag(&args.imus, bag);
             for (model_index, (model, &per_imu)) in args.models.iter().zip(&per_imu).enumerate() {
                 let imu = imu.filter(|_| per_imu);
-                let run =
-                    correct_with_torchscript_at_model_rate(model, &rec.imu, imu).with_context(|| format!("model {}", model.display()))?;
-                let (gyro, meta) = (run.corrected, run.metadata);
+                let run = correct_with_torchscript_at_model_rate(model, &source.imu, imu)
+                    .with_context(|| format!("model {}", model.display()))?;
+                let (gyro, meta) = (run.corrected[span.clone()].to_vec(), run.metadata);
                 let calib = imu.map_or(String::new(), |n| match meta.imu_correction_gains.get(n).filter(|_| meta.adapted_from.is_none()) {
                     Some(g) => format!(", as on IMU {n} (correction gain {g:.3})"),
                     None => format!(", Ĉ_ω of {n}"),
@@ -482,4 +490,10 @@ mod tests {
         assert_eq!(imu_for_bag(&rules[..1], std::path::Path::new("V1_01_easy.mcap")), None);
         assert!(glob_match("*", "") && glob_match("a*a", "aa") && !glob_match("a*a", "a") && glob_match("*b*", "abc"));
     }
+}
+
+/// Where `span`'s IMU samples lie in `whole`'s (a crop of it: one contiguous run).
+fn scored_span(whole: &Recording, span: &Recording) -> std::ops::Range<usize> {
+    let start = span.imu.first().map_or(0, |s| whole.imu.partition_point(|w| w.stamp_ns < s.stamp_ns));
+    start..start + span.imu.len()
 }
