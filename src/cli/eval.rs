@@ -476,6 +476,12 @@ fn model_labels(models: &[std::path::PathBuf], metas: &[imu_fsda::model::export:
         .collect()
 }
 
+/// Where `span`'s IMU samples lie in `whole`'s (a crop of it: one contiguous run).
+fn scored_span(whole: &Recording, span: &Recording) -> std::ops::Range<usize> {
+    let start = span.imu.first().map_or(0, |s| whole.imu.partition_point(|w| w.stamp_ns < s.stamp_ns));
+    start..start + span.imu.len()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -490,10 +496,4 @@ mod tests {
         assert_eq!(imu_for_bag(&rules[..1], std::path::Path::new("V1_01_easy.mcap")), None);
         assert!(glob_match("*", "") && glob_match("a*a", "aa") && !glob_match("a*a", "a") && glob_match("*b*", "abc"));
     }
-}
-
-/// Where `span`'s IMU samples lie in `whole`'s (a crop of it: one contiguous run).
-fn scored_span(whole: &Recording, span: &Recording) -> std::ops::Range<usize> {
-    let start = span.imu.first().map_or(0, |s| whole.imu.partition_point(|w| w.stamp_ns < s.stamp_ns));
-    start..start + span.imu.len()
 }
