@@ -872,7 +872,9 @@ async fn process_loop(
         }
         if let (Ok(c), Some(t)) = (&result, &tap) {
             let seq = pipeline.counters().processed;
-            t.buffers.lock().expect("buffers lock").push_imu(SeqSample { seq, sample, reset_before: c.after_gap });
+            let mut b = t.buffers.lock().expect("buffers lock");
+            b.push_imu(SeqSample { seq, sample, reset_before: c.after_gap });
+            b.model_fed_periods = pipeline.resampling();
         }
         if let Ok(c) = &result {
             let correction = Vector3Stamped { header: msg.header.clone(), vector: c.correction.into() };
@@ -912,12 +914,19 @@ async fn process_loop(
             s.last_input_ns = Some(status_clock_ns(arrived));
             s.warming_up = result.as_ref().is_ok_and(|c| c.warming_up);
             // Said once in the log when it starts: /diagnostics alone was easy to miss.
-            if pipeline.resampling() && !s.resampling {
-                tracing::info!(
-                    "input at {:.1} Hz, the model at {:.1} Hz: the input is fed to the model in its periods (the mean rate over each), and each sample gets the last period's correction",
-                    pipeline.input_rate_hz().unwrap_or(f64::NAN),
-                    pipeline.corrector_rate_hz().unwrap_or(f64::NAN)
-                );
+            if pipeline.resampling() != s.resampling {
+                if pipeline.resampling() {
+                    tracing::info!(
+                        "input at {:.1} Hz, the model at {:.1} Hz: the input is fed to the model in its periods (the mean rate over each), and each sample gets the last period's correction",
+                        pipeline.input_rate_hz().unwrap_or(f64::NAN),
+                        pipeline.corrector_rate_hz().unwrap_or(f64::NAN)
+                    );
+                } else {
+                    tracing::info!(
+                        "input back at {:.1} Hz, the model's rate: fed to it sample by sample",
+                        pipeline.input_rate_hz().unwrap_or(f64::NAN)
+                    );
+                }
             }
             s.resampling = pipeline.resampling();
             if pipeline.rate_off_nominal() && !s.rate_off_nominal && !pipeline.resampling() {
@@ -1219,20 +1228,29 @@ impl Job {
         // Its own (adapted) Ĉ_ω.
         let mut corrector = ModelCorrector::load(&paths.torchscript, None)?;
         // Warm the new streaming model on the recent history, then hand it over: the
-        // pipeline catches up on what arrived meanwhile and swaps between two samples.
-        let history: Vec<SeqSample> = {
+        // pipeline catches up on what arrived meanwhile and swaps between two samples. While
+        // the model is fed periods, the buffer's samples are not its inputs: offered cold, it
+        // is warmed at the swap on the corrector's own.
+        let (history, periods): (Vec<SeqSample>, bool) = {
             let b = self.buffers.lock().expect("buffers lock");
             let n = corrector.window() + 1;
-            b.imu.iter().skip(b.imu.len().saturating_sub(n)).copied().collect()
+            (b.imu.iter().skip(b.imu.len().saturating_sub(n)).copied().collect(), b.model_fed_periods)
         };
-        let fed = warm_up(&mut corrector, &history);
         let (swaps_before, _) = self.handle.swaps();
-        self.handle.offer(Box::new(corrector), fed);
+        if periods {
+            self.handle.offer_cold(Box::new(corrector));
+        } else {
+            let fed = warm_up(&mut corrector, &history);
+            self.handle.offer(Box::new(corrector), fed);
+        }
         let wait = Instant::now();
         while self.handle.swaps().0 == swaps_before && wait.elapsed() < Duration::from_secs(5) {
             std::thread::sleep(Duration::from_millis(2));
         }
         let swapped = match self.handle.swaps() {
+            (n, Some((seq, fed))) if n > swaps_before && periods => {
+                format!("swapped in at model period {seq} (warmed on the last {fed} periods the model was fed)")
+            }
             (n, Some((seq, caught_up))) if n > swaps_before => format!("swapped in at sample {seq} (caught up {caught_up} samples)"),
             _ => "will be swapped in at the next sample".to_string(),
         };

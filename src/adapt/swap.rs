@@ -11,6 +11,10 @@
 //!
 //! At the next `step`, before correcting the new sample, the corrector feeds the new model
 //! the samples that arrived during the warm-up (catch-up, usually a handful), then swaps.
+//! While the pipeline feeds the model its periods ([`crate::resample`]) the node's buffer holds
+//! input samples, not what the model is fed: the model is then offered cold
+//! ([`SwapHandle::offer_cold`]) and warmed at the swap on the corrector's own history (one
+//! window of steps on the real-time path, once).
 //! The real-time path only ever `try_lock`s: it never waits for the adaptation thread.
 
 use std::collections::VecDeque;
@@ -33,7 +37,8 @@ pub struct SeqSample {
 /// What the adaptation thread hands over.
 struct Offer {
     corrector: Box<dyn GyroCorrector>,
-    fed_through: u64,
+    /// `None`: not warmed; warm it on the corrector's own history at the swap.
+    fed_through: Option<u64>,
 }
 
 #[derive(Default)]
@@ -55,7 +60,14 @@ impl SwapHandle {
     /// It is installed before the next sample; an earlier offer not yet taken is replaced.
     pub fn offer(&self, corrector: Box<dyn GyroCorrector>, fed_through: u64) {
         let mut s = self.shared.lock().expect("swap lock");
-        s.offer = Some(Offer { corrector, fed_through });
+        s.offer = Some(Offer { corrector, fed_through: Some(fed_through) });
+    }
+
+    /// Hand a corrector over that was not warmed: at the swap it is fed the corrector's own
+    /// recent inputs (from the last reset, at most its window), on the real-time path.
+    pub fn offer_cold(&self, corrector: Box<dyn GyroCorrector>) {
+        let mut s = self.shared.lock().expect("swap lock");
+        s.offer = Some(Offer { corrector, fed_through: None });
     }
 
     /// True while an offer waits to be installed.
@@ -102,12 +114,12 @@ impl SwappableCorrector {
         )
     }
 
-    fn install(&mut self, mut new: Box<dyn GyroCorrector>, fed_through: u64) -> usize {
+    fn install(&mut self, mut new: Box<dyn GyroCorrector>, fed_through: Option<u64>) -> usize {
         let first_kept = self.history.front().map_or(self.seq + 1, |h| h.0);
         let mut fed = 0;
-        if fed_through >= self.seq {
+        if fed_through.is_some_and(|f| f >= self.seq) {
             // Nothing arrived since the warm-up.
-        } else if fed_through + 1 >= first_kept {
+        } else if let Some(fed_through) = fed_through.filter(|f| f + 1 >= first_kept) {
             for (seq, g, a, reset) in &self.history {
                 if *seq > fed_through {
                     if *reset {
@@ -118,8 +130,10 @@ impl SwappableCorrector {
                 }
             }
         } else {
-            // Too late for the catch-up buffer: warm again from what is kept.
-            tracing::warn!("model offer too old (fed through {fed_through}, now {}): re-warming on the stream", self.seq);
+            // Cold, or too late for the catch-up buffer: warm on what is kept.
+            if let Some(fed_through) = fed_through {
+                tracing::warn!("model offer too old (fed through {fed_through}, now {}): re-warming on the stream", self.seq);
+            }
             let n = new.window();
             let start = self.history.iter().rposition(|h| h.3).unwrap_or(0).max(self.history.len().saturating_sub(n));
             new.reset();
@@ -189,11 +203,13 @@ pub struct Buffers {
     pub imu: VecDeque<SeqSample>,
     pub ground_truth: VecDeque<PoseSample>,
     ground_truth_backwards_run: crate::infer::BackwardsRun,
+    /// The pipeline feeds the model its periods, not these samples ([`crate::resample`]).
+    pub model_fed_periods: bool,
 }
 
 impl Buffers {
     pub fn new(seconds: f64) -> Self {
-        Buffers { seconds, imu: VecDeque::new(), ground_truth: VecDeque::new(), ground_truth_backwards_run: Default::default() }
+        Buffers { seconds, ..Default::default() }
     }
 
     fn horizon(&self, newest: i64) -> i64 {
@@ -323,6 +339,42 @@ mod tests {
             for k in first_new as usize - 1..imu.len() {
                 assert_eq!(got[k].gyro, want[k].gyro, "offer at {offer_at} (+{late}): sample {k} differs");
                 assert_eq!(got[k].orientation.is_some(), want[k].orientation.is_some());
+            }
+            assert_ne!(got[offer_at / 2].gyro, want[offer_at / 2].gyro, "before the swap the old model ran");
+        }
+    }
+
+    /// At 1 kHz the pipeline feeds the model its 5-ms periods, so the node's buffer of input
+    /// samples is not what the model was fed: a model offered cold is warmed at the swap on the
+    /// corrector's own inputs, and from the swap on the outputs equal those of the new model run
+    /// from the start (before: it was warmed on 1-kHz samples, and was off for 2.6 s).
+    #[test]
+    fn a_cold_offer_is_exact_while_the_model_is_fed_periods() {
+        let imu: Vec<ImuSample> =
+            stream(3000).iter().flat_map(|s| (0..5).map(move |j| ImuSample { stamp_ns: s.stamp_ns + j * 1_000_000, ..*s })).collect();
+        let cfg = PipelineConfig::default();
+        let (old, new) = (model(1), model(2));
+        let copy = |m: &ModelCorrector| ModelCorrector { denoiser: m.denoiser.clone(), name: m.name.clone(), rate_hz: m.rate_hz };
+        let mut reference = Pipeline::new(Box::new(copy(&new)), cfg.clone());
+        let want: Vec<_> = imu.iter().map(|s| reference.push(s).unwrap()).collect();
+        for offer_at in [6000usize, 7400, 9000] {
+            let (sw, handle) = SwappableCorrector::new(Box::new(copy(&old)), 400);
+            let mut p = Pipeline::new(Box::new(sw), cfg.clone());
+            let mut got = Vec::new();
+            for (k, s) in imu.iter().enumerate() {
+                if k == offer_at {
+                    handle.offer_cold(Box::new(copy(&new)));
+                }
+                got.push(p.push(s).unwrap());
+            }
+            assert!(p.resampling());
+            let (swaps, last) = handle.swaps();
+            assert_eq!(swaps, 1);
+            // The swap comes at the next period the model is fed: from it, the new model's output.
+            let first = (offer_at..imu.len()).find(|&k| got[k].correction != got[k - 1].correction).unwrap();
+            assert!(first < offer_at + 5 && last.unwrap().1 > 0, "{first} {last:?}");
+            for k in first..imu.len() {
+                assert_eq!(got[k].gyro, want[k].gyro, "offer at {offer_at}: sample {k} differs");
             }
             assert_ne!(got[offer_at / 2].gyro, want[offer_at / 2].gyro, "before the swap the old model ran");
         }

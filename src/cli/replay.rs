@@ -204,12 +204,14 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     if super::interrupts::requested() {
         return Err(super::interrupts::Interrupted(kept()).into());
     }
-    if pipeline.resampling() {
+    let switches = pipeline.counters().resampling_switches;
+    if pipeline.resampling() || switches > 0 {
         tracing::info!(
-            "{}: the input ({:.1} Hz at the end) was fed to the {:.1} Hz model in its periods",
+            "{}: the input ({:.1} Hz at the end) was fed to the {:.1} Hz model in its periods {} ({switches} switches)",
             args.input.display(),
             live.input_rate_hz,
-            pipeline.corrector_rate_hz().unwrap_or(f64::NAN)
+            pipeline.corrector_rate_hz().unwrap_or(f64::NAN),
+            if pipeline.resampling() { "at the end" } else { "for part of the bag" }
         );
     } else if pipeline.rate_off_nominal() {
         tracing::warn!(
