@@ -733,17 +733,23 @@ impl Pipeline {
         self.slow_period_ns.or(self.nominal_period_ns).map(|p| self.cfg.gap_periods * p)
     }
 
+    /// Collects one of the first intervals; the median of them once there are 8.
+    fn first_intervals_median(&mut self, dt_ns: i64) -> Option<f64> {
+        self.first_dts[self.n_first_dts] = dt_ns;
+        self.n_first_dts += 1;
+        (self.n_first_dts == self.first_dts.len()).then(|| {
+            let mut d = self.first_dts;
+            d.sort_unstable();
+            (d[3] + d[4]) as f64 / 2.0
+        })
+    }
+
     /// Learn the nominal period from the first intervals (median of 8) if not given, then
     /// track the smoothed period to report rate changes.
     fn learn_period(&mut self, dt_ns: i64) {
         match self.nominal_period_ns {
             None => {
-                self.first_dts[self.n_first_dts] = dt_ns;
-                self.n_first_dts += 1;
-                if self.n_first_dts == self.first_dts.len() {
-                    let mut d = self.first_dts;
-                    d.sort_unstable();
-                    let p = (d[3] + d[4]) as f64 / 2.0;
+                if let Some(p) = self.first_intervals_median(dt_ns) {
                     self.nominal_period_ns = Some(p);
                     self.smoothed_period_ns = p;
                     self.period_learned = true;
@@ -754,15 +760,8 @@ impl Pipeline {
                 // the first intervals: from the nominal, a 212-Hz stream took 90 samples to pass
                 // 5 % off a 200-Hz model, and restarted a model already warming up.
                 if !self.period_learned && self.n_first_dts < self.first_dts.len() {
-                    self.first_dts[self.n_first_dts] = dt_ns;
-                    self.n_first_dts += 1;
-                    if self.n_first_dts == self.first_dts.len() {
-                        let mut d = self.first_dts;
-                        d.sort_unstable();
-                        let median = (d[3] + d[4]) as f64 / 2.0;
-                        if self.gap_limit_ns().is_some_and(|l| median < l) {
-                            self.smoothed_period_ns = median;
-                        }
+                    if let Some(median) = self.first_intervals_median(dt_ns).filter(|m| self.gap_limit_ns().is_some_and(|l| *m < l)) {
+                        self.smoothed_period_ns = median;
                     }
                 }
                 // A gap is not a rate change, but gaps in a row are: a stream slower than the
