@@ -88,21 +88,37 @@ impl PeriodMeans {
     }
 }
 
+/// An interval longer than this many model periods is a hole: the periods start again after
+/// it, as the node's pipeline restarts them after a gap (its default `gap_periods`), and
+/// nothing is held across it.
+pub const GAP_PERIODS: f64 = 5.0;
+
 /// A recording's IMU at a model's rate: one sample a period of `rate_hz`, stamped at the
 /// period's start (see the module doc), and for each input sample the index of the last period
-/// completed at its arrival.
+/// completed at its arrival (since the last hole: none before the first after it).
 pub fn to_model_rate(imu: &[ImuSample], rate_hz: f64) -> (Vec<ImuSample>, Vec<Option<usize>>) {
     let mut means = PeriodMeans::new(rate_hz);
+    let gap_ns = GAP_PERIODS * 1e9 / rate_hz;
     let span_s = match (imu.first(), imu.last()) {
         (Some(a), Some(b)) => (b.stamp_ns - a.stamp_ns).max(0) as f64 * 1e-9,
         _ => 0.0,
     };
     let mut periods = Vec::with_capacity((span_s * rate_hz) as usize + 1);
+    let mut current = None;
+    let mut last_stamp = None;
     let last_period = imu
         .iter()
         .map(|s| {
-            means.push(s, |stamp_ns, gyro, accel| periods.push(ImuSample { stamp_ns, gyro, accel }));
-            periods.len().checked_sub(1)
+            if last_stamp.is_some_and(|t: i64| (s.stamp_ns - t) as f64 > gap_ns) {
+                means.reset();
+                current = None;
+            }
+            last_stamp = Some(last_stamp.map_or(s.stamp_ns, |t: i64| t.max(s.stamp_ns)));
+            means.push(s, |stamp_ns, gyro, accel| {
+                periods.push(ImuSample { stamp_ns, gyro, accel });
+                current = Some(periods.len() - 1);
+            });
+            current
         })
         .collect();
     (periods, last_period)
@@ -169,14 +185,32 @@ mod tests {
         }
     }
 
+    /// A hole longer than the gap limit starts the periods again: no period spans it, and the
+    /// samples after it are not corrected until a period after it completes (as in the node).
+    #[test]
+    fn a_hole_starts_the_periods_again() {
+        let mut imu: Vec<ImuSample> = (0..20).map(|k| sample(k * 1_000_000, 0.1)).collect();
+        imu.extend((0..20).map(|k| sample(3_600_000_000_000 + k * 1_000_000, 0.2)));
+        let (periods, last) = to_model_rate(&imu, 200.0);
+        assert_eq!(periods.len(), 3 + 3, "{periods:?}");
+        assert_eq!(periods[3].stamp_ns, 3_600_000_000_000);
+        assert!(periods.iter().all(|p| p.gyro.x == 0.1 || p.gyro.x == 0.2));
+        assert_eq!(&last[19..26], &[Some(2), None, None, None, None, None, Some(3)]);
+    }
+
     proptest! {
         /// Whatever the stamps, the periods keep the rotation the samples held: the integral of
         /// the rate over the completed periods is the input's over the same span.
         #[test]
-        fn periods_keep_the_integral(dts in proptest::collection::vec(100_000i64..20_000_000, 2..300), rate in 50.0f64..1500.0) {
-            // Stamps since 1970, where an f64 resolves only 256 ns.
+        fn periods_keep_the_integral(dts in proptest::collection::vec(0.01f64..4.99, 2..300), rate in 50.0f64..1500.0) {
+            // Stamps since 1970, where an f64 resolves only 256 ns; intervals of 0.01 to 4.99
+            // model periods (beyond, a hole).
             let mut t = 1_403_715_273_262_142_976;
-            let imu: Vec<ImuSample> = dts.iter().enumerate().map(|(k, dt)| { t += dt; sample(t, (k as f64 * 0.7).cos()) }).collect();
+            let imu: Vec<ImuSample> = dts
+                .iter()
+                .enumerate()
+                .map(|(k, dt)| { t += (dt * 1e9 / rate) as i64; sample(t, (k as f64 * 0.7).cos()) })
+                .collect();
             let (periods, _) = to_model_rate(&imu, rate);
             // Period k spans [t₀ + k·T, t₀ + (k+1)·T), each end rounded to the ns.
             let boundary = |k: usize| imu[0].stamp_ns + (k as f64 * 1e9 / rate).round() as i64;
