@@ -760,8 +760,16 @@ impl Pipeline {
                 // the first intervals: from the nominal, a 212-Hz stream took 90 samples to pass
                 // 5 % off a 200-Hz model, and restarted a model already warming up.
                 if !self.period_learned && self.n_first_dts < self.first_dts.len() {
-                    if let Some(median) = self.first_intervals_median(dt_ns).filter(|m| self.gap_limit_ns().is_some_and(|l| *m < l)) {
-                        self.smoothed_period_ns = median;
+                    if let Some(median) = self.first_intervals_median(dt_ns) {
+                        if median > p * (1.0 + self.cfg.rate_tolerance) {
+                            // Slower than the nominal: gaps are measured in its own period from
+                            // here (40 Hz with 1 ms of jitter under a 200-Hz model had every other
+                            // interval over 5 model periods, each a reset: it never warmed up).
+                            self.slow_period_ns = Some(median);
+                            self.smoothed_period_ns = median;
+                        } else if self.gap_limit_ns().is_some_and(|l| median < l) {
+                            self.smoothed_period_ns = median;
+                        }
                     }
                 }
                 // A gap is not a rate change, but gaps in a row are: a stream slower than the
@@ -1143,6 +1151,22 @@ mod tests {
             assert_eq!(p.resampling(), k >= 8, "sample {k}");
         }
         assert_eq!(p.counters().resampling_switches, 1);
+    }
+
+    /// A 40-Hz stream with ±1 ms of jitter under a 200-Hz model: its gaps are measured in its
+    /// own period from the eighth interval, so it warms up and is integrated (before, every
+    /// other interval was over 5 model periods, a reset each, and it never left the warm-up).
+    #[test]
+    fn a_slow_jittered_stream_warms_up() {
+        let mut imu = stream(2400, 25_000_000);
+        for (k, s) in imu.iter_mut().enumerate() {
+            s.stamp_ns += [1_000_000, -1_000_000, 400_000, -600_000][k % 4];
+        }
+        let mut p = Pipeline::new(Box::new(WindowMean(Default::default())), PipelineConfig::default());
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!(p.counters().gaps <= 7, "{:?}", p.counters());
+        assert!(!out.last().unwrap().warming_up && p.resampling() && p.rate_off_nominal(), "{:?}", p.counters());
+        assert!(out.last().unwrap().orientation.is_some());
     }
 
     /// A gap restarts the periods and the model's warm-up; a stream back at the model's rate
