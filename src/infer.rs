@@ -210,7 +210,7 @@ impl Default for PipelineConfig {
     fn default() -> Self {
         PipelineConfig {
             nominal_rate_hz: 0.0,
-            gap_periods: 5.0,
+            gap_periods: crate::resample::GAP_PERIODS,
             rate_tolerance: 0.2,
             angular_velocity_stddev: 0.005,
             gravity_init_seconds: 0.5,
@@ -449,7 +449,9 @@ impl Pipeline {
     pub fn new(corrector: Box<dyn GyroCorrector>, cfg: PipelineConfig) -> Self {
         let rate = if cfg.nominal_rate_hz > 0.0 { Some(cfg.nominal_rate_hz) } else { corrector.rate_hz() };
         let nominal_period_ns = rate.map(|r| 1e9 / r);
-        let mut p = Pipeline {
+        // The model's periods, for a corrector with a rate that is not a pass-through.
+        let periods = corrector.rate_hz().filter(|r| *r > 0.0 && !corrector.passes_through()).map(PeriodMeans::new);
+        Pipeline {
             corrector,
             cfg,
             nominal_period_ns,
@@ -467,19 +469,10 @@ impl Pipeline {
             period_learned: false,
             slow_period_ns: None,
             last_dt_ns: 0,
-            periods: None,
+            periods,
             resampling: false,
             period_correction: Vector3::zeros(),
-        };
-        p.set_periods();
-        p
-    }
-
-    /// The model's periods, for a corrector with a rate that is not a pass-through.
-    fn set_periods(&mut self) {
-        self.periods = self.corrector.rate_hz().filter(|r| *r > 0.0 && !self.corrector.passes_through()).map(PeriodMeans::new);
-        self.resampling = false;
-        self.period_correction = Vector3::zeros();
+        }
     }
 
     /// Set the initial attitude from an external source (an initial-pose topic).
@@ -557,18 +550,6 @@ impl Pipeline {
             self.counters.resets += 1;
             self.counters.resampling_switches += 1;
         }
-    }
-
-    /// Swap the corrector (after adaptation). The history is replayed by the caller if it
-    /// wants continuity; here the new corrector simply starts its own warm-up.
-    pub fn replace_corrector(&mut self, corrector: Box<dyn GyroCorrector>) -> Box<dyn GyroCorrector> {
-        self.since_reset = 0;
-        let old = std::mem::replace(&mut self.corrector, corrector);
-        // The new model starts in the periods the stream needed, not at the next rate update.
-        let resampling = self.resampling;
-        self.set_periods();
-        self.resampling = resampling && self.periods.is_some();
-        old
     }
 
     /// Process one raw sample.

@@ -64,10 +64,11 @@ impl PeriodMeans {
         };
         let mut from = last.stamp_ns;
         loop {
-            let (start, end) = (self.boundary_ns(self.period), self.boundary_ns(self.period + 1));
+            let end = self.boundary_ns(self.period + 1);
             if s.stamp_ns < end {
                 break;
             }
+            let start = self.boundary_ns(self.period);
             let part = (end - from) as f64;
             let length = (end - start) as f64;
             period(start, (self.gyro_sum + last.gyro * part) / length, (self.accel_sum + last.accel * part) / length);
@@ -89,8 +90,8 @@ impl PeriodMeans {
 }
 
 /// An interval longer than this many model periods is a hole: the periods start again after
-/// it, as the node's pipeline restarts them after a gap (its default `gap_periods`), and
-/// nothing is held across it.
+/// it, and nothing is held across it (the node's pipeline default `gap_periods`, after which
+/// it resets the model and restarts the periods).
 pub const GAP_PERIODS: f64 = 5.0;
 
 /// A recording's IMU at a model's rate: one sample a period of `rate_hz`, stamped at the

@@ -168,9 +168,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             // The methods and models run over the whole recording, as the node would have (the
             // initial rest and a model's window lie before a scored span), and are scored on the
             // span: before, a model warmed up again at --start-s, and static-bias found no rest.
-            let whole = (args.start_s.is_some() || args.end_s.is_some()).then(|| rec.clone());
-            let rec = if whole.is_some() {
-                rec.crop_after_ground_truth_start(args.start_s, args.end_s).with_context(|| {
+            let (whole, rec) = if args.start_s.is_some() || args.end_s.is_some() {
+                let span = rec.crop_after_ground_truth_start(args.start_s, args.end_s).with_context(|| {
                     format!(
                         "{}: fewer than 2 IMU samples between --start-s {} and --end-s {} after the ground truth starts ({:.1} s recorded)",
                         bag.display(),
@@ -178,9 +177,10 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                         args.end_s.map_or("(end)".to_string(), |e| e.to_string()),
                         rec.imu_seconds()
                     )
-                })?
+                })?;
+                (Some(rec), span)
             } else {
-                rec
+                (None, rec)
             };
             let lag = imu_fsda::eval::ground_truth_lag(&rec, &opts, imu_fsda::eval::GROUND_TRUTH_LAG_SEARCH_S);
             if let Some(l) = lag {
