@@ -50,6 +50,11 @@ Run with the project's venv (scripts/env.sh: $PYTHON has numpy, torch and mcap):
                                        constant (fitted as in `floors`) and the mean true body
                                        rate over the first S s and the whole recording (the
                                        raw mean's error as a bias estimate), mrad/s
+  error_analysis.py gtbias SEQ_DIR...  EuRoC sequence folders whose ground-truth file carries the
+                                       estimator's gyro bias (b_w_RS_S_*, read by header name):
+                                       its mean over the first, middle and last S s and its
+                                       spread inside the recording, mrad/s (how constant a
+                                       recording's bias is, and how far apart recordings are)
   error_analysis.py probe --positive PATTERN --train BAG... --test BAG...
                                        whether a window of raw IMU tells which recordings it
                                        comes from: a logistic regression on the log band powers
@@ -597,6 +602,29 @@ def longmean(args):
         print(f"| {name} | {(t[-1] - t[0]) * 1e-9:.0f} | {fmt(b)} | {fmt(first)} | {fmt(whole)} |", flush=True)
 
 
+def gtbias(args):
+    """The ground-truth estimator's own gyro bias per recording (EuRoC's 17-column files)."""
+    print(f"| sequence | s | first {args.seconds:g} s | middle {args.seconds:g} s | last {args.seconds:g} s | max - min inside, per axis |")
+    print("|---|---|---|---|---|---|")
+    fmt = lambda v: "[" + ", ".join(f"{x * 1e3:.2f}" for x in v) + "]"
+    for seq in args.seqs:
+        path = os.path.join(seq, "mav0", "state_groundtruth_estimate0", "data.csv")
+        with open(path) as fh:
+            header = [h.strip() for h in fh.readline().lstrip("#").split(",")]
+        cols = [i for i, h in enumerate(header) if h.startswith("b_w_RS_S_")]
+        name = os.path.basename(os.path.normpath(seq))
+        if len(cols) != 3:
+            print(f"| {name} | – | no gyro bias columns in {path} | | | |", flush=True)
+            continue
+        data = np.loadtxt(path, delimiter=",", comments="#")
+        t, b = data[:, 0], data[:, cols]
+        n = max(1, int(round(args.seconds / (np.median(np.diff(t)) * 1e-9))))
+        mid = len(b) // 2
+        spans = [b[:n], b[max(0, mid - n // 2):mid + (n + 1) // 2], b[-n:]]
+        spread = b.max(axis=0) - b.min(axis=0)
+        print(f"| {name} | {(t[-1] - t[0]) * 1e-9:.0f} | " + " | ".join(fmt(x.mean(axis=0)) for x in spans) + f" | {fmt(spread)} |", flush=True)
+
+
 def main():
     torch.set_num_threads(1)
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -644,6 +672,10 @@ def main():
     m.add_argument("--seconds", type=float, default=60.0, help="the first span, s")
     m.add_argument("--increment", type=int, default=1024, help="J, samples")
     m.set_defaults(run=longmean)
+    g = sub.add_parser("gtbias")
+    g.add_argument("seqs", nargs="+", help="EuRoC sequence folders (…/MH_04_difficult)")
+    g.add_argument("--seconds", type=float, default=1.0, help="the span of each mean, s")
+    g.set_defaults(run=gtbias)
     q = sub.add_parser("probe")
     q.add_argument("--positive", required=True, help="a file-name substring, e.g. V2_")
     q.add_argument("--train", nargs="+", required=True)
