@@ -6,7 +6,8 @@
 #  2. a new IMU, as a user meets one: a 3-minute recording of the bundled quadruped
 #     (params/sim/quadruped_mpu9250.yaml, an MPU-9250 the model never saw) with ground truth;
 #     few-shot adaptation on its first 60 s (`imu-fsda adapt`), the rest held back and scored
-#     (raw, the bundled model, the adapted one), then the adapted model replayed over it.
+#     (raw, the bundled model, the adapted one), then the adapted model replayed over it and
+#     the attitude it published scored (`imu-fsda attitude`).
 # Everything it writes goes to the user cache, never into the repository.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -54,6 +55,9 @@ if [ -f "$adapted" ]; then
   # The first samples carry no orientation (covariance[0] = -1) until gravity gives the tilt.
   echo "the /imu/denoised message at 120 s (corrected angular velocity, integrated orientation, covariances):"
   "$bin" bag echo "$out/quadruped_mpu9250_180s-denoised.mcap" --topic /imu/denoised --limit 24001 | tail -n 1
+  echo
+  echo "the attitude it published against the ground truth, and whether its stated covariance covers it:"
+  "$bin" attitude "$out/quadruped_mpu9250_180s-denoised.mcap"
   echo
   echo "the adapted model: $adapted (run it: imu-fsda node --params params/imu_fsda.yaml --model $adapted)"
 fi

@@ -11,7 +11,7 @@ use std::io::{BufReader, BufWriter};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use crate::core::{ImuSample, PoseSample, Recording, TemperatureSample};
+use crate::core::{ImuSample, PoseSample, PublishedAttitude, Recording, TemperatureSample};
 use crate::msg::{Imu, MsgError, Odometry, PoseStamped, RosMessage, Temperature};
 
 /// Default topic names written by `import` and `simulate` and read by `eval`.
@@ -690,6 +690,80 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
     Ok((rec, report))
 }
 
+/// What a node published on one `sensor_msgs/Imu` topic (`/imu/denoised`): its attitudes.
+#[derive(Debug, Clone, Default)]
+pub struct PublishedAttitudes {
+    /// Messages on the topic, with or without an orientation.
+    pub messages: u64,
+    /// Header stamp of the topic's first message in log-time order: the node's first output.
+    pub first_stamp_ns: Option<i64>,
+    /// The messages that carry an orientation (REP 145: covariance[0] ≠ −1), in stamp order.
+    pub attitudes: Vec<PublishedAttitude>,
+    /// Orientations left out: a quaternion or covariance not finite, a zero quaternion, a
+    /// stamp at or before the previous one.
+    pub skipped: u64,
+}
+
+/// The attitudes published on `topic` (see [`PublishedAttitudes`]), in log-time order as
+/// [`read_recording`] reads a bag.
+pub fn read_published_attitudes(path: impl AsRef<Path>, topic: &str) -> Result<PublishedAttitudes, BagError> {
+    let path = path.as_ref();
+    let mut present: BTreeMap<Arc<str>, Arc<str>> = BTreeMap::new();
+    /// One message's orientation: none (REP 145: covariance[0] = −1), one that cannot be used,
+    /// or an attitude.
+    enum Orientation {
+        Absent,
+        Unusable,
+        Usable(PublishedAttitude),
+    }
+    let mut read: Vec<(u64, (i64, Orientation))> = Vec::new();
+    for (index, m) in BagReader::open(path)?.enumerate() {
+        let m = m?;
+        present.entry(m.topic.clone()).or_insert_with(|| m.type_name.clone());
+        if *m.topic != *topic {
+            continue;
+        }
+        if *m.type_name != *Imu::TYPE_NAME {
+            return Err(BagError::WrongType {
+                path: path.to_path_buf(),
+                topic: topic.into(),
+                found: m.type_name.to_string(),
+                expected: Imu::TYPE_NAME.into(),
+            });
+        }
+        let msg = Imu::decode(&m.data).map_err(|source| BagError::Decode {
+            path: path.to_path_buf(),
+            topic: topic.into(),
+            index: index as u64 + 1,
+            log_time_ns: m.log_time_ns,
+            source,
+        })?;
+        let stamp_ns = msg.header.stamp.to_ns();
+        let covariance = nalgebra::Matrix3::from_row_slice(&msg.orientation_covariance.0);
+        let attitude = match msg.orientation.to_unit().filter(|_| covariance.iter().all(|v| v.is_finite())) {
+            _ if !msg.has_orientation() => Orientation::Absent,
+            None => Orientation::Unusable,
+            Some(world_from_body) => Orientation::Usable(PublishedAttitude { stamp_ns, world_from_body, covariance }),
+        };
+        read.push((m.log_time_ns, (stamp_ns, attitude)));
+    }
+    if read.is_empty() {
+        let present = present.iter().map(|(t, ty)| format!("{t} [{ty}]")).collect::<Vec<_>>().join(", ");
+        return Err(BagError::MissingTopic { path: path.to_path_buf(), topic: topic.into(), present });
+    }
+    in_log_time_order(&mut read, |(stamp, _)| Some(*stamp));
+    let mut out = PublishedAttitudes { messages: read.len() as u64, first_stamp_ns: Some(read[0].1 .0), ..Default::default() };
+    for (_, (_, attitude)) in read {
+        match attitude {
+            Orientation::Absent => {}
+            Orientation::Unusable => out.skipped += 1,
+            Orientation::Usable(a) if out.attitudes.last().is_some_and(|l| a.stamp_ns <= l.stamp_ns) => out.skipped += 1,
+            Orientation::Usable(a) => out.attitudes.push(a),
+        }
+    }
+    Ok(out)
+}
+
 /// The frame_id changes this many times or more in a topic's messages: two sensors
 /// interleaved, not a driver renamed once.
 const INTERLEAVED_SWITCHES: usize = 10;
@@ -882,6 +956,43 @@ mod tests {
         let zst = dir.path().join("rec_0.mcap.zstd");
         std::fs::write(&zst, [0x28, 0xb5, 0x2f, 0xfd, 0, 0, 0, 0]).unwrap();
         assert!(says(&zst).contains("zstd -d"));
+    }
+
+    /// The attitudes a node published: messages without an orientation pass, unusable ones
+    /// (a NaN covariance, a zero quaternion) and repeated stamps are counted as skipped.
+    #[test]
+    fn published_attitudes_are_read_in_stamp_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("out.mcap");
+        let mut w = BagWriter::create(&path).unwrap();
+        let ch = w.channel::<Imu>("/imu/denoised").unwrap();
+        let sample = |k: i64| ImuSample { stamp_ns: 1_000_000_000 + k * 5_000_000, gyro: Vector3::zeros(), accel: Vector3::zeros() };
+        let with = |k: i64, q: crate::msg::Quaternion, cov0: f64| {
+            let mut m = Imu::from_sample(&sample(k), "imu_link");
+            m.orientation = q;
+            m.orientation_covariance.0 = [cov0, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1.0];
+            m
+        };
+        let turned: crate::msg::Quaternion = UnitQuaternion::from_euler_angles(0.1, 0.0, 0.0).into();
+        let zero = crate::msg::Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 0.0 };
+        let msgs = [
+            Imu::from_sample(&sample(0), "imu_link"),
+            with(1, turned, 1e-4),
+            with(2, turned, f64::NAN),
+            with(3, zero, 1e-4),
+            with(1, turned, 1e-4),
+            with(4, turned, 2e-4),
+        ];
+        for (i, m) in msgs.iter().enumerate() {
+            w.write(ch, 1_000 + i as i64, m).unwrap();
+        }
+        w.finish().unwrap();
+        let p = read_published_attitudes(&path, "/imu/denoised").unwrap();
+        assert_eq!((p.messages, p.attitudes.len(), p.skipped), (6, 2, 3));
+        assert_eq!(p.first_stamp_ns, Some(sample(0).stamp_ns));
+        assert_eq!(p.attitudes[1].stamp_ns, sample(4).stamp_ns);
+        assert!((p.attitudes[1].covariance[(0, 0)] - 2e-4).abs() < 1e-18 && (p.attitudes[0].world_from_body.angle() - 0.1).abs() < 1e-12);
+        assert!(matches!(read_published_attitudes(&path, "/imu/none"), Err(BagError::MissingTopic { .. })));
     }
 
     fn recording() -> Recording {

@@ -1,7 +1,7 @@
 //! The samples everything else passes around: IMU readings, ground-truth poses and
 //! temperatures, each stamped in integer nanoseconds (ROS time), SI units throughout.
 
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 /// Standard gravity, m/s².
 pub const STANDARD_GRAVITY: f64 = 9.81;
@@ -44,6 +44,16 @@ pub struct PoseSample {
     pub position_in_world: Vector3<f64>,
     /// Rotation taking body-frame vectors to the world frame.
     pub world_from_body: UnitQuaternion<f64>,
+}
+
+/// An attitude a node published (`sensor_msgs/Imu` orientation, as `/imu/denoised` carries it)
+/// with its covariance about world x, y, z (REP 145), rad².
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PublishedAttitude {
+    /// Header stamp, ns.
+    pub stamp_ns: i64,
+    pub world_from_body: UnitQuaternion<f64>,
+    pub covariance: Matrix3<f64>,
 }
 
 /// One temperature reading of the IMU die, °C.

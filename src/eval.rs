@@ -8,9 +8,9 @@
 //! table); tilt and heading RMSE of E = R̂ R_gtᵀ split into a twist about world z (heading)
 //! and the remaining swing (tilt), which do not depend on the Euler convention.
 
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{Matrix2, UnitQuaternion, Vector2, Vector3};
 
-use crate::core::{ImuSample, Recording, STANDARD_GRAVITY};
+use crate::core::{ImuSample, PoseSample, PublishedAttitude, Recording, STANDARD_GRAVITY};
 use crate::so3::{euler_zyx, exp, log, renormalize, slerp_at, wrap_pi};
 
 #[derive(Debug, thiserror::Error)]
@@ -27,6 +27,11 @@ pub enum EvalError {
     NotCovered { name: String, poses: usize, gt_start: f64, gt_end: f64, max_gap_ms: f64 },
     #[error("{name}: the ground truth covers {covered} IMU sample(s): nothing to score (an orientation error needs at least 2)")]
     TooShort { name: String, covered: usize },
+    #[error(
+        "{name}: the ground truth ({gt_start:.3}–{gt_end:.3} s) covers {covered} of the {count} published attitudes \
+         ({start:.3}–{end:.3} s): nothing to score (an attitude error needs at least 2)"
+    )]
+    PublishedNotCovered { name: String, covered: usize, count: usize, start: f64, end: f64, gt_start: f64, gt_end: f64 },
     #[error("{name}: method gave {got} gyro samples for {expected} IMU samples")]
     Length { name: String, got: usize, expected: usize },
     #[error("{name}: {method}: {why}")]
@@ -512,6 +517,126 @@ impl ErrorAccumulator {
     }
 }
 
+/// χ² with two degrees of freedom at 95 %: a tilt error consistent with its stated 2×2
+/// covariance has a NEES below this 95 % of the time.
+pub const CHI2_2DOF_95: f64 = 5.991;
+
+/// How far the attitude a node published (`/imu/denoised`) is from the ground truth, and
+/// whether its stated covariance says so. Degrees unless named otherwise.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct PublishedAttitudeErrors {
+    /// Seconds from the topic's first message to its first attitude (the start-up wait).
+    pub first_attitude_s: f64,
+    /// Attitudes compared with ground truth, and those left out in ground-truth gaps.
+    pub evaluated: usize,
+    pub in_gaps: usize,
+    /// Seconds from the first scored attitude to the last.
+    pub seconds: f64,
+    /// Tilt: the swing of E = R̂ R_gtᵀ off world z, at the first scored attitude, RMS, largest, last.
+    pub tilt_initial_deg: f64,
+    pub tilt_rmse_deg: f64,
+    pub tilt_max_deg: f64,
+    pub tilt_final_deg: f64,
+    /// Heading against the ground truth's, aligned at the first scored attitude: gravity gives
+    /// no yaw, so the node starts it at 0 and what it owes is the drift from there.
+    pub heading_rmse_deg: f64,
+    pub heading_final_deg: f64,
+    /// Median of the stated tilt σ (the root of the mean of its x and y variances).
+    pub tilt_sigma_median_deg: f64,
+    /// Mean NEES of the tilt error against its stated 2×2 covariance: 2 when the covariance is
+    /// consistent, below when it is wider than the error, above when it is overconfident.
+    pub tilt_nees_mean: f64,
+    /// Share of scored attitudes with the tilt NEES within [`CHI2_2DOF_95`] (0.95 when consistent).
+    pub tilt_within_95: f64,
+    /// Attitudes whose stated tilt covariance is not positive definite: no NEES for them.
+    pub tilt_covariance_invalid: usize,
+}
+
+/// Compare published attitudes (in stamp order) with the ground truth slerped at their stamps
+/// (never across a gap longer than [`EvalOptions::max_gap_ns`]). The covariance is taken
+/// about world axes (REP 145), as the error of a left perturbation: R̂ = Exp(δ) R_gt.
+pub fn evaluate_published(
+    name: &str,
+    ground_truth: &[PoseSample],
+    published: &[PublishedAttitude],
+    first_message_ns: i64,
+    opts: &EvalOptions,
+) -> Result<PublishedAttitudeErrors, EvalError> {
+    let (Some(g0), Some(g1)) = (ground_truth.first(), ground_truth.last()) else {
+        return Err(EvalError::NoGroundTruth(name.into()));
+    };
+    let gt = slerp_at(ground_truth, published.iter().map(|a| a.stamp_ns), opts.max_gap_ns);
+    let covered = gt.iter().filter(|g| g.is_some()).count();
+    let (Some(k0), true) = (gt.iter().position(Option::is_some), covered >= 2) else {
+        let span = |a: Option<&PublishedAttitude>| a.map_or(0.0, |a| a.stamp_ns as f64 * 1e-9);
+        return Err(EvalError::PublishedNotCovered {
+            name: name.into(),
+            covered,
+            count: published.len(),
+            start: span(published.first()),
+            end: span(published.last()),
+            gt_start: g0.stamp_ns as f64 * 1e-9,
+            gt_end: g1.stamp_ns as f64 * 1e-9,
+        });
+    };
+    let heading_of = |e: &UnitQuaternion<f64>| wrap_pi(2.0 * e.k.atan2(e.w));
+    let first_error = published[k0].world_from_body * gt[k0].expect("k0 is covered").inverse();
+    let align = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -heading_of(&first_error));
+    let a = align.to_rotation_matrix().into_inner();
+    let mut out =
+        PublishedAttitudeErrors { first_attitude_s: (published[0].stamp_ns - first_message_ns) as f64 * 1e-9, ..Default::default() };
+    let (mut sq_tilt, mut sq_heading, mut nees_sum, mut nees_n, mut within) = (0.0, 0.0, 0.0, 0usize, 0usize);
+    let mut sigmas = Vec::with_capacity(published.len() - k0);
+    let mut last = k0;
+    let mut gaps_since_last = 0;
+    for (n, (p, g)) in published.iter().zip(&gt).enumerate().skip(k0) {
+        let Some(g) = g else {
+            gaps_since_last += 1;
+            continue;
+        };
+        // Attitudes after the ground truth's end are not in one of its gaps.
+        out.in_gaps += std::mem::take(&mut gaps_since_last);
+        let e = align * p.world_from_body * g.inverse();
+        let heading = heading_of(&e);
+        let swing = log(&(e * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), heading).inverse()));
+        let tilt = swing.norm();
+        if out.evaluated == 0 {
+            out.tilt_initial_deg = tilt.to_degrees();
+        }
+        out.evaluated += 1;
+        sq_tilt += tilt * tilt;
+        sq_heading += heading * heading;
+        out.tilt_max_deg = out.tilt_max_deg.max(tilt.to_degrees());
+        (out.tilt_final_deg, out.heading_final_deg) = (tilt.to_degrees(), heading.abs().to_degrees());
+        last = n;
+        // The covariance in the aligned world frame; its horizontal block is the tilt's.
+        let cov = a * p.covariance * a.transpose();
+        let horizontal: Matrix2<f64> = cov.fixed_view::<2, 2>(0, 0).into_owned();
+        match horizontal.cholesky() {
+            Some(c) => {
+                let t = Vector2::new(swing.x, swing.y);
+                let nees = t.dot(&c.solve(&t));
+                nees_sum += nees;
+                nees_n += 1;
+                within += usize::from(nees <= CHI2_2DOF_95);
+                sigmas.push((0.5 * (horizontal[(0, 0)] + horizontal[(1, 1)])).sqrt().to_degrees());
+            }
+            None => out.tilt_covariance_invalid += 1,
+        }
+    }
+    let n = out.evaluated as f64;
+    out.tilt_rmse_deg = (sq_tilt / n).sqrt().to_degrees();
+    out.heading_rmse_deg = (sq_heading / n).sqrt().to_degrees();
+    out.seconds = (published[last].stamp_ns - published[k0].stamp_ns) as f64 * 1e-9;
+    if nees_n > 0 {
+        out.tilt_nees_mean = nees_sum / nees_n as f64;
+        out.tilt_within_95 = within as f64 / nees_n as f64;
+        sigmas.sort_by(f64::total_cmp);
+        out.tilt_sigma_median_deg = sigmas[sigmas.len() / 2];
+    }
+    Ok(out)
+}
+
 /// Swing–twist split of a world-frame error rotation about world z: (tilt, heading) in rad.
 pub fn tilt_heading(e: &UnitQuaternion<f64>) -> (f64, f64) {
     // Twist about z: the quaternion's (w, z) part; swing = e · twist⁻¹.
@@ -650,6 +775,64 @@ mod tests {
     use super::*;
     use crate::core::PoseSample;
     use crate::so3::integrate_gyro;
+
+    /// A node's attitude: the ground truth turned by `tilt` (about world x), in a world of its
+    /// own turned by `yaw0` about z and drifting in heading at `drift` rad/s, with the stated
+    /// covariance `cov` about its own world axes.
+    fn published_from(rec: &Recording, tilt: f64, yaw0: f64, drift: f64, cov: nalgebra::Matrix3<f64>) -> Vec<PublishedAttitude> {
+        let t0 = rec.imu[0].stamp_ns;
+        let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), EvalOptions::default().max_gap_ns);
+        rec.imu
+            .iter()
+            .zip(gt)
+            .filter_map(|(s, g)| {
+                let t = (s.stamp_ns - t0) as f64 * 1e-9;
+                let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw0 + drift * t);
+                let off = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), tilt);
+                Some(PublishedAttitude { stamp_ns: s.stamp_ns, world_from_body: yaw * off * g?, covariance: cov })
+            })
+            .collect()
+    }
+
+    /// Known answers: a constant 2° tilt in a world turned by 0.7 rad, stated as 1° (NEES 4,
+    /// every sample within the 95 % bound), as 0.5° (NEES 16, none), and as 1° / 4° about the
+    /// node's x / y axes in a world turned by 90°, where the tilt lies along the node's y
+    /// (NEES 0.25: the covariance is turned with the world); a heading drift of 10 mrad/s.
+    #[test]
+    fn published_attitude_errors_have_known_answers() {
+        let rec = swaying(0);
+        let opts = EvalOptions::default();
+        let d = 1f64.to_radians();
+        let first = rec.imu[0].stamp_ns - 500_000_000;
+        let iso = |sigma: f64| nalgebra::Matrix3::from_diagonal(&Vector3::new(sigma * sigma, sigma * sigma, 10.0));
+        let e = evaluate_published("t", &rec.ground_truth, &published_from(&rec, 2.0 * d, 0.7, 0.0, iso(d)), first, &opts).unwrap();
+        assert!((e.first_attitude_s - 0.5).abs() < 1e-12, "{}", e.first_attitude_s);
+        assert!((e.tilt_rmse_deg - 2.0).abs() < 1e-9 && (e.tilt_max_deg - 2.0).abs() < 1e-9, "{e:?}");
+        assert!(e.heading_rmse_deg < 1e-9, "the node's own yaw is aligned away: {e:?}");
+        assert!((e.tilt_nees_mean - 4.0).abs() < 1e-6 && e.tilt_within_95 == 1.0 && (e.tilt_sigma_median_deg - 1.0).abs() < 1e-9, "{e:?}");
+        let e = evaluate_published("t", &rec.ground_truth, &published_from(&rec, 2.0 * d, 0.7, 0.0, iso(0.5 * d)), first, &opts).unwrap();
+        assert!((e.tilt_nees_mean - 16.0).abs() < 1e-5 && e.tilt_within_95 == 0.0, "{e:?}");
+        let cov = nalgebra::Matrix3::from_diagonal(&Vector3::new(d * d, 16.0 * d * d, 10.0));
+        let e =
+            evaluate_published("t", &rec.ground_truth, &published_from(&rec, 2.0 * d, std::f64::consts::FRAC_PI_2, 0.0, cov), first, &opts)
+                .unwrap();
+        assert!((e.tilt_nees_mean - 0.25).abs() < 1e-6, "{e:?}");
+        // A heading drift of 10 mrad/s over the 60 s, aligned at the first attitude.
+        let e = evaluate_published("t", &rec.ground_truth, &published_from(&rec, 0.0, 0.7, 0.01, iso(d)), first, &opts).unwrap();
+        let span = e.seconds;
+        assert!((e.heading_final_deg - (0.01 * span).to_degrees()).abs() < 1e-6, "{e:?}");
+        assert!((e.heading_rmse_deg / e.heading_final_deg - 1.0 / 3f64.sqrt()).abs() < 1e-3, "{e:?}");
+        assert!(e.tilt_rmse_deg < 1e-9, "{e:?}");
+        // No ground truth over the attitudes: an error, not a 0° row.
+        let late: Vec<PublishedAttitude> = published_from(&rec, 0.0, 0.0, 0.0, iso(d))
+            .into_iter()
+            .map(|a| PublishedAttitude { stamp_ns: a.stamp_ns + 120_000_000_000, ..a })
+            .collect();
+        assert!(matches!(
+            evaluate_published("t", &rec.ground_truth, &late, first, &opts),
+            Err(EvalError::PublishedNotCovered { covered: 0, .. })
+        ));
+    }
 
     /// 60 s at 200 Hz of a varying rotation, with exact ground truth at 100 Hz whose stamps
     /// are `lag_ns` late.

@@ -10,6 +10,7 @@ macro_rules! out {
 }
 
 mod adapt;
+mod attitude;
 mod bag;
 mod bench;
 mod corrector;
@@ -45,6 +46,8 @@ pub enum Command {
     Import(import::ImportArgs),
     /// Evaluate gyro methods on bags: open-loop orientation error (AOE, roll/pitch/yaw RMSE).
     Eval(eval::EvalArgs),
+    /// Score the attitude a node published (/imu/denoised) against ground truth, and its covariance.
+    Attitude(attitude::AttitudeArgs),
     /// Simulate an IMU on a trajectory and write a bag with ground truth.
     Simulate(simulate::SimulateArgs),
     /// Train a denoising model (FSDA-F, FSDA or DIGDL) and export it to TorchScript.
@@ -275,6 +278,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bag(c) => bag::run(c),
         Command::Import(a) => import::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Attitude(a) => attitude::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Train(a) => train::run(a),
         Command::Adapt(a) => adapt::run(a),
