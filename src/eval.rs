@@ -579,9 +579,8 @@ pub fn evaluate_published(
             gt_end: g1.stamp_ns as f64 * 1e-9,
         });
     };
-    let heading_of = |e: &UnitQuaternion<f64>| wrap_pi(2.0 * e.k.atan2(e.w));
-    let first_error = published[k0].world_from_body * gt[k0].expect("k0 is covered").inverse();
-    let align = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -heading_of(&first_error));
+    let (_, first_heading) = swing_twist(&(published[k0].world_from_body * gt[k0].expect("k0 is covered").inverse()));
+    let align = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -first_heading);
     let a = align.to_rotation_matrix().into_inner();
     let mut out =
         PublishedAttitudeErrors { first_attitude_s: (published[0].stamp_ns - first_message_ns) as f64 * 1e-9, ..Default::default() };
@@ -596,9 +595,7 @@ pub fn evaluate_published(
         };
         // Attitudes after the ground truth's end are not in one of its gaps.
         out.in_gaps += std::mem::take(&mut gaps_since_last);
-        let e = align * p.world_from_body * g.inverse();
-        let heading = heading_of(&e);
-        let swing = log(&(e * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), heading).inverse()));
+        let (swing, heading) = swing_twist(&(align * p.world_from_body * g.inverse()));
         let tilt = swing.norm();
         if out.evaluated == 0 {
             out.tilt_initial_deg = tilt.to_degrees();
@@ -639,11 +636,17 @@ pub fn evaluate_published(
 
 /// Swing–twist split of a world-frame error rotation about world z: (tilt, heading) in rad.
 pub fn tilt_heading(e: &UnitQuaternion<f64>) -> (f64, f64) {
+    let (swing, heading) = swing_twist(e);
+    (swing.norm(), heading.abs())
+}
+
+/// e = Exp(swing) · twist about world z: the swing's rotation vector (horizontal) and the
+/// twist's signed angle, rad.
+fn swing_twist(e: &UnitQuaternion<f64>) -> (Vector3<f64>, f64) {
     // Twist about z: the quaternion's (w, z) part; swing = e · twist⁻¹.
     let heading = wrap_pi(2.0 * e.k.atan2(e.w));
     let twist = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), heading);
-    let tilt = log(&(e * twist.inverse())).norm();
-    (tilt, heading.abs())
+    (log(&(e * twist.inverse())), heading)
 }
 
 /// How rest is detected for the static-bias baseline. Rest is judged on the means of short

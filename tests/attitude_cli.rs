@@ -3,32 +3,11 @@
 //! matrices), whether the covariance the node states covers its tilt error on the bundled
 //! bags, and clear errors for bags it cannot score.
 
-use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_imu-fsda")
-}
+mod common;
 
-fn repo() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn python() -> Option<PathBuf> {
-    let p = std::env::var_os("PYTHON").map(PathBuf::from).unwrap_or_else(|| {
-        let cache = std::env::var_os("XDG_CACHE_HOME")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache"));
-        cache.join("imu-fsda/torch-2.13.0/bin/python")
-    });
-    if p.exists() {
-        Some(p)
-    } else {
-        assert!(std::env::var_os("CI").is_none(), "python venv missing in CI: {}", p.display());
-        eprintln!("SKIPPED: {} not found (run scripts/setup.sh)", p.display());
-        None
-    }
-}
+use common::{bin, manifest_dir as repo, venv_python as python};
 
 fn run(cmd: &mut Command) -> String {
     let out = cmd.output().expect("run");

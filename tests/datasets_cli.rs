@@ -4,9 +4,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_imu-fsda")
-}
+mod common;
+
+use common::{bin, venv_python as python};
 
 fn shared_data() -> Option<PathBuf> {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
@@ -15,22 +15,6 @@ fn shared_data() -> Option<PathBuf> {
     } else {
         assert!(std::env::var_os("CI").is_none(), "../shared/data is missing in CI");
         eprintln!("SKIPPED: ../shared/data not found; the real-data tests need it");
-        None
-    }
-}
-
-fn python() -> Option<PathBuf> {
-    let p = std::env::var_os("PYTHON").map(PathBuf::from).unwrap_or_else(|| {
-        let cache = std::env::var_os("XDG_CACHE_HOME")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache"));
-        cache.join("imu-fsda/torch-2.13.0/bin/python")
-    });
-    if p.exists() {
-        Some(p)
-    } else {
-        assert!(std::env::var_os("CI").is_none(), "python venv missing in CI: {}", p.display());
-        eprintln!("SKIPPED: {} not found (run scripts/setup.sh)", p.display());
         None
     }
 }

@@ -103,14 +103,7 @@ pub fn run(args: AttitudeArgs) -> anyhow::Result<()> {
         let doc = serde_json::json!({"options": opts, "topic": args.topic, "chi2_2dof_95": CHI2_2DOF_95, "rows": rows});
         std::fs::write(p, serde_json::to_string_pretty(&doc)?).with_context(|| format!("writing {}", p.display()))?;
     }
-    anyhow::ensure!(
-        failed.is_empty(),
-        "{} of {} bags could not be evaluated ({}); their rows say why",
-        failed.len(),
-        args.bags.len(),
-        failed.join(", ")
-    );
-    Ok(())
+    super::every_bag_scored(&failed, args.bags.len())
 }
 
 pub fn markdown_table(rows: &[Row]) -> String {

@@ -236,6 +236,18 @@ pub fn refuse_overwriting_input(output: &std::path::Path, inputs: &[&std::path::
 
 /// Refuses a ground-truth topic that is the IMU topic itself: its orientation (when it has
 /// one) is the driver's own estimate, integrated from this very gyro, not a reference.
+/// Among several bags, those that could not be scored are rows saying why; the command then
+/// exits 1 naming them.
+pub fn every_bag_scored(failed: &[String], bags: usize) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        failed.is_empty(),
+        "{} of {bags} bags could not be evaluated ({}); their rows say why",
+        failed.len(),
+        failed.join(", ")
+    );
+    Ok(())
+}
+
 pub fn refuse_imu_as_ground_truth(imu_topic: &str, ground_truth_topic: &str) -> anyhow::Result<()> {
     if imu_topic == ground_truth_topic {
         anyhow::bail!(

@@ -1,6 +1,7 @@
-//! Helpers shared by the DDS tests (tests/dds_interop.rs, tests/dds_adapt.rs): the
-//! prerequisites check (venv with cyclonedds, a network namespace), process guards, and
-//! running a script inside a fresh network + PID namespace (only `lo`, multicast on).
+//! Helpers shared by the integration tests: the venv's Python for the independent readers, and
+//! for the DDS tests (tests/dds_interop.rs, tests/dds_adapt.rs) the prerequisites check (venv
+//! with cyclonedds, a network namespace), process guards, and running a script inside a fresh
+//! network + PID namespace (only `lo`, multicast on).
 #![allow(dead_code)] // each test binary uses a different subset
 
 use std::ffi::OsStr;
@@ -17,6 +18,24 @@ pub fn bin() -> &'static str {
 
 pub fn manifest_dir() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The project's venv Python (`PYTHON`, else the one scripts/setup.sh makes) with the
+/// independent readers' packages; `None` after a loud skip, a failure under CI.
+pub fn venv_python() -> Option<PathBuf> {
+    let p = std::env::var_os("PYTHON").map(PathBuf::from).unwrap_or_else(|| {
+        let cache = std::env::var_os("XDG_CACHE_HOME")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache"));
+        cache.join("imu-fsda/torch-2.13.0/bin/python")
+    });
+    if p.exists() {
+        Some(p)
+    } else {
+        assert!(std::env::var_os("CI").is_none(), "python venv missing in CI: {}", p.display());
+        eprintln!("SKIPPED: {} not found (run scripts/setup.sh)", p.display());
+        None
+    }
 }
 
 /// Not runnable here: skip loudly, or fail under CI.
