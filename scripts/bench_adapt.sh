@@ -37,6 +37,7 @@ imu_fsda:
     adapted_model_dir: $work/adapted
     adapt_thread_nice: ${NICE:-10}
     adapt:
+      power_on_bias: false   # MH_02 starts in flight: no standstill to measure
       steps: ${STEPS:-100}
       inner_lr: ${LR:-0.001}
 EOF

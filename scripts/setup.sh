@@ -4,7 +4,7 @@
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$here/scripts/env.sh"
-stamp="$IMU_FSDA_VENV/.imu-fsda-ready-v1"
+stamp="$IMU_FSDA_VENV/.imu-fsda-ready-v2"
 if [ ! -f "$stamp" ]; then
   echo "[setup] creating the torch venv at $IMU_FSDA_VENV (first run only, ~2-5 min)"
   mkdir -p "$(dirname "$IMU_FSDA_VENV")"

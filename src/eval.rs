@@ -740,6 +740,10 @@ pub enum BaselineMethod {
     Raw,
     /// The gyro minus its mean over the initial rest (see [`RestDetector`]).
     StaticBias,
+    /// The pipeline's own: the gyro minus this power-on's bias as the node measures it at
+    /// standstills, causally (the initial one and any later), the attitude held at standstills
+    /// ([`crate::standstill`]).
+    PowerOnBias,
 }
 
 impl BaselineMethod {
@@ -747,6 +751,7 @@ impl BaselineMethod {
         match self {
             BaselineMethod::Raw => "raw",
             BaselineMethod::StaticBias => "static-bias",
+            BaselineMethod::PowerOnBias => "power-on-bias",
         }
     }
 
@@ -768,6 +773,12 @@ impl BaselineMethod {
                 let secs = (rec.imu[end - 1].stamp_ns - rec.imu[0].stamp_ns) as f64 * 1e-9;
                 let note = format!("rest {secs:.1} s, bias [{:.5}, {:.5}, {:.5}] rad/s", bias.x, bias.y, bias.z);
                 Ok((raw.map(|g| g - bias).collect(), note))
+            }
+            BaselineMethod::PowerOnBias => {
+                let track = crate::standstill::BiasTrack::over(&rec.imu, &crate::standstill::StandstillConfig::default());
+                let mut gyro = track.remove_from(&raw.collect::<Vec<_>>());
+                track.hold_still_windows(&rec.imu, &mut gyro);
+                Ok((gyro, track.note()))
             }
         }
     }

@@ -20,5 +20,6 @@ pub mod plot;
 pub mod resample;
 pub mod sim;
 pub mod so3;
+pub mod standstill;
 pub mod train;
 pub mod tsne;

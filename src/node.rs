@@ -135,14 +135,24 @@ impl Default for NodeParams {
 impl NodeParams {
     /// Read the `node_name: ros__parameters:` section of a ROS 2 parameter file. `/**` (any
     /// node) is accepted too, as ROS 2 does.
+    /// Reads the node's section of a parameter file. Relative paths in it (`model`,
+    /// `adapted_model_dir`) are taken against the file's own folder, as cargo and docker
+    /// compose do: the node finds them from a launch file or a service unit started anywhere.
     pub fn from_yaml_file(path: &Path, node_name: &str) -> Result<Self, NodeError> {
         let text =
             std::fs::read_to_string(path).map_err(|e| NodeError::Params { path: path.display().to_string(), source: Box::new(e) })?;
-        Self::from_yaml_str(&text, node_name).map_err(|e| match e {
+        let mut params = Self::from_yaml_str(&text, node_name).map_err(|e| match e {
             NodeError::Params { source, .. } => NodeError::Params { path: path.display().to_string(), source },
             NodeError::NoSection { node, found, .. } => NodeError::NoSection { path: path.display().to_string(), node, found },
             other => other,
-        })
+        })?;
+        let folder = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        for value in [&mut params.model, &mut params.adapted_model_dir] {
+            if !value.is_empty() && Path::new(value.as_str()).is_relative() {
+                *value = folder.join(value.as_str()).to_string_lossy().into_owned();
+            }
+        }
+        Ok(params)
     }
 
     pub fn from_yaml_str(text: &str, node_name: &str) -> Result<Self, NodeError> {
@@ -403,6 +413,13 @@ pub struct NodeStats {
     pub rate_off_nominal: bool,
     /// The input is fed to the model in the model's periods ([`crate::resample`]).
     pub resampling: bool,
+    /// Which correction runs on this IMU and why ([`crate::infer::choose`]).
+    pub correction: &'static str,
+    pub correction_reason: &'static str,
+    /// This power-on's gyro bias from the standstills, and whether the platform stands now.
+    pub power_on_bias: Option<crate::standstill::BiasEstimate>,
+    pub standstills: crate::standstill::StandstillCounters,
+    pub standing: bool,
     pub model: String,
     pub window: usize,
     pub model_status: String,
@@ -418,6 +435,37 @@ pub struct NodeStats {
     /// unchanged. The process must then end without running libtorch's exit-time destructors
     /// under that thread (it crashed with SIGSEGV): see `imu-fsda node`.
     pub adaptation_abandoned: bool,
+}
+
+impl NodeStats {
+    /// The pipeline's correction and power-on bias, as /diagnostics says them; logs a change of
+    /// correction (a model swapped in) and the first power-on bias.
+    pub fn take_power_on(&mut self, pipeline: &crate::infer::Pipeline) {
+        let (correction, why) = pipeline.correction();
+        if correction.name() != self.correction {
+            tracing::info!("correction: {} ({why})", correction.name());
+        }
+        let estimate = pipeline.power_on_bias().copied();
+        if let (None, Some(e)) = (&self.power_on_bias, &estimate) {
+            tracing::info!(
+                "power-on gyro bias [{:.5}, {:.5}, {:.5}] rad/s measured at a standstill (σ {:.1e}){}",
+                e.bias.x,
+                e.bias.y,
+                e.bias.z,
+                e.variance.max().sqrt(),
+                if correction.removes_power_on_bias() {
+                    ", removed from the gyro"
+                } else {
+                    ": reported, not removed (the model was trained on this IMU)"
+                }
+            );
+        }
+        self.correction = correction.name();
+        self.correction_reason = why;
+        self.power_on_bias = estimate;
+        self.standstills = *pipeline.standstill_counters();
+        self.standing = pipeline.standing();
+    }
 }
 
 /// No input for this long after the first, s: the status says the input stopped.
@@ -533,6 +581,16 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("window_samples", stats.window.to_string()),
         kv("input_rate_hz", format!("{:.2}", live.input_rate_hz)),
         kv("resampled_to_model_rate", stats.resampling.to_string()),
+        kv("correction", stats.correction.to_string()),
+        kv("correction_reason", stats.correction_reason.to_string()),
+        kv(
+            "power_on_bias_rad_s",
+            stats.power_on_bias.map_or(String::new(), |e| format!("{:.6} {:.6} {:.6}", e.bias.x, e.bias.y, e.bias.z)),
+        ),
+        kv("power_on_bias_stddev_rad_s", stats.power_on_bias.map_or(String::new(), |e| format!("{:.2e}", e.variance.max().sqrt()))),
+        kv("power_on_bias_standstill_s", stats.power_on_bias.map_or(String::new(), |e| format!("{:.1}", e.still_s))),
+        kv("standing", stats.standing.to_string()),
+        kv("standstill_windows", stats.standstills.still_windows.to_string()),
         kv("latency_p50_us", format!("{:.0}", stats.latency.quantile_us(0.5))),
         kv("latency_p99_us", format!("{:.0}", stats.latency.quantile_us(0.99))),
         kv("received", c.received.to_string()),
@@ -929,6 +987,7 @@ async fn process_loop(
                 }
             }
             s.resampling = pipeline.resampling();
+            s.take_power_on(&pipeline);
             if pipeline.rate_off_nominal() && !s.rate_off_nominal && !pipeline.resampling() {
                 tracing::warn!(
                     "input rate off nominal: {:.1} Hz against the {:.1} Hz {}; a model counts samples, so its window now spans another time",
@@ -1270,6 +1329,19 @@ impl Job {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A relative path in a parameter file is the file's folder's, whatever the working folder.
+    #[test]
+    fn relative_paths_are_the_parameter_files_own() {
+        let dir = tempfile::tempdir().unwrap();
+        let sub = dir.path().join("params");
+        std::fs::create_dir_all(&sub).unwrap();
+        let file = sub.join("p.yaml");
+        std::fs::write(&file, "imu_fsda:\n  ros__parameters:\n    model: ../models/m.pt\n    adapted_model_dir: /abs/dir\n").unwrap();
+        let p = NodeParams::from_yaml_file(&file, "imu_fsda").unwrap();
+        assert_eq!(Path::new(&p.model), sub.join("../models/m.pt"));
+        assert_eq!(p.adapted_model_dir, "/abs/dir");
+    }
 
     /// Without a model the input's own gyro covariance is published, where it gives one; a
     /// model's output, or an input that says "unknown", gets the configured variance.

@@ -54,7 +54,7 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
 
     // The good case.
     let out = d.join("adapted/car-adapted.pt");
-    let o = run(&["adapt", "--model", m, "--bag", c, "-o", out.to_str().unwrap(), "--steps", "40", "--json"]);
+    let o = run(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", c, "-o", out.to_str().unwrap(), "--steps", "40", "--json"]);
     let err = stderr(&o);
     assert!(o.status.success(), "{err}");
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
@@ -100,13 +100,13 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
         assert!(e.contains(needle), "{args:?}: expected {needle:?} in: {e}");
         assert!(!bad_out.exists(), "{args:?} wrote a model");
     };
-    expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--support-seconds", "8"], "at least 20 s needed");
-    expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--support-seconds", "400"], "nothing left after");
-    expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--ground-truth-topic", "/nope"], "no ground truth");
-    expect_err(&["adapt", "--model", "/nonexistent.pt", "--bag", c, "-o", bo], "missing");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", c, "-o", bo, "--support-seconds", "8"], "at least 20 s needed");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", c, "-o", bo, "--support-seconds", "400"], "nothing left after");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", c, "-o", bo, "--ground-truth-topic", "/nope"], "no ground truth");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", "/nonexistent.pt", "--bag", c, "-o", bo], "missing");
     // A model that is not better is rejected with the figures (no step: the same model).
     expect_err(
-        &["adapt", "--model", m, "--bag", c, "-o", bo, "--steps", "0", "--embedding-only"],
+        &["adapt", "--keep-power-on-bias", "--model", m, "--bag", c, "-o", bo, "--steps", "0", "--embedding-only"],
         "rejected: the adapted model is not better",
     );
 
@@ -114,7 +114,7 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     let summary = d.join("bad/x.json");
     std::fs::create_dir_all(d.join("bad")).unwrap();
     std::fs::write(&summary, "{\"epochs\": 3}").unwrap();
-    let o = run(&["adapt", "--model", m, "--bag", c, "-o", bo]);
+    let o = run(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", c, "-o", bo]);
     assert!(!o.status.success() && stderr(&o).contains("is not a model's metadata"), "{}", stderr(&o));
     assert_eq!(std::fs::read_to_string(&summary).unwrap(), "{\"epochs\": 3}");
     std::fs::remove_file(&summary).unwrap();
@@ -138,12 +138,15 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
         (d.join("bad/x.mcap"), "<name>.pt (not .mcap)"),
         (d.join("bad/solo.pt"), "says it is an earlier adaptation"),
     ] {
-        let out = run(&["adapt", "--model", m, "--bag", c, "-o", o.to_str().unwrap(), "--steps", "1"]);
+        let out = run(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", c, "-o", o.to_str().unwrap(), "--steps", "1"]);
         assert!(!out.status.success() && stderr(&out).contains(needle), "-o {}: {}", o.display(), stderr(&out));
     }
     assert_eq!(std::fs::read(trained.with_extension("json")).unwrap(), trained_json);
     assert!(!d.join("bad/folder.pt").exists() && !d.join("bad/robot.json").exists());
-    expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--ground-truth-topic", "/imu/data"], "is the IMU topic");
+    expect_err(
+        &["adapt", "--keep-power-on-bias", "--model", m, "--bag", c, "-o", bo, "--ground-truth-topic", "/imu/data"],
+        "is the IMU topic",
+    );
 
     // Settings the inner loop cannot run with: a panic inside tch before.
     let cfg = d.join("adapt.yaml");
@@ -155,7 +158,7 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
         ("max_interpolation_gap_ms: 0\n", "adapt.max_interpolation_gap_ms"),
     ] {
         std::fs::write(&cfg, yaml).unwrap();
-        expect_err(&["adapt", "--model", m, "--bag", c, "-o", bo, "--config", cfg.to_str().unwrap()], needle);
+        expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", c, "-o", bo, "--config", cfg.to_str().unwrap()], needle);
     }
 
     // Ground truth not overlapping the IMU in time.
@@ -165,7 +168,7 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     }
     let b = d.join("shifted.mcap");
     write_recording(&b, &shifted).unwrap();
-    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "does not overlap");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "does not overlap");
     // One pose inside the support's span (between two samples) overlaps it in time but covers no sample.
     let mut one_pose = rec.clone();
     let t30 = one_pose.imu[0].stamp_ns + 30_000_000_000;
@@ -174,7 +177,7 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     one_pose.ground_truth[0].stamp_ns += 1_000_000; // off the IMU's stamps
     let b = d.join("one_pose.mcap");
     write_recording(&b, &one_pose).unwrap();
-    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "1 pose(s)");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "1 pose(s)");
 
     // A support set of 60 s whose ground truth covers 10 s of it: too little.
     let mut holed = rec.clone();
@@ -182,21 +185,21 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     holed.ground_truth.retain(|p| p.stamp_ns < t10 || p.stamp_ns > t60);
     let b = d.join("holed.mcap");
     write_recording(&b, &holed).unwrap();
-    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "support: 9.99");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "support: 9.99");
 
     // Quaternions stored inverted (world in body): named as such, not as another frame.
     let mut inverted = rec.clone();
     inverted.ground_truth.iter_mut().for_each(|p| p.world_from_body = p.world_from_body.inverse());
     let b = d.join("inverted.mcap");
     write_recording(&b, &inverted).unwrap();
-    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "quaternions are inverted");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "quaternions are inverted");
 
     // Ground truth stamped 60 ms late: a clock error, refused before any step.
     let mut late = rec.clone();
     late.ground_truth.iter_mut().for_each(|p| p.stamp_ns += 60_000_000);
     let b = d.join("late.mcap");
     write_recording(&b, &late).unwrap();
-    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "lags the IMU by 60.");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "lags the IMU by 60.");
 
     // Gyro samples no IMU measures (a corrupt driver value) in the support set: named as the
     // data's fault, not the learning rate's.
@@ -204,7 +207,7 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     corrupt.imu.iter_mut().take(10_000).step_by(400).for_each(|s| s.gyro.x = 1e30);
     let b = d.join("corrupt.mcap");
     write_recording(&b, &corrupt).unwrap();
-    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "beyond what any IMU measures");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "beyond what any IMU measures");
 
     // Ground truth of another body frame (rotated 30° about x): detected and reported …
     let rx = UnitQuaternion::from_euler_angles(0.5, 0.0, 0.0);
@@ -214,9 +217,10 @@ fn adapts_on_a_new_domain_and_refuses_bad_input() {
     }
     let b = d.join("rotated.mcap");
     write_recording(&b, &rotated).unwrap();
-    expect_err(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "another frame");
+    expect_err(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo], "another frame");
     // … or re-expressed on request.
-    let o = run(&["adapt", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo, "--frame", "apply", "--steps", "3"]);
+    let o =
+        run(&["adapt", "--keep-power-on-bias", "--model", m, "--bag", b.to_str().unwrap(), "-o", bo, "--frame", "apply", "--steps", "3"]);
     let e = stderr(&o);
     assert!(e.contains("re-expressed"), "{e}");
 }
@@ -237,12 +241,36 @@ fn calibration_head_learns_a_bias_the_embedding_cannot() {
     let model = zero_correction_model(d);
     let (m, b) = (model.to_str().unwrap(), biased.to_str().unwrap());
 
-    let o =
-        run(&["adapt", "--model", m, "--bag", b, "-o", d.join("e.pt").to_str().unwrap(), "--steps", "60", "--embedding-only", "--json"]);
+    let o = run(&[
+        "adapt",
+        "--keep-power-on-bias",
+        "--model",
+        m,
+        "--bag",
+        b,
+        "-o",
+        d.join("e.pt").to_str().unwrap(),
+        "--steps",
+        "60",
+        "--embedding-only",
+        "--json",
+    ]);
     assert!(!o.status.success(), "the Embedding alone changed a zeroed output: {}", stderr(&o));
     assert!(stderr(&o).contains("rejected"), "{}", stderr(&o));
 
-    let o = run(&["adapt", "--model", m, "--bag", b, "-o", d.join("c.pt").to_str().unwrap(), "--steps", "60", "--json"]);
+    let o = run(&[
+        "adapt",
+        "--keep-power-on-bias",
+        "--model",
+        m,
+        "--bag",
+        b,
+        "-o",
+        d.join("c.pt").to_str().unwrap(),
+        "--steps",
+        "60",
+        "--json",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let before = report["query_before"]["aoe_deg"].as_f64().unwrap();
@@ -308,6 +336,7 @@ fn a_faster_imu_adapts_in_the_models_periods() {
     let o = run(&[
         "-v",
         "adapt",
+        "--keep-power-on-bias",
         "--model",
         model.to_str().unwrap(),
         "--bag",
@@ -359,6 +388,7 @@ fn a_consumer_gyro_bias_is_neither_another_frame_nor_a_lag() {
         let out = d.join(format!("{profile}-adapted.pt"));
         let o = run(&[
             "adapt",
+            "--keep-power-on-bias",
             "--model",
             model.to_str().unwrap(),
             "--bag",
@@ -382,6 +412,7 @@ fn a_consumer_gyro_bias_is_neither_another_frame_nor_a_lag() {
         write_recording(&b, &rotated).unwrap();
         let o = run(&[
             "adapt",
+            "--keep-power-on-bias",
             "--model",
             model.to_str().unwrap(),
             "--bag",
@@ -395,5 +426,76 @@ fn a_consumer_gyro_bias_is_neither_another_frame_nor_a_lag() {
         let angle: f64 =
             e.split("a constant rotation of ").nth(1).and_then(|r| r.split('°').next()).and_then(|v| v.parse().ok()).unwrap_or(f64::NAN);
         assert!((angle - 20.05).abs() < 1.0, "{profile}: the 20° rotation read as {angle}°: {e}");
+    }
+}
+
+/// The power-on rule: the support's standstill bias is removed before adapting, the model is
+/// marked so the node removes each power-on's, a support without a standstill is refused, and
+/// `--judge` scores other power-ons beside the power-on bias the node runs without the model.
+#[test]
+fn adaptation_removes_the_power_on_bias_and_is_judged_on_other_power_ons() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let sim = |k: &str, rest: &str| {
+        let bag = d.join(format!("car{k}.mcap"));
+        let o = run(&[
+            "simulate",
+            "--profile",
+            "car",
+            "--grade",
+            "mpu-9250",
+            "--datasheet-errors",
+            "--seconds",
+            "90",
+            "--power-on",
+            k,
+            "--rest-s",
+            rest,
+            "--output",
+            bag.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        bag
+    };
+    let (first, second, moving) = (sim("1", "3"), sim("2", "2"), sim("3", "0"));
+    let (rec, _) = read_recording(&first, &RecordingTopics::default()).unwrap();
+    let model = random_model(d, &rec);
+    let m = model.to_str().unwrap();
+    // No standstill in the support: refused, with the way out said.
+    let o = run(&["adapt", "--model", m, "--bag", moving.to_str().unwrap(), "-o", d.join("x.pt").to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("no standstill in the support set"), "{}", stderr(&o));
+    assert!(!d.join("x.pt").exists());
+    // With one: the bias is measured and removed, and the other power-on is judged.
+    let out = d.join("a.pt");
+    let o = run(&[
+        "adapt",
+        "--model",
+        m,
+        "--bag",
+        first.to_str().unwrap(),
+        "--judge",
+        second.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--steps",
+        "40",
+        "--json",
+    ]);
+    let e = stderr(&o);
+    assert!(e.contains("support power-on bias ["), "{e}");
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
+    assert!(report["query_power_on_bias"]["aoe_deg"].as_f64().is_some(), "{report}");
+    match report["judged"].as_array().and_then(|j| j.first()) {
+        // Judged (it passed the query rule): written exactly when it beats the power-on bias
+        // on the other power-on.
+        Some(j) => {
+            let (after, pob) = (j["after"]["aoe_deg"].as_f64().unwrap(), j["power_on_bias"]["aoe_deg"].as_f64().unwrap());
+            assert_eq!(out.exists(), after < pob, "after {after} against power-on bias {pob}\n{e}");
+        }
+        // Refused on the query set: nothing written, and said.
+        None => assert!(!out.exists() && e.contains("rejected"), "{e}"),
+    }
+    if out.exists() {
+        assert!(load_metadata(&out.with_extension("json")).unwrap().power_on_bias_removed);
     }
 }

@@ -61,7 +61,7 @@ fn write_params_with(dir: &Path, adapted_dir: &Path, file: &str, steps: usize, m
     let p = dir.join(file);
     let yaml = format!(
         "{NODE_NAME}:\n  ros__parameters:\n    ground_truth_topic: /ground_truth/pose\n    ground_truth_type: geometry_msgs/msg/PoseStamped\n    \
-         adapt_buffer_seconds: 120.0\n    adapt_support_seconds: 60.0\n    adapted_model_dir: {}\n    adapt:\n      steps: {steps}\n      inner_lr: 0.001\n      max_seconds: {max_seconds:?}\n",
+         adapt_buffer_seconds: 120.0\n    adapt_support_seconds: 60.0\n    adapted_model_dir: {}\n    adapt:\n      power_on_bias: false\n      steps: {steps}\n      inner_lr: 0.001\n      max_seconds: {max_seconds:?}\n",
         adapted_dir.display()
     );
     std::fs::write(&p, yaml).unwrap();

@@ -75,7 +75,7 @@ fn replay_equals_offline_full_sequence_evaluation() {
         };
         let out_bag = dir.path().join(format!("replayed-{mode:?}-{seed}.mcap"));
         let out = Command::new(bin())
-            .args(["-v", "replay", "--imu", imu.unwrap_or(""), "--model"])
+            .args(["-v", "replay", "--model-on-new-imu", "--imu", imu.unwrap_or(""), "--model"])
             .arg(&model)
             .arg(&bag)
             .arg("-o")
@@ -789,7 +789,14 @@ fn a_faster_imu_runs_the_model_in_its_periods_online_as_offline() {
     imu_fsda::bag::write_recording(&fast_bag, &fast).unwrap();
     let model = export_random_model(dir.path(), Mode::FsdaF, 13, false);
     let out_bag = dir.path().join("replayed_1khz.mcap");
-    let out = Command::new(bin()).args(["-v", "replay", "--model"]).arg(&model).arg(&fast_bag).arg("-o").arg(&out_bag).output().unwrap();
+    let out = Command::new(bin())
+        .args(["-v", "replay", "--model-on-new-imu", "--model"])
+        .arg(&model)
+        .arg(&fast_bag)
+        .arg("-o")
+        .arg(&out_bag)
+        .output()
+        .unwrap();
     let log = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{log}");
     assert!(log.contains("fed to the 200.0 Hz model in its periods"), "{log}");

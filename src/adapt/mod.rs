@@ -10,6 +10,7 @@
 //! between-two-samples model swap). See docs/adaptation.md.
 
 pub mod frame;
+pub mod judge;
 pub mod swap;
 
 use std::collections::BTreeMap;
@@ -31,6 +32,7 @@ use crate::train::data::{self, DataError, Task};
 use crate::train::fit::{embedding_and_extra_grads, embedding_inner_step, evaluate_net, evaluate_net_with_gain, evaluate_raw};
 
 pub use frame::{check_frame, FrameCheck};
+pub use judge::{judge, Judged};
 
 /// What to do when the ground truth's body frame differs from the IMU's by a constant rotation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
@@ -93,6 +95,14 @@ pub struct AdaptConfig {
     /// input that maps to another IMU's bias, and a new IMU is first of all a new bias and
     /// scale (docs/adaptation.md measures both: θ_e only was rejected on 6 of 8 unseen domains).
     pub calibration: bool,
+    /// Remove the support's power-on gyro bias (measured at its standstills, as the node
+    /// measures it) before adapting, and mark the model so the node removes each later
+    /// power-on's: what is learned is the IMU's lasting errors, not this power-on's constant.
+    /// A support without a standstill is refused. `false` writes the support's constant into
+    /// the weights: the model is then for that power-on only (docs/poweron.md).
+    pub power_on_bias: bool,
+    /// How a standstill is recognised (the node's `pipeline.standstill`).
+    pub standstill: crate::standstill::StandstillConfig,
 }
 
 impl Default for AdaptConfig {
@@ -113,6 +123,8 @@ impl Default for AdaptConfig {
             seed: 0,
             max_seconds: 25.0,
             calibration: true,
+            power_on_bias: true,
+            standstill: crate::standstill::StandstillConfig::default(),
         }
     }
 }
@@ -181,6 +193,12 @@ pub enum AdaptError {
     Eval(#[from] crate::eval::EvalError),
     #[error(transparent)]
     Model(#[from] ModelError),
+    #[error(
+        "{0}: no standstill in the support set ({1}): its power-on gyro bias cannot be told from the IMU's lasting errors, \
+         and adapting would write it into the model; record a few seconds at rest first, or adapt without the power-on \
+         rule (power_on_bias: false: the model is then for this power-on only)"
+    )]
+    NoStandstill(String, String),
     #[error("{0}")]
     Other(String),
 }
@@ -226,6 +244,15 @@ pub struct AdaptReport {
     pub total_seconds: f64,
     pub frame: Option<FrameCheck>,
     pub frame_applied: bool,
+    /// The support's power-on bias, removed before adapting (with `power_on_bias`).
+    #[serde(default)]
+    pub support_power_on_bias: Option<crate::standstill::BiasEstimate>,
+    /// Query AOE of the raw gyro minus its power-on bias: what the node runs on a new IMU.
+    #[serde(default)]
+    pub query_power_on_bias: Option<OrientationErrors>,
+    /// Other recordings of the IMU it was judged on (`adapt --judge`).
+    #[serde(default)]
+    pub judged: Vec<Judged>,
     pub config: AdaptConfig,
 }
 
@@ -404,6 +431,10 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
             rec.imu = crate::resample::to_model_rate(&rec.imu, meta.rate_hz).0;
         }
     }
+    // This power-on's bias out of both sets, as the node removes it (causal over the recording).
+    let query_as_recorded = cfg.power_on_bias.then(|| query.clone());
+    let support_power_on_bias =
+        if cfg.power_on_bias { Some(remove_power_on_bias(&mut support, &mut query, &cfg.standstill)?) } else { None };
     let s_task0 = to_task(&support, "support", cfg)?;
     // Seconds with ground truth, not the span: gaps in it are not data to adapt on.
     require_covered(&s_task0, "support", cfg.min_support_seconds)?;
@@ -444,7 +475,17 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     let s_task = if frame_applied { to_task(&support, "support", cfg)? } else { s_task0 };
     let q_task = if frame_applied { to_task(&query, "query", cfg)? } else { q_task0 };
     let eopts = EvalOptions { max_gap_ns: (cfg.max_interpolation_gap_ms * 1e6) as i64 };
-    let query_raw = evaluate_raw(&q_task, &eopts)?;
+    // The query as recorded (its bias added back), and as the node runs a new IMU (without it).
+    let query_power_on_bias = if cfg.power_on_bias { Some(evaluate_raw(&q_task, &eopts)?) } else { None };
+    let query_raw = match query_as_recorded {
+        Some(mut rec) => {
+            if let (true, Some(f)) = (frame_applied, &frame) {
+                apply_frame(&mut rec, &f.rotation());
+            }
+            evaluate_raw(&to_task(&rec, "query", cfg)?, &eopts)?
+        }
+        None => evaluate_raw(&q_task, &eopts)?,
+    };
     let start_correction_gain = loaded.correction_gain();
     let query_before = evaluate_net_with_gain(&loaded.net, &q_task, &eopts, start_correction_gain)?;
 
@@ -507,13 +548,20 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     }
     vs.unfreeze();
     let query_after = evaluate_net(&net, &q_task, &eopts)?;
-    let accepted = query_after.aoe_deg < query_before.aoe_deg;
+    // Better than the starting model, and than what the node runs without it on a new IMU.
+    let floor = query_power_on_bias.as_ref().map_or(f64::INFINITY, |e| e.aoe_deg);
+    let accepted = query_after.aoe_deg < query_before.aoe_deg && query_after.aoe_deg < floor;
     let verdict = if accepted {
         String::new()
-    } else {
+    } else if query_after.aoe_deg >= query_before.aoe_deg {
         format!(
             "rejected: the adapted model is not better on the query data (AOE {:.3}° → {:.3}°); the previous model is kept",
             query_before.aoe_deg, query_after.aoe_deg
+        )
+    } else {
+        format!(
+            "rejected: the adapted model ({:.3}°) is not better on the query data than the gyro minus its power-on bias ({floor:.3}°), what the node runs on a new IMU; the previous model is kept",
+            query_after.aoe_deg
         )
     };
     let report = AdaptReport {
@@ -538,11 +586,15 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
         total_seconds: t_all.elapsed().as_secs_f64(),
         frame,
         frame_applied,
+        support_power_on_bias,
+        query_power_on_bias,
+        judged: Vec::new(),
         config: cfg.clone(),
     };
     let adapted = accepted.then(|| {
         // Its own weights, all of its correction: the starting model's gains do not apply.
-        let metadata = ModelMetadata { imu_correction_gains: BTreeMap::new(), ..loaded.metadata.clone() };
+        let metadata =
+            ModelMetadata { imu_correction_gains: BTreeMap::new(), power_on_bias_removed: cfg.power_on_bias, ..loaded.metadata.clone() };
         LoadedNet::new(vs, net, metadata)
     });
     Ok(AdaptOutcome { report, adapted })
@@ -578,11 +630,36 @@ pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name:
             metrics,
             code_revision: None,
             adapted_from: Some(report.model.clone()),
+            power_on_bias_removed: report.support_power_on_bias.is_some(),
             side_files: vec![("adapt.json".into(), json + "\n")],
             ..Default::default()
         },
     )?;
     Ok(paths)
+}
+
+/// Removes the power-on bias in force at each sample (the node's [`crate::standstill`] rule,
+/// run over support then query as one stream) from both sets; the support's estimate, or
+/// [`AdaptError::NoStandstill`] when the support has none.
+pub fn remove_power_on_bias(
+    support: &mut Recording,
+    query: &mut Recording,
+    cfg: &crate::standstill::StandstillConfig,
+) -> Result<crate::standstill::BiasEstimate, AdaptError> {
+    let whole: Vec<_> = support.imu.iter().chain(&query.imu).copied().collect();
+    let track = crate::standstill::BiasTrack::over(&whole, cfg);
+    let n = support.imu.len();
+    let at_support_end = track.bias.get(n.saturating_sub(1)).copied().unwrap_or_default();
+    if n == 0 || at_support_end == nalgebra::Vector3::zeros() {
+        let mut none = crate::standstill::BiasTrack::over(&support.imu, cfg);
+        none.last = None;
+        return Err(AdaptError::NoStandstill(support.name.clone(), none.note()));
+    }
+    let estimate = crate::standstill::BiasTrack::over(&support.imu, cfg).last.expect("a standstill in the support");
+    for (s, b) in support.imu.iter_mut().chain(query.imu.iter_mut()).zip(&track.bias) {
+        s.gyro -= b;
+    }
+    Ok(estimate)
 }
 
 /// Splits a recording at `support_seconds` after its first ground-truth-covered IMU sample:

@@ -181,6 +181,9 @@ impl GyroCorrector for SwappableCorrector {
     fn name(&self) -> &str {
         &self.name
     }
+    fn domain(&self) -> crate::infer::ModelDomain {
+        self.inner.domain()
+    }
 }
 
 /// Feeds `corrector` the tail of `history` it needs to reach the running model's state:
@@ -253,14 +256,19 @@ impl Buffers {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::infer::{ModelCorrector, Pipeline, PipelineConfig};
+    use crate::infer::{ModelCorrector, ModelDomain, Pipeline, PipelineConfig};
     use crate::model::{Config, Mode, Net, StreamingDenoiser};
 
     fn model(seed: i64) -> ModelCorrector {
         tch::manual_seed(seed);
         let vs = tch::nn::VarStore::new(tch::Device::Cpu);
         let net = Net::new(&Config::for_mode(Mode::FsdaF), &vs.root()).unwrap();
-        ModelCorrector { denoiser: StreamingDenoiser::from_net(&net).unwrap(), name: format!("m{seed}"), rate_hz: 200.0 }
+        ModelCorrector {
+            denoiser: StreamingDenoiser::from_net(&net).unwrap(),
+            name: format!("m{seed}"),
+            rate_hz: 200.0,
+            domain: ModelDomain::Trained,
+        }
     }
 
     fn stream(n: usize) -> Vec<ImuSample> {
@@ -308,7 +316,12 @@ mod tests {
         // Built once and cloned: tch's global RNG is shared with tests running in parallel,
         // so two seeded constructions are not guaranteed to give the same weights.
         let (old, new) = (model(1), model(2));
-        let copy = |m: &ModelCorrector| ModelCorrector { denoiser: m.denoiser.clone(), name: m.name.clone(), rate_hz: m.rate_hz };
+        let copy = |m: &ModelCorrector| ModelCorrector {
+            denoiser: m.denoiser.clone(),
+            name: m.name.clone(),
+            rate_hz: m.rate_hz,
+            domain: m.domain,
+        };
         let mut reference = Pipeline::new(Box::new(copy(&new)), cfg.clone());
         let want: Vec<_> = imu.iter().map(|s| reference.push(s).unwrap()).collect();
         for (offer_at, late) in [(1200usize, 7usize), (1520, 3), (1500, 0), (1497, 3), (2600, 0), (900, 600)] {
@@ -354,7 +367,12 @@ mod tests {
             stream(3000).iter().flat_map(|s| (0..5).map(move |j| ImuSample { stamp_ns: s.stamp_ns + j * 1_000_000, ..*s })).collect();
         let cfg = PipelineConfig::default();
         let (old, new) = (model(1), model(2));
-        let copy = |m: &ModelCorrector| ModelCorrector { denoiser: m.denoiser.clone(), name: m.name.clone(), rate_hz: m.rate_hz };
+        let copy = |m: &ModelCorrector| ModelCorrector {
+            denoiser: m.denoiser.clone(),
+            name: m.name.clone(),
+            rate_hz: m.rate_hz,
+            domain: m.domain,
+        };
         let mut reference = Pipeline::new(Box::new(copy(&new)), cfg.clone());
         let want: Vec<_> = imu.iter().map(|s| reference.push(s).unwrap()).collect();
         for offer_at in [6000usize, 7400, 9000] {

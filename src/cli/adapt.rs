@@ -55,6 +55,16 @@ pub struct AdaptArgs {
     /// adapted Ĉ_ω and applies its whole correction whatever IMU it is later run with.
     #[arg(long)]
     pub imu: Option<String>,
+    /// Other recordings of this IMU (bags with ground truth: another power-on) to judge the
+    /// adapted model on, beside raw, the gyro minus its power-on bias and the starting model;
+    /// repeatable. With any, the model is written only if its mean AOE over them is below what
+    /// the node runs without it (the power-on bias on a new IMU).
+    #[arg(long = "judge", value_name = "BAG")]
+    pub judges: Vec<PathBuf>,
+    /// Adapt on the gyro as recorded, its power-on bias inside: the model is then for this
+    /// power-on only (it carries its turn-on constant; docs/poweron.md).
+    #[arg(long)]
+    pub keep_power_on_bias: bool,
     /// Adaptation settings as YAML (AdaptConfig); flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -148,11 +158,16 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     if args.embedding_only {
         cfg.calibration = false;
     }
+    if args.keep_power_on_bias {
+        cfg.power_on_bias = false;
+    }
     // Before the model and the bag are read.
     cfg.validate().map_err(|e| anyhow::anyhow!("{e}{}", args.config.as_ref().map_or(String::new(), |p| format!(" ({})", p.display()))))?;
     let (dir, name) = output_name(&args.output)?;
     let meta = metadata_path(&args.model);
-    let inputs = [args.model.as_path(), &meta, &args.model.with_extension("ot"), &args.bag];
+    let weights = args.model.with_extension("ot");
+    let mut inputs = vec![args.model.as_path(), &meta, &weights, &args.bag];
+    inputs.extend(args.judges.iter().map(PathBuf::as_path));
     for ext in ["pt", "ot", "json", "adapt.json"] {
         super::refuse_overwriting_input(&dir.join(format!("{name}.{ext}")), &inputs)?;
     }
@@ -198,10 +213,11 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     );
     // Ctrl-C: the adaptation runs to its end (seconds), then nothing is written.
     super::interrupts::catch();
-    let outcome = adapt(&loaded, &support, &query, &cfg)?;
+    let mut outcome = adapt(&loaded, &support, &query, &cfg)?;
     if super::interrupts::requested() {
         return Err(super::interrupts::Interrupted("nothing written".into()).into());
     }
+    judge_on_other_recordings(&args, &topics, &loaded, &mut outcome, &cfg)?;
     let r = &outcome.report;
     if args.json {
         out!("{}", serde_json::to_string_pretty(r)?)?;
@@ -217,6 +233,29 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
             f.angle_deg,
             f.increments,
             if r.frame_applied { ", ground truth re-expressed in the IMU frame" } else { "" }
+        );
+    }
+    if let Some(b) = &r.support_power_on_bias {
+        eprintln!(
+            "support power-on bias [{:.5}, {:.5}, {:.5}] rad/s (σ {:.1e}, {:.1} s of standstill): removed before adapting; the node removes each power-on's before this model",
+            b.bias.x,
+            b.bias.y,
+            b.bias.z,
+            b.variance.max().sqrt(),
+            b.still_s
+        );
+    }
+    if let Some(p) = &r.query_power_on_bias {
+        eprintln!("query: AOE of the gyro minus its power-on bias (what the node runs on a new IMU) {:.3}°", p.aoe_deg);
+    }
+    for j in &r.judged {
+        eprintln!(
+            "judged on {}: AOE raw {:.3}°, power-on bias {}, starting model {:.3}°, adapted {:.3}°",
+            j.recording,
+            j.raw.aoe_deg,
+            j.power_on_bias.as_ref().map_or("– (no standstill)".to_string(), |e| format!("{:.3}°", e.aoe_deg)),
+            j.before.aoe_deg,
+            j.after.aoe_deg
         );
     }
     eprintln!(
@@ -243,5 +282,40 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     };
     let paths = save_adapted(&adapted, r, &dir, &name)?;
     eprintln!("accepted: wrote {} (+ .ot, .json, .adapt.json)", paths.torchscript.display());
+    Ok(())
+}
+
+/// `--judge`: scores the adapted model on each other recording, and rejects it (nothing
+/// written) when its mean AOE there is not below what the node runs without it.
+fn judge_on_other_recordings(
+    args: &AdaptArgs,
+    topics: &RecordingTopics,
+    start: &imu_fsda::model::export::LoadedNet,
+    outcome: &mut imu_fsda::adapt::AdaptOutcome,
+    cfg: &AdaptConfig,
+) -> anyhow::Result<()> {
+    let Some(adapted) = &outcome.adapted else {
+        return Ok(());
+    };
+    if args.judges.is_empty() {
+        return Ok(());
+    }
+    let mut judged = Vec::new();
+    for bag in &args.judges {
+        let (rec, _) = read_recording(bag, topics).with_context(|| format!("reading --judge {}", bag.display()))?;
+        judged.push(imu_fsda::adapt::judge(start, adapted, &rec, cfg).with_context(|| format!("judging on {}", bag.display()))?);
+    }
+    let n = judged.len() as f64;
+    let after = judged.iter().map(|j| j.after.aoe_deg).sum::<f64>() / n;
+    let without = judged.iter().map(|j| j.without_adaptation_deg()).sum::<f64>() / n;
+    let r = &mut outcome.report;
+    r.judged = judged;
+    if after >= without {
+        r.accepted = false;
+        r.verdict = format!(
+            "rejected on the other recordings: mean AOE {after:.3}° adapted against {without:.3}° without adapting (the power-on bias where the recording has a standstill); the adaptation does not carry over to another power-on"
+        );
+        outcome.adapted = None;
+    }
     Ok(())
 }

@@ -6,8 +6,10 @@ use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
 use imu_fsda::core::{ImuSample, Recording};
 use imu_fsda::eval::{evaluate_with_path, mean_rate_error, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector};
+use imu_fsda::infer::{choose, ModelDomain};
 use imu_fsda::model::export::load_metadata;
 use imu_fsda::model::predict::{correct_with_torchscript_at_model_rate, metadata_path};
+use imu_fsda::standstill::{BiasTrack, StandstillConfig};
 use nalgebra::Vector3;
 
 #[derive(Debug, clap::Args)]
@@ -56,6 +58,11 @@ pub struct EvalArgs {
     /// recording gives — not a method; least squares on the rate, not the AOE-optimal constant.
     #[arg(long)]
     pub oracle_bias: bool,
+    /// Score a model on an IMU it was neither trained nor adapted on as the node would run it
+    /// with `model_on_new_imu: true`; without it such a model's row is followed by `<model> as
+    /// deployed`: the power-on bias the node runs there instead.
+    #[arg(long)]
+    pub model_on_new_imu: bool,
     /// Also write the table as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -235,9 +242,20 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             let imu = imu_for_bag(&args.imus, bag);
             for (model_index, (model, &per_imu)) in args.models.iter().zip(&per_imu).enumerate() {
                 let imu = imu.filter(|_| per_imu);
-                let run = correct_with_torchscript_at_model_rate(model, &source.imu, imu)
-                    .with_context(|| format!("model {}", model.display()))?;
-                let (gyro, meta) = (run.corrected[span.clone()].to_vec(), run.metadata);
+                // The node's decision for this model on this IMU ([`imu_fsda::infer::choose`]).
+                let (correction, why) = choose(ModelDomain::of(&metas[model_index], imu), true, args.model_on_new_imu);
+                let track = correction.removes_power_on_bias().then(|| BiasTrack::over(&source.imu, &StandstillConfig::default()));
+                let input = match (&track, correction.runs_model()) {
+                    (Some(t), true) => debiased(&source.imu, t),
+                    _ => source.imu.clone(),
+                };
+                let run =
+                    correct_with_torchscript_at_model_rate(model, &input, imu).with_context(|| format!("model {}", model.display()))?;
+                let mut corrected = run.corrected;
+                if let (Some(t), true) = (&track, correction.runs_model()) {
+                    t.hold_still_windows(&source.imu, &mut corrected);
+                }
+                let (gyro, meta) = (corrected[span.clone()].to_vec(), run.metadata);
                 let calib = imu.map_or(String::new(), |n| match meta.imu_correction_gains.get(n).filter(|_| meta.adapted_from.is_none()) {
                     Some(g) => format!(", as on IMU {n} (correction gain {g:.3})"),
                     None => format!(", Ĉ_ω of {n}"),
@@ -253,6 +271,25 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                     let why = format!("the model's output is not finite at {non_finite} of {} samples: not scored", gyro.len());
                     tracing::error!("{name}: {}: {why}", model.display());
                     streams.push((label, Err(why)));
+                    continue;
+                }
+                if correction.removes_power_on_bias() && correction.runs_model() {
+                    add_note(&mut note, &format!("{why}: {}", track.as_ref().map(BiasTrack::note).unwrap_or_default()));
+                }
+                if !correction.runs_model() {
+                    // The model alone is scored (what it does here), and beside it what the node
+                    // runs on this IMU instead.
+                    add_note(&mut note, &format!("the model alone; as deployed the node runs {}", correction.name()));
+                    let deployed = match &track {
+                        Some(t) => {
+                            let mut g = t.remove_from(&source.imu.iter().map(|s| s.gyro).collect::<Vec<_>>());
+                            t.hold_still_windows(&source.imu, &mut g);
+                            (g[span.clone()].to_vec(), format!("{why}: {}", t.note()))
+                        }
+                        None => (source.imu[span.clone()].iter().map(|s| s.gyro).collect(), why.to_string()),
+                    };
+                    streams.push((label.clone(), Ok((gyro, note))));
+                    streams.push((format!("{label} as deployed"), Ok(deployed)));
                     continue;
                 }
                 streams.push((label, Ok((gyro, note))));
@@ -473,6 +510,12 @@ fn model_labels(models: &[std::path::PathBuf], metas: &[imu_fsda::model::export:
 fn scored_span(whole: &Recording, span: &Recording) -> std::ops::Range<usize> {
     let start = span.imu.first().map_or(0, |s| whole.imu.partition_point(|w| w.stamp_ns < s.stamp_ns));
     start..start + span.imu.len()
+}
+
+/// The IMU samples with the bias in force at each removed, as the node feeds a model adapted
+/// after its support's power-on bias was removed.
+fn debiased(imu: &[ImuSample], track: &BiasTrack) -> Vec<ImuSample> {
+    imu.iter().zip(&track.bias).map(|(s, b)| ImuSample { gyro: s.gyro - b, ..*s }).collect()
 }
 
 #[cfg(test)]

@@ -48,6 +48,10 @@ pub struct NodeConfigArgs {
     /// them), overriding the parameter `imu_calibration` ("" = a new IMU: the whole correction).
     #[arg(long)]
     pub imu: Option<String>,
+    /// Run the model even on an IMU it was neither trained nor adapted on (the parameter
+    /// `pipeline.model_on_new_imu`); by default the node runs the power-on bias there.
+    #[arg(long)]
+    pub model_on_new_imu: bool,
 }
 
 impl NodeConfigArgs {
@@ -69,6 +73,7 @@ impl NodeConfigArgs {
         if let Some(m) = &self.model {
             params.model.clone_from(m);
         }
+        params.pipeline.model_on_new_imu |= self.model_on_new_imu;
         Ok(params)
     }
 }

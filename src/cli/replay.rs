@@ -45,6 +45,7 @@ fn status_at(
     stats.decode_errors = decode_errors;
     stats.rate_off_nominal = pipeline.rate_off_nominal();
     stats.resampling = pipeline.resampling();
+    stats.take_power_on(pipeline);
     stats.frame_id = frame.clone().unwrap_or_default();
     let live = clock.tick(stats, now_ns as i64);
     (diagnostics_message(stats, &live, node_name, Time::from_ns(now_ns as i64)), live)

@@ -29,6 +29,13 @@ pub struct SimulateArgs {
     /// Master seed: the same seed gives the same bag, byte for byte (default: the config's, else 0).
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Which power-on of this IMU: the same lasting terms, a new turn-on bias, noise and
+    /// motion for each N > 0 (default: the config's, else 0).
+    #[arg(long)]
+    pub power_on: Option<u64>,
+    /// Seconds at rest before the motion starts (default: the config's, else 0).
+    #[arg(long)]
+    pub rest_s: Option<f64>,
     /// Simulation config (YAML, see params/sim/); flags override its fields.
     #[arg(long, value_name = "FILE.yaml")]
     pub config: Option<PathBuf>,
@@ -66,6 +73,12 @@ fn config(args: &SimulateArgs) -> anyhow::Result<SimConfig> {
     }
     if let Some(s) = args.seed {
         cfg.seed = s;
+    }
+    if let Some(k) = args.power_on {
+        cfg.power_on = k;
+    }
+    if let Some(r) = args.rest_s {
+        cfg.rest_s = r;
     }
     cfg.datasheet_errors |= args.datasheet_errors;
     for (i, text) in args.terms.iter().enumerate() {

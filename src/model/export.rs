@@ -80,6 +80,10 @@ pub struct ModelMetadata {
     /// (adapted): selecting an IMU leaves it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub adapted_from: Option<String>,
+    /// Set on a model adapted after its support's power-on gyro bias (measured at standstills,
+    /// [`crate::standstill`]) was removed: the node removes this power-on's before it.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub power_on_bias_removed: bool,
     /// Sequences / bags the model was trained on (filled by the trainer).
     pub training_data: Vec<String>,
     /// Evaluation figures (filled by the trainer), e.g. `"MH_04_difficult/aoe_deg"`. A figure
@@ -165,6 +169,8 @@ pub struct ExportInfo {
     pub adapted_from: Option<String>,
     /// [`ModelMetadata::imu_correction_gains`].
     pub imu_correction_gains: BTreeMap<String, f64>,
+    /// [`ModelMetadata::power_on_bias_removed`].
+    pub power_on_bias_removed: bool,
     /// Text files written with the model as one set (`<name>.<suffix>`, contents), e.g. an
     /// adaptation report: all of them or none replace what was there.
     pub side_files: Vec<(String, String)>,
@@ -266,6 +272,7 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         torchscript_gyro_calibration: per_imu.then(|| super::net::matrix3(&net.gyro_calibration())),
         imu_correction_gains: info.imu_correction_gains.clone(),
         adapted_from: info.adapted_from.clone(),
+        power_on_bias_removed: info.power_on_bias_removed,
         training_data: info.training_data.clone(),
         metrics: info.metrics.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), *v)).collect(),
         code_revision: info.code_revision.clone().or_else(code_revision),

@@ -58,6 +58,8 @@ pub enum SimError {
     BadLength { samples: f64, max: usize },
     #[error("temperature model: {0}")]
     BadTemperature(String),
+    #[error("rest_s must be finite, ≥ 0 and shorter than the {seconds} s simulated, got {rest_s}")]
+    BadRest { rest_s: f64, seconds: f64 },
     #[error(
         "start_time_ns {start} with {seconds} s of samples does not fit a ROS 2 stamp (0 to {} s, a signed 32-bit count of seconds)",
         i32::MAX
@@ -153,6 +155,22 @@ pub struct SimConfig {
     /// Extra error terms (the `physics` vocabulary), applied in physical order with the noise.
     #[serde(default)]
     pub terms: Vec<Term>,
+    /// Which power-on of this IMU: the same lasting terms (`terms`, the grade), a new turn-on
+    /// bias, noise and motion drawn for each; 0 is the configuration's own draw.
+    #[serde(default, skip_serializing_if = "is_zero_u64")]
+    pub power_on: u64,
+    /// Seconds at rest before the motion starts (the attitude of its first instant, no rate,
+    /// no acceleration), as a robot stands after power-on.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub rest_s: f64,
+}
+
+fn is_zero_u64(v: &u64) -> bool {
+    *v == 0
+}
+
+fn is_zero_f64(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Default for SimConfig {
@@ -168,6 +186,8 @@ impl Default for SimConfig {
             datasheet_errors: false,
             temperature: None,
             terms: Vec::new(),
+            power_on: 0,
+            rest_s: 0.0,
         }
     }
 }
@@ -209,6 +229,9 @@ impl SimConfig {
     /// Check everything that can be checked before simulating.
     pub fn validate(&self) -> Result<(), SimError> {
         self.samples()?;
+        if !(self.rest_s.is_finite() && self.rest_s >= 0.0 && self.rest_s < self.seconds) {
+            return Err(SimError::BadRest { rest_s: self.rest_s, seconds: self.seconds });
+        }
         // The last stamp too must be a ROS 2 time (builtin_interfaces/Time: i32 seconds).
         let last_ns = self.start_time_ns as f64 + self.seconds * 1e9;
         if self.start_time_ns < 0 || last_ns >= i32::MAX as f64 * 1e9 {
@@ -269,9 +292,25 @@ pub fn stamps(start_ns: i64, rate_hz: f64, n: usize) -> Vec<i64> {
 
 /// The clean signals of `trajectory` at `stamps` (t = 0 at the first), nominal gravity.
 pub fn ideal_signals(trajectory: &Trajectory, stamps_ns: &[i64], temperature: impl Fn(f64) -> f64) -> ImuSignals {
+    ideal_signals_after_rest(trajectory, stamps_ns, 0.0, temperature)
+}
+
+/// The body at rest for `rest_s` in the trajectory's first attitude, then the trajectory from
+/// its start (the motion starts at once, as a robot that sets off).
+pub fn state_after_rest(trajectory: &Trajectory, t: f64, rest_s: f64) -> KinematicState {
+    if t < rest_s {
+        let first = trajectory.state(0.0);
+        KinematicState { world_from_body: first.world_from_body, ..KinematicState::at_rest() }
+    } else {
+        trajectory.state(t - rest_s)
+    }
+}
+
+/// [`ideal_signals`] after `rest_s` s at rest ([`state_after_rest`]).
+pub fn ideal_signals_after_rest(trajectory: &Trajectory, stamps_ns: &[i64], rest_s: f64, temperature: impl Fn(f64) -> f64) -> ImuSignals {
     let t0 = stamps_ns.first().copied().unwrap_or(0);
     let times: Vec<f64> = stamps_ns.iter().map(|s| (s - t0) as f64 * 1e-9).collect();
-    let states: Vec<KinematicState> = times.iter().map(|&t| trajectory.state(t)).collect();
+    let states: Vec<KinematicState> = times.iter().map(|&t| state_after_rest(trajectory, t, rest_s)).collect();
     ImuSignals {
         stamps_ns: stamps_ns.to_vec(),
         world_from_imu: states.iter().map(|s| s.world_from_body).collect(),
@@ -286,16 +325,18 @@ pub fn ideal_signals(trajectory: &Trajectory, stamps_ns: &[i64], temperature: im
 pub fn simulate(cfg: &SimConfig) -> Result<SimOutput, SimError> {
     cfg.validate()?;
     let n = cfg.samples()?;
-    let trajectory = Trajectory::new(cfg.profile, cfg.seed);
+    // Power-on k > 0: its own motion, turn-on bias and noise; 0 keeps the configuration's draw.
+    let draw = |concern: &str| if cfg.power_on == 0 { cfg.seed } else { derive_seed(cfg.seed, concern, cfg.power_on) };
+    let trajectory = Trajectory::new(cfg.profile, draw("power_on_motion"));
     let imu_stamps = stamps(cfg.start_time_ns, cfg.rate_hz, n);
     let temperature = cfg.temperature_model();
-    let ideal = ideal_signals(&trajectory, &imu_stamps, |t| temperature.map_or(25.0, |m| m.at(t)));
+    let ideal = ideal_signals_after_rest(&trajectory, &imu_stamps, cfg.rest_s, |t| temperature.map_or(25.0, |m| m.at(t)));
 
     let noise = cfg.noise();
     let spec = cfg.grade.spec();
     let mut applied: Vec<Term> = noise.terms().to_vec();
     if cfg.datasheet_errors {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(derive_seed(cfg.seed, "turn_on_bias", 0));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(derive_seed(draw("power_on_bias"), "turn_on_bias", 0));
         applied.extend(spec.turn_on_bias(&mut rng));
         applied.extend(spec.range_and_resolution());
     }
@@ -303,7 +344,7 @@ pub fn simulate(cfg: &SimConfig) -> Result<SimOutput, SimError> {
     let applied: Vec<Term> = crate::physics::in_application_order(&applied).into_iter().cloned().collect();
 
     let mut measured = ideal.clone();
-    let mut ctx = TermContext::new(cfg.seed);
+    let mut ctx = TermContext::new(draw("power_on_noise"));
     apply_terms(&applied, &mut measured, &mut ctx)?;
     // Parameters no sensor has (a rotation of 1e300 rad) give NaN or absurd readings: refused
     // rather than written into a bag.
@@ -325,7 +366,8 @@ pub fn simulate(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         stamps(cfg.start_time_ns, GROUND_TRUTH_RATE_HZ, m)
     };
     let pose_times: Vec<f64> = pose_stamps.iter().map(|s| (s - cfg.start_time_ns) as f64 * 1e-9).collect();
-    let positions = trajectory.positions(&pose_times);
+    let moving_times: Vec<f64> = pose_times.iter().map(|t| (t - cfg.rest_s).max(0.0)).collect();
+    let positions = trajectory.positions(&moving_times);
     let ground_truth = pose_stamps
         .iter()
         .zip(&pose_times)
@@ -333,7 +375,7 @@ pub fn simulate(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         .map(|((&stamp_ns, &t), position_in_world)| PoseSample {
             stamp_ns,
             position_in_world,
-            world_from_body: trajectory.state(t).world_from_body,
+            world_from_body: state_after_rest(&trajectory, t, cfg.rest_s).world_from_body,
         })
         .collect();
 

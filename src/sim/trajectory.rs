@@ -317,6 +317,17 @@ pub struct KinematicState {
 }
 
 impl KinematicState {
+    /// Standing still, level (set the attitude).
+    pub fn at_rest() -> Self {
+        KinematicState {
+            world_from_body: UnitQuaternion::identity(),
+            omega_in_body: Vector3::zeros(),
+            alpha_in_body: Vector3::zeros(),
+            velocity_in_world: Vector3::zeros(),
+            accel_in_world: Vector3::zeros(),
+        }
+    }
+
     /// What an ideal accelerometer reads: f = Rᵀ (a − g_world), g_world = (0, 0, −g).
     pub fn specific_force_in_body(&self, gravity: f64) -> Vector3<f64> {
         self.world_from_body.inverse_transform_vector(&(self.accel_in_world + Vector3::z() * gravity))

@@ -1329,6 +1329,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             metrics,
             code_revision,
             adapted_from: None,
+            power_on_bias_removed: false,
             imu_correction_gains,
             side_files: vec![("train.json".into(), summary_json)],
         },

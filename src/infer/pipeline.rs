@@ -1,302 +1,15 @@
-//! The per-sample denoising pipeline, free of ROS and async: input checks → gyro correction
-//! (any [`GyroCorrector`], e.g. the model's streaming form) → orientation integration.
-//! The node, `replay` and the tests all drive this same [`Pipeline::push`], so what the node
-//! publishes on a bag is what `replay` writes. No allocation and no I/O per sample.
+//! The per-sample pipeline: input checks → gyro correction → orientation integration.
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
-use crate::core::{ClipDetector, ImuSample, STANDARD_GRAVITY};
+use super::attitude::Attitude;
+use super::stamps::{BackwardsRun, StreamRate};
+use super::{choose, Correction, Counters, Dropped, GyroCorrector, PipelineConfig};
+use crate::core::{ClipDetector, ImuSample};
 use crate::resample::PeriodMeans;
 use crate::so3::{exp, renormalize};
+use crate::standstill::{BiasEstimate, PowerOnBias, StandstillCounters, WindowVerdict};
 
-/// Something that corrects a gyro stream sample by sample (causal, stateful).
-pub trait GyroCorrector: Send {
-    /// Corrected angular velocity (rad/s) of the newest sample.
-    fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64>;
-    /// Forget the history: the next sample starts a new stream (warm-up again).
-    fn reset(&mut self);
-    /// Samples of history the correction depends on (N); 1 for memoryless methods.
-    fn window(&self) -> usize;
-    /// The IMU rate the corrector was made for, Hz, if it has one.
-    fn rate_hz(&self) -> Option<f64>;
-    /// Short name for diagnostics.
-    fn name(&self) -> &str;
-    /// True when the output is the input unchanged: its noise is the sensor's own.
-    fn passes_through(&self) -> bool {
-        false
-    }
-}
-
-/// The identity: the raw gyro minus a constant bias. The baseline and the model-free mode.
-#[derive(Debug, Clone)]
-pub struct BiasCorrector {
-    pub bias: Vector3<f64>,
-}
-
-impl GyroCorrector for BiasCorrector {
-    fn step(&mut self, gyro: &Vector3<f64>, _accel: &Vector3<f64>) -> Vector3<f64> {
-        gyro - self.bias
-    }
-    fn reset(&mut self) {}
-    fn window(&self) -> usize {
-        1
-    }
-    fn rate_hz(&self) -> Option<f64> {
-        None
-    }
-    fn name(&self) -> &str {
-        "bias"
-    }
-}
-
-/// The gyro as measured: what the node runs with no model configured.
-pub struct PassThrough;
-
-impl GyroCorrector for PassThrough {
-    fn step(&mut self, gyro: &Vector3<f64>, _accel: &Vector3<f64>) -> Vector3<f64> {
-        *gyro
-    }
-    fn reset(&mut self) {}
-    fn window(&self) -> usize {
-        1
-    }
-    fn rate_hz(&self) -> Option<f64> {
-        None
-    }
-    fn name(&self) -> &str {
-        "pass-through (no model)"
-    }
-    fn passes_through(&self) -> bool {
-        true
-    }
-}
-
-/// A trained model in its streaming form (pure Rust, f64, constant cost per sample).
-pub struct ModelCorrector {
-    pub denoiser: crate::model::StreamingDenoiser,
-    pub name: String,
-    pub rate_hz: f64,
-}
-
-impl ModelCorrector {
-    /// Load `<model>.json` + `<model>.ot` (the `.pt` beside them is the TorchScript form),
-    /// with IMU `imu`'s Ĉ_ω (`None`: the model's own).
-    pub fn load(model: &std::path::Path, imu: Option<&str>) -> Result<Self, crate::model::ModelError> {
-        Ok(Self::load_with_metadata(model, imu)?.0)
-    }
-
-    /// [`ModelCorrector::load`], also returning the model's metadata.
-    pub fn load_with_metadata(
-        model: &std::path::Path,
-        imu: Option<&str>,
-    ) -> Result<(Self, crate::model::ModelMetadata), crate::model::ModelError> {
-        let (denoiser, meta) = crate::model::export::load_streaming(&crate::model::predict::metadata_path(model), imu)?;
-        Ok((ModelCorrector { denoiser, name: meta.name.clone(), rate_hz: meta.rate_hz }, meta))
-    }
-}
-
-impl GyroCorrector for ModelCorrector {
-    fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64> {
-        self.denoiser.step(gyro, accel)
-    }
-    fn reset(&mut self) {
-        self.denoiser.reset();
-    }
-    fn window(&self) -> usize {
-        self.denoiser.receptive_field()
-    }
-    fn rate_hz(&self) -> Option<f64> {
-        (self.rate_hz > 0.0).then_some(self.rate_hz)
-    }
-    fn name(&self) -> &str {
-        &self.name
-    }
-}
-
-/// The naive approach, for benchmarks: keep the last N samples and run the whole window
-/// through the network (tch) for every new sample, keeping only the last output. Same
-/// outputs as the streaming form (up to f32), cost proportional to N.
-pub struct FullWindowCorrector {
-    net: crate::model::InferenceNet,
-    window: Vec<ImuSample>,
-    n: usize,
-    name: String,
-    correction_gain: f64,
-}
-
-impl FullWindowCorrector {
-    pub fn new(net: crate::model::InferenceNet, name: &str) -> Self {
-        let n = net.receptive_field() as usize;
-        FullWindowCorrector { net, window: Vec::with_capacity(n), n, name: format!("{name} (naive full window)"), correction_gain: 1.0 }
-    }
-
-    /// Applies the share `gain` of the model's correction (as [`crate::model::StreamingDenoiser::set_correction_gain`]).
-    pub fn with_correction_gain(mut self, gain: f64) -> Self {
-        self.correction_gain = gain;
-        self
-    }
-}
-
-impl GyroCorrector for FullWindowCorrector {
-    fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64> {
-        let s = ImuSample { stamp_ns: 0, gyro: *gyro, accel: *accel };
-        if self.window.is_empty() {
-            // The model's causal padding: the first sample replicated to the left.
-            self.window.resize(self.n, s);
-        }
-        self.window.rotate_left(1);
-        if let Some(last) = self.window.last_mut() {
-            *last = s;
-        }
-        let input = crate::model::predict::imu_tensor(&self.window, tch::Kind::Float);
-        let out = tch::no_grad(|| self.net.forward(&input));
-        let last = out.select(1, self.n as i64 - 1).reshape([3]).to_kind(tch::Kind::Double);
-        match Vec::<f64>::try_from(last) {
-            Ok(v) => crate::model::streaming::apply_correction_gain(gyro, &Vector3::new(v[0], v[1], v[2]), self.correction_gain),
-            Err(_) => *gyro,
-        }
-    }
-    fn reset(&mut self) {
-        self.window.clear();
-    }
-    fn window(&self) -> usize {
-        self.n
-    }
-    fn rate_hz(&self) -> Option<f64> {
-        None
-    }
-    fn name(&self) -> &str {
-        &self.name
-    }
-}
-
-/// Pipeline settings (the node reads them from its ROS parameters).
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct PipelineConfig {
-    /// Nominal input rate, Hz; 0 = take the corrector's, else measure it from the first samples.
-    pub nominal_rate_hz: f64,
-    /// An interval longer than this many nominal periods is a gap: the corrector's window is
-    /// reset (warm-up again) and the orientation is held and flagged, not integrated across.
-    pub gap_periods: f64,
-    /// A rate that differs from nominal by more than this fraction (smoothed) is reported.
-    pub rate_tolerance: f64,
-    /// Standard deviation of the corrected gyro, rad/s, per sample: its covariance, and the
-    /// orientation covariance growth (σ·dt per step, a random walk).
-    pub angular_velocity_stddev: f64,
-    /// Initial attitude from gravity: average the accelerometer over this long, s.
-    pub gravity_init_seconds: f64,
-    /// Variance of roll and pitch from the gravity initialisation, rad².
-    pub initial_tilt_variance: f64,
-    /// Variance of the initial yaw, rad² (gravity says nothing about it).
-    pub initial_yaw_variance: f64,
-    /// Orientation variance added per second of gap, rad² (the attitude is held over a gap).
-    pub gap_variance_per_second: f64,
-    /// Gyro bias left after the correction, rad/s per axis, constant over a run: the
-    /// orientation error it leaves grows as σ_b·t, which is what bounds an open-loop attitude
-    /// (the white noise alone, σ·√(t·dt), claimed 0.2° after 100 s where 3° were measured).
-    pub bias_stddev: f64,
-    /// [`Self::bias_stddev`] when nothing corrects the gyro at its rate (no model, or an input
-    /// rate off the model's): a MEMS gyro's own turn-on bias, rad/s. At 1 mrad/s a consumer
-    /// gyro's pass-through attitude claimed σ 5.8° where it was 14.8° off after 100 s.
-    pub uncorrected_bias_stddev: f64,
-    /// Feed a model an input whose rate is off the model's in the model's periods
-    /// ([`crate::resample`]); false runs it on the samples as they come (its window then spans
-    /// another time, and the orientation's covariance allows for an uncorrected bias).
-    pub resample_to_model_rate: bool,
-}
-
-impl Default for PipelineConfig {
-    fn default() -> Self {
-        PipelineConfig {
-            nominal_rate_hz: 0.0,
-            gap_periods: crate::resample::GAP_PERIODS,
-            rate_tolerance: 0.2,
-            angular_velocity_stddev: 0.005,
-            gravity_init_seconds: 0.5,
-            initial_tilt_variance: 1e-4,
-            initial_yaw_variance: std::f64::consts::PI * std::f64::consts::PI,
-            gap_variance_per_second: 0.25,
-            bias_stddev: 1e-3,
-            uncorrected_bias_stddev: 1e-2,
-            resample_to_model_rate: true,
-        }
-    }
-}
-
-impl PipelineConfig {
-    /// Refuses settings the pipeline cannot run with, naming the key: a NaN or a negative
-    /// variance would reach every published covariance, and a gap of at most one period would
-    /// make every sample a gap.
-    pub fn validate(&self) -> Result<(), String> {
-        for (key, value) in [
-            ("nominal_rate_hz", self.nominal_rate_hz),
-            ("angular_velocity_stddev", self.angular_velocity_stddev),
-            ("gravity_init_seconds", self.gravity_init_seconds),
-            ("initial_tilt_variance", self.initial_tilt_variance),
-            ("initial_yaw_variance", self.initial_yaw_variance),
-            ("gap_variance_per_second", self.gap_variance_per_second),
-            ("bias_stddev", self.bias_stddev),
-            ("uncorrected_bias_stddev", self.uncorrected_bias_stddev),
-        ] {
-            if !(value.is_finite() && value >= 0.0) {
-                return Err(format!("pipeline.{key} must be finite and ≥ 0, not {value}"));
-            }
-        }
-        if !(self.gap_periods.is_finite() && self.gap_periods > 1.0) {
-            return Err(format!("pipeline.gap_periods must be finite and > 1 (nominal periods), not {}", self.gap_periods));
-        }
-        if !(self.rate_tolerance.is_finite() && self.rate_tolerance > 0.0) {
-            return Err(format!("pipeline.rate_tolerance must be finite and > 0, not {}", self.rate_tolerance));
-        }
-        Ok(())
-    }
-}
-
-/// Why an input sample was not used. Every drop is counted.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Dropped {
-    NonFinite,
-    /// Beyond what an IMU measures ([`ImuSample::is_plausible`]): a corrupt value, which would
-    /// poison the model's window and jump the integrated attitude.
-    Implausible,
-    DuplicateStamp,
-    BackwardsStamp,
-}
-
-/// Counters of everything the pipeline saw and did, by reason (published on /diagnostics).
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
-pub struct Counters {
-    pub received: u64,
-    pub processed: u64,
-    pub dropped_non_finite: u64,
-    pub dropped_implausible: u64,
-    pub dropped_duplicate_stamp: u64,
-    pub dropped_backwards_stamp: u64,
-    pub gaps: u64,
-    /// Times the source's clock went back and was followed ([`CLOCK_JUMP_SAMPLES`]).
-    pub clock_jumps: u64,
-    pub rate_changes: u64,
-    pub resets: u64,
-    pub warmup_samples: u64,
-    /// Samples missing from holes shorter than a gap, estimated from the stamps of a regular
-    /// stream (best-effort DDS dropping a burst, a driver's buffer overrun): bridged, not reset.
-    pub missed_samples: u64,
-    /// Samples with an axis held at the sensor's range ([`ClipDetector`]): used as recorded,
-    /// their true values were larger.
-    pub saturated_samples: u64,
-    /// Times the model started or stopped being fed the input's periods ([`crate::resample`]).
-    pub resampling_switches: u64,
-}
-
-impl Counters {
-    /// Every input dropped, whatever the reason.
-    pub fn dropped(&self) -> u64 {
-        self.dropped_non_finite + self.dropped_implausible + self.dropped_duplicate_stamp + self.dropped_backwards_stamp
-    }
-}
-
-/// One corrected sample: what `/imu/denoised` and `/imu/gyro_correction` carry.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CorrectedImu {
     pub stamp_ns: i64,
@@ -320,161 +33,53 @@ pub struct CorrectedImu {
     pub after_gap: bool,
 }
 
-/// Open-loop attitude from the corrected gyro, with the same convention as evaluation:
-/// R(t_{n+1}) = R(t_n)·Exp(ω̂_n (t_{n+1} − t_n)).
-#[derive(Debug, Clone)]
-struct Attitude {
-    world_from_body: Option<UnitQuaternion<f64>>,
-    covariance: Matrix3<f64>,
-    /// Seconds integrated since the attitude was set (the bias term's t).
-    since_set_s: f64,
-    gravity_sum: Vector3<f64>,
-    /// The same sum kept in the current body frame (each sample's gravity turned with the body).
-    gravity_sum_turned: Vector3<f64>,
-    gravity_sq_sum: f64,
-    gravity_count: u32,
-    gravity_start_ns: Option<i64>,
-    /// The raw gyro summed over the same interval: a turn's centripetal acceleration reads as
-    /// a tilt of gravity.
-    turn_sum: Vector3<f64>,
-    /// Intervals passed over because the platform was turning.
-    turning_intervals: u32,
-}
-
-impl Attitude {
-    fn new() -> Self {
-        Attitude {
-            world_from_body: None,
-            covariance: Matrix3::zeros(),
-            since_set_s: 0.0,
-            gravity_sum: Vector3::zeros(),
-            gravity_sum_turned: Vector3::zeros(),
-            gravity_sq_sum: 0.0,
-            gravity_count: 0,
-            gravity_start_ns: None,
-            turn_sum: Vector3::zeros(),
-            turning_intervals: 0,
-        }
-    }
-
-    /// Grows the covariance over `dt` s: the gyro's white noise (a random walk) and its
-    /// residual bias (an error growing as σ_b·t: variance σ_b²·((t+dt)² − t²)).
-    fn grow(&mut self, dt: f64, noise_stddev: f64, bias_stddev: f64) {
-        let t = self.since_set_s;
-        let noise = noise_stddev * dt;
-        let bias = bias_stddev * bias_stddev * (2.0 * t * dt + dt * dt);
-        self.covariance += Matrix3::identity() * (noise * noise + bias);
-        self.since_set_s = t + dt;
-    }
-
-    /// Roll and pitch that put the measured specific force on world +z; yaw 0.
-    fn from_gravity(f: &Vector3<f64>) -> UnitQuaternion<f64> {
-        let roll = f.y.atan2(f.z);
-        let pitch = (-f.x).atan2((f.y * f.y + f.z * f.z).sqrt());
-        UnitQuaternion::from_euler_angles(roll, pitch, 0.0)
-    }
-}
-
-/// Mean rate over the initial-attitude interval above which the platform is turning, rad/s:
-/// above a consumer gyro's bias (EuRoC's uncalibrated ADIS16448: 0.08 rad/s), below a car's
-/// bend.
-pub const INIT_TURN_RATE: f64 = 0.15;
-/// Intervals the initial attitude waits for a turn to end; then it is taken anyway, its tilt
-/// variance covering the horizontal acceleration.
-pub const TURNING_INTERVALS: u32 = 20;
-
 /// The pipeline: feed raw samples in stamp order, get corrected samples out.
 pub struct Pipeline {
     corrector: Box<dyn GyroCorrector>,
     cfg: PipelineConfig,
-    nominal_period_ns: Option<f64>,
-    smoothed_period_ns: f64,
-    rate_off: bool,
+    rate: StreamRate,
     last: Option<(i64, Vector3<f64>)>,
     since_reset: u64,
     attitude: Attitude,
     counters: Counters,
-    first_dts: [i64; 8],
-    n_first_dts: usize,
     backwards_run: BackwardsRun,
     clipping: ClipDetector,
-    /// Consecutive intervals longer than a gap: a few in a row are a rate, not a hole.
-    consecutive_gaps: u32,
-    /// Whether the nominal period came from the first intervals (not the model or config).
-    period_learned: bool,
-    /// The period gaps are measured in while a stream runs slower than a fixed nominal (the
-    /// model's): else every sample of a 20-Hz stream into a 200-Hz model was a gap, the model
-    /// never warmed up and the attitude was never integrated.
-    slow_period_ns: Option<f64>,
-    /// The interval before the last, ns: a hole is counted only in a regular stream.
-    last_dt_ns: i64,
     /// The model's periods, when the corrector has a rate ([`crate::resample`]).
     periods: Option<PeriodMeans>,
     /// The stream is fed to the model in its periods: its rate is off the model's.
     resampling: bool,
     /// The correction of the last period completed, rad/s (while resampling).
     period_correction: Vector3<f64>,
+    /// This power-on's gyro bias, measured at standstills.
+    standstill: PowerOnBias,
+    /// The attitude at the start of the standstill window in progress: held there if the window
+    /// turns out still (the body did not turn).
+    hold_from: Option<(i64, UnitQuaternion<f64>)>,
 }
-
-/// Consecutive samples, advancing among themselves but behind the last accepted stamp, after
-/// which the source's clock is taken as having gone back (a driver restarted, or one stamp
-/// was far in the future) and followed, as after a gap. Before, one stamp three hours ahead
-/// stopped the output for good: every later sample was "backwards".
-pub const CLOCK_JUMP_SAMPLES: u32 = 20;
-
-/// Consecutive stamps refused as not after the last accepted one, counted while they advance
-/// among themselves: [`CLOCK_JUMP_SAMPLES`] of them say the source's clock went back.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct BackwardsRun(Option<(i64, u32)>);
-
-impl BackwardsRun {
-    /// For a stamp not after the last accepted: true when it completes a run (follow the
-    /// source's new clock), false when it is to be refused.
-    pub fn follows(&mut self, stamp_ns: i64) -> bool {
-        let n = match self.0 {
-            Some((t, n)) if stamp_ns > t => n + 1,
-            _ => 1,
-        };
-        self.0 = (n < CLOCK_JUMP_SAMPLES).then_some((stamp_ns, n));
-        self.0.is_none()
-    }
-
-    /// A stamp was accepted: the run, if any, is over.
-    pub fn end(&mut self) {
-        self.0 = None;
-    }
-}
-
-/// Intervals longer than a gap in a row after which the input's rate is taken as changed.
-pub const RATE_FROM_GAPS: u32 = 8;
 
 impl Pipeline {
     pub fn new(corrector: Box<dyn GyroCorrector>, cfg: PipelineConfig) -> Self {
         let rate = if cfg.nominal_rate_hz > 0.0 { Some(cfg.nominal_rate_hz) } else { corrector.rate_hz() };
         let nominal_period_ns = rate.map(|r| 1e9 / r);
         // The model's periods, for a corrector with a rate that is not a pass-through.
+        let standstill = PowerOnBias::new(cfg.standstill);
         let periods = corrector.rate_hz().filter(|r| *r > 0.0 && !corrector.passes_through()).map(PeriodMeans::new);
+        let rate = StreamRate::new(nominal_period_ns, cfg.gap_periods, cfg.rate_tolerance);
         Pipeline {
             corrector,
             cfg,
-            nominal_period_ns,
-            smoothed_period_ns: nominal_period_ns.unwrap_or(0.0),
-            rate_off: false,
+            rate,
             last: None,
             since_reset: 0,
             attitude: Attitude::new(),
             counters: Counters::default(),
-            first_dts: [0; 8],
-            n_first_dts: 0,
             backwards_run: BackwardsRun::default(),
             clipping: ClipDetector::default(),
-            consecutive_gaps: 0,
-            period_learned: false,
-            slow_period_ns: None,
-            last_dt_ns: 0,
             periods,
             resampling: false,
             period_correction: Vector3::zeros(),
+            standstill,
+            hold_from: None,
         }
     }
 
@@ -499,12 +104,12 @@ impl Pipeline {
 
     /// Nominal input period, s, once known.
     pub fn nominal_rate_hz(&self) -> Option<f64> {
-        self.nominal_period_ns.map(|p| 1e9 / p)
+        self.rate.nominal_period_ns.map(|p| 1e9 / p)
     }
 
     /// The input's smoothed rate, Hz, once measured.
     pub fn input_rate_hz(&self) -> Option<f64> {
-        (self.smoothed_period_ns > 0.0).then(|| 1e9 / self.smoothed_period_ns)
+        (self.rate.smoothed_period_ns > 0.0).then(|| 1e9 / self.rate.smoothed_period_ns)
     }
 
     /// The rate the corrector was made for, Hz, if it has one.
@@ -513,18 +118,53 @@ impl Pipeline {
     }
 
     /// The gyro bias the attitude's covariance allows for: the residual after a model at its
-    /// rate, else the sensor's own.
+    /// rate; after the power-on bias alone, that estimate's σ (at least `bias_stddev`); else the
+    /// sensor's own.
     fn bias_stddev(&self) -> f64 {
-        if self.corrector.passes_through() || (self.rate_off && self.corrector.rate_hz().is_some() && !self.resampling) {
-            self.cfg.uncorrected_bias_stddev.max(self.cfg.bias_stddev)
-        } else {
-            self.cfg.bias_stddev
+        let uncorrected = self.cfg.uncorrected_bias_stddev.max(self.cfg.bias_stddev);
+        let (correction, _) = self.correction();
+        let measured = self.power_on_bias().filter(|_| correction.removes_power_on_bias());
+        let at = self.last.map_or(0, |(t, _)| t);
+        match correction {
+            Correction::Raw => uncorrected,
+            Correction::PowerOnBias => {
+                measured.map_or(uncorrected, |e| e.stddev_at(at, self.cfg.standstill.bias_random_walk).max(self.cfg.bias_stddev))
+            }
+            Correction::PowerOnBiasThenModel if measured.is_none() => uncorrected,
+            _ if self.rate.rate_off && self.corrector.rate_hz().is_some() && !self.resampling => uncorrected,
+            _ => self.cfg.bias_stddev,
         }
+    }
+
+    /// The correction that runs, and why ([`super::choose`]).
+    pub fn correction(&self) -> (Correction, &'static str) {
+        choose(self.corrector.domain(), self.cfg.power_on_bias, self.cfg.model_on_new_imu)
+    }
+
+    /// The power-on bias measured so far, if a standstill was found.
+    pub fn power_on_bias(&self) -> Option<&BiasEstimate> {
+        self.standstill.estimate()
+    }
+
+    pub fn standstill_counters(&self) -> &StandstillCounters {
+        self.standstill.counters()
+    }
+
+    /// True while the platform is standing still (the last window judged was still).
+    pub fn standing(&self) -> bool {
+        self.standstill.standing()
+    }
+
+    /// Forgets the power-on bias measured: the next standstill measures it afresh (after the
+    /// IMU was power-cycled under a running node, or to re-take it on demand).
+    pub fn retake_power_on_bias(&mut self) {
+        self.standstill.retake();
+        self.hold_from = None;
     }
 
     /// True while the smoothed input rate is off nominal by more than the tolerance.
     pub fn rate_off_nominal(&self) -> bool {
-        self.rate_off
+        self.rate.rate_off
     }
 
     /// True while the input is fed to the model in the model's periods, its rate being off the
@@ -540,10 +180,10 @@ impl Pipeline {
         let Some(model_rate) = self.corrector.rate_hz().filter(|_| self.periods.is_some()) else {
             return;
         };
-        if !self.cfg.resample_to_model_rate || self.smoothed_period_ns <= 0.0 {
+        if !self.cfg.resample_to_model_rate || self.rate.smoothed_period_ns <= 0.0 {
             return;
         }
-        let off = (1e9 / self.smoothed_period_ns / model_rate - 1.0).abs();
+        let off = (1e9 / self.rate.smoothed_period_ns / model_rate - 1.0).abs();
         let tolerance = if self.resampling { 0.5 } else { 1.0 } * crate::model::RATE_TOLERANCE;
         if (off > tolerance) != self.resampling {
             self.resampling = !self.resampling;
@@ -581,11 +221,11 @@ impl Pipeline {
             }
             self.backwards_run.end();
             let jumped_back = dt_ns < 0;
-            let period_before_ns = self.smoothed_period_ns;
+            let period_before_ns = self.rate.smoothed_period_ns;
             if !jumped_back {
-                self.learn_period(dt_ns);
+                self.rate.learn_period(dt_ns, &mut self.counters);
             }
-            if jumped_back || self.gap_limit_ns().is_some_and(|l| dt_ns as f64 > l) {
+            if jumped_back || self.rate.gap_limit_ns().is_some_and(|l| dt_ns as f64 > l) {
                 after_gap = true;
                 if jumped_back {
                     self.counters.clock_jumps += 1;
@@ -607,7 +247,7 @@ impl Pipeline {
                     self.attitude.grow(held_s, 0.0, self.bias_stddev());
                 }
             } else {
-                self.count_missed(dt_ns, period_before_ns);
+                self.rate.count_missed(dt_ns, period_before_ns, &mut self.counters);
                 let dt = dt_ns as f64 * 1e-9;
                 turned = Some(w_last * dt);
                 if let Some(q) = self.attitude.world_from_body {
@@ -615,11 +255,15 @@ impl Pipeline {
                     self.attitude.grow(dt, self.cfg.angular_velocity_stddev, self.bias_stddev());
                 }
             }
-            self.last_dt_ns = dt_ns;
+            self.rate.last_dt_ns = dt_ns;
         }
         if self.clipping.push(s) {
             self.counters.saturated_samples += 1;
         }
+        let (correction, _) = self.correction();
+        let raw = s;
+        let debiased = self.measure_power_on_bias(s, correction);
+        let s = &debiased;
         self.update_resampling();
         let window = self.corrector.window() as u64;
         // The periods run from the stream's start (or its last gap) whether the model is fed
@@ -642,167 +286,53 @@ impl Pipeline {
             self.since_reset += 1;
             (self.corrector.step(&s.gyro, &s.accel), warming_up)
         };
+        // The model is stepped whichever correction runs (it stays warm, and a model swapped in
+        // by ~/adapt finds its history); its output is used only where it is trusted.
+        let (gyro, warming_up) = if correction.runs_model() { (gyro, warming_up) } else { (s.gyro, false) };
         if warming_up {
             self.counters.warmup_samples += 1;
         }
         self.last = Some((s.stamp_ns, gyro));
         self.counters.processed += 1;
-        self.init_attitude(s, turned);
+        self.attitude.accumulate_gravity(s, turned, &self.cfg);
+        // Set inside a standstill window: held from where it was set, should the window be still.
+        if let (None, Some(q), Some(w)) = (self.hold_from, self.attitude.world_from_body, self.standstill.window_start_ns()) {
+            self.hold_from = Some((w, q));
+        }
         let orientation = self.attitude.world_from_body.map(|q| (q, self.attitude.covariance));
         Ok(CorrectedImu {
             stamp_ns: s.stamp_ns,
             gyro,
-            correction: gyro - s.gyro,
+            correction: gyro - raw.gyro,
             accel: s.accel,
             gyro_variance: self.cfg.angular_velocity_stddev * self.cfg.angular_velocity_stddev,
-            passed_through: self.corrector.passes_through(),
+            passed_through: !correction.runs_model(),
             orientation,
             warming_up,
             after_gap,
         })
     }
 
-    /// `turned`: the body's rotation vector since the previous sample, from the corrected gyro.
-    fn init_attitude(&mut self, s: &ImuSample, turned: Option<Vector3<f64>>) {
-        let att = &mut self.attitude;
-        if att.world_from_body.is_some() {
-            return;
+    /// Feeds the standstill detector the raw sample; holds the attitude over a window found
+    /// still where the power-on bias is trusted (the body did not turn). Returns the sample to
+    /// correct: the raw one minus the bias, where `correction` removes it.
+    fn measure_power_on_bias(&mut self, s: &ImuSample, correction: Correction) -> ImuSample {
+        if !self.cfg.power_on_bias {
+            return *s;
         }
-        let t0 = *att.gravity_start_ns.get_or_insert(s.stamp_ns);
-        // Also kept in the current body frame: the earlier samples' gravity turned with the
-        // body, so a platform that rotates while it is averaged is not tilted by the smear (the
-        // mean lags the interval's end by half its turn: 8.6° at 0.6 rad/s over 0.5 s).
-        if let Some(phi) = turned.filter(|_| att.gravity_count > 0) {
-            att.gravity_sum_turned = exp(&phi).inverse() * att.gravity_sum_turned;
-        }
-        att.gravity_sum += s.accel;
-        att.gravity_sum_turned += s.accel;
-        att.gravity_sq_sum += s.accel.norm_squared();
-        att.gravity_count += 1;
-        att.turn_sum += s.gyro;
-        if (s.stamp_ns - t0) as f64 * 1e-9 >= self.cfg.gravity_init_seconds {
-            let n = att.gravity_count as f64;
-            // Turned with the body where it turned by more than any gyro's bias: below, a
-            // bias's turn (EuRoC's raw ADIS16448: 0.08 rad/s) would tilt the sum instead.
-            let rotating = (att.turn_sum / n).norm() > INIT_TURN_RATE;
-            let f = if rotating { att.gravity_sum_turned } else { att.gravity_sum } / n;
-            // A turn (a mean rate above any gyro's bias, and a specific force 2 % off g) puts its
-            // centripetal acceleration into the mean specific force: a car starting in a bend
-            // came out 21° off, stated as 6°. Wait for the turn to end, for up to
-            // TURNING_INTERVALS intervals.
-            let pulled = (f.norm() - STANDARD_GRAVITY).abs() > 0.02 * STANDARD_GRAVITY;
-            let turning = pulled && rotating && att.turning_intervals < TURNING_INTERVALS;
-            if (f.norm() - STANDARD_GRAVITY).abs() < 0.1 * STANDARD_GRAVITY && !turning {
-                // Moving, the mean specific force is not gravity: its tilt is off by about the
-                // motion's share of it (the samples' spread, and the mean's distance from g;
-                // above g, a horizontal acceleration a of |f|² = g² + a² tilts it by acos(g/|f|)).
-                let spread = (att.gravity_sq_sum / n - f.norm_squared()).max(0.0) / (STANDARD_GRAVITY * STANDARD_GRAVITY);
-                let off = ((f.norm() - STANDARD_GRAVITY) / STANDARD_GRAVITY).powi(2);
-                let horizontal = if att.turning_intervals > 0 { (STANDARD_GRAVITY / f.norm()).min(1.0).acos().powi(2) } else { 0.0 };
-                let tilt = self.cfg.initial_tilt_variance + spread + off.max(horizontal);
-                att.world_from_body = Some(Attitude::from_gravity(&f));
-                att.covariance = Matrix3::from_diagonal(&Vector3::new(tilt, tilt, self.cfg.initial_yaw_variance));
-                att.since_set_s = 0.0;
-            } else {
-                // Not at rest (or not in gravity, or turning): try again over the next interval.
-                att.turning_intervals += u32::from(turning);
-                att.gravity_sum = Vector3::zeros();
-                att.gravity_sum_turned = Vector3::zeros();
-                att.gravity_sq_sum = 0.0;
-                att.gravity_count = 0;
-                att.gravity_start_ns = None;
-                att.turn_sum = Vector3::zeros();
+        let verdict = self.standstill.push(s);
+        if let (Some(WindowVerdict::Still { start_ns, .. }), Some((from_ns, q))) = (verdict, self.hold_from) {
+            if from_ns == start_ns && correction.removes_power_on_bias() && self.attitude.world_from_body.is_some() {
+                self.attitude.world_from_body = Some(q);
             }
         }
-    }
-
-    /// A hole shorter than a gap: an interval of k of the stream's periods `p` (as it was before
-    /// this interval) after a regular one
-    /// stands for k − 1 samples that never arrived. Stamps taken on arrival (bursts of nearly
-    /// equal stamps, then a pause) are not regular, and count nothing.
-    fn count_missed(&mut self, dt_ns: i64, p: f64) {
-        let regular = (self.last_dt_ns as f64 - p).abs() <= 0.25 * p;
-        if self.gap_limit_ns().is_some() && p > 0.0 && regular && dt_ns as f64 >= 1.5 * p {
-            self.counters.missed_samples += ((dt_ns as f64 / p).round() as u64).saturating_sub(1);
+        if self.standstill.window_start_ns() == Some(s.stamp_ns) {
+            self.hold_from = self.attitude.world_from_body.map(|q| (s.stamp_ns, q));
         }
-    }
-
-    /// An interval longer than this is a gap, ns.
-    fn gap_limit_ns(&self) -> Option<f64> {
-        self.slow_period_ns.or(self.nominal_period_ns).map(|p| self.cfg.gap_periods * p)
-    }
-
-    /// Collects one of the first intervals; the median of them once there are 8.
-    fn first_intervals_median(&mut self, dt_ns: i64) -> Option<f64> {
-        self.first_dts[self.n_first_dts] = dt_ns;
-        self.n_first_dts += 1;
-        (self.n_first_dts == self.first_dts.len()).then(|| {
-            let mut d = self.first_dts;
-            d.sort_unstable();
-            (d[3] + d[4]) as f64 / 2.0
-        })
-    }
-
-    /// Learn the nominal period from the first intervals (median of 8) if not given, then
-    /// track the smoothed period to report rate changes.
-    fn learn_period(&mut self, dt_ns: i64) {
-        match self.nominal_period_ns {
-            None => {
-                if let Some(p) = self.first_intervals_median(dt_ns) {
-                    self.nominal_period_ns = Some(p);
-                    self.smoothed_period_ns = p;
-                    self.period_learned = true;
-                }
-            }
-            Some(p) => {
-                // Under a nominal given (the model's), the smoothed rate starts from the median of
-                // the first intervals: from the nominal, a 212-Hz stream took 90 samples to pass
-                // 5 % off a 200-Hz model, and restarted a model already warming up.
-                if !self.period_learned && self.n_first_dts < self.first_dts.len() {
-                    if let Some(median) = self.first_intervals_median(dt_ns) {
-                        if median > p * (1.0 + self.cfg.rate_tolerance) {
-                            // Slower than the nominal: gaps are measured in its own period from
-                            // here (40 Hz with 1 ms of jitter under a 200-Hz model had every other
-                            // interval over 5 model periods, each a reset: it never warmed up).
-                            self.slow_period_ns = Some(median);
-                            self.smoothed_period_ns = median;
-                        } else if self.gap_limit_ns().is_some_and(|l| median < l) {
-                            self.smoothed_period_ns = median;
-                        }
-                    }
-                }
-                // A gap is not a rate change, but gaps in a row are: a stream slower than the
-                // nominal (20 Hz into a 200-Hz model) made every sample a gap, unreported.
-                if self.gap_limit_ns().is_some_and(|l| (dt_ns as f64) < l) {
-                    self.smoothed_period_ns += 0.02 * (dt_ns as f64 - self.smoothed_period_ns);
-                    self.consecutive_gaps = 0;
-                } else {
-                    self.consecutive_gaps += 1;
-                }
-                if self.consecutive_gaps >= RATE_FROM_GAPS {
-                    self.consecutive_gaps = 0;
-                    if self.period_learned {
-                        // Learnt from a start-up burst: learn it again from what follows.
-                        self.nominal_period_ns = None;
-                        self.n_first_dts = 0;
-                        self.counters.rate_changes += 1;
-                        return;
-                    }
-                    // The nominal is the model's: keep it (and say the rate is off), but measure
-                    // gaps in the stream's own period.
-                    self.slow_period_ns = Some(dt_ns as f64);
-                    self.smoothed_period_ns = dt_ns as f64;
-                }
-                let off = (self.smoothed_period_ns / p - 1.0).abs() > self.cfg.rate_tolerance || self.slow_period_ns.is_some();
-                if off && !self.rate_off {
-                    self.counters.rate_changes += 1;
-                }
-                self.rate_off = off;
-                // Back at the nominal rate: gaps are the nominal's again.
-                if self.slow_period_ns.is_some() && (self.smoothed_period_ns / p - 1.0).abs() <= self.cfg.rate_tolerance {
-                    self.slow_period_ns = None;
-                }
-            }
+        if correction.removes_power_on_bias() {
+            ImuSample { gyro: s.gyro - self.standstill.bias(), ..*s }
+        } else {
+            *s
         }
     }
 }
@@ -811,6 +341,7 @@ impl Pipeline {
 mod tests {
     use super::*;
     use crate::core::Recording;
+    use crate::infer::{BiasCorrector, ModelDomain, PassThrough, CLOCK_JUMP_SAMPLES, RATE_FROM_GAPS};
     use crate::so3::integrate_gyro;
 
     fn stream(n: usize, dt_ns: i64) -> Vec<ImuSample> {
@@ -875,6 +406,94 @@ mod tests {
         let corrected = tilt_sigma(Box::new(BiasCorrector { bias: Vector3::zeros() }));
         let passed = tilt_sigma(Box::new(PassThrough));
         assert!((corrected - 0.0142).abs() < 0.001 && (passed - 0.1005).abs() < 0.002, "{corrected} {passed}");
+    }
+
+    /// A model whose correction is an error of its own (what the bundled model is on an IMU it
+    /// never saw), for the guard.
+    struct Wrong(ModelDomain);
+
+    impl GyroCorrector for Wrong {
+        fn step(&mut self, gyro: &Vector3<f64>, _accel: &Vector3<f64>) -> Vector3<f64> {
+            gyro + Vector3::new(0.01, 0.0, 0.0)
+        }
+        fn reset(&mut self) {}
+        fn window(&self) -> usize {
+            1
+        }
+        fn rate_hz(&self) -> Option<f64> {
+            None
+        }
+        fn name(&self) -> &str {
+            "wrong"
+        }
+        fn domain(&self) -> ModelDomain {
+            self.0
+        }
+    }
+
+    /// 2 s at rest with a turn-on bias, then the motion of [`stream`].
+    fn rest_then_motion(bias: Vector3<f64>) -> Vec<ImuSample> {
+        let rest = (0..400).map(|k| ImuSample { stamp_ns: 1_000_000 + k * 5_000_000, gyro: bias, accel: Vector3::new(0.0, 0.0, 9.81) });
+        let t0 = 1_000_000 + 400 * 5_000_000;
+        rest.chain(stream(1600, 5_000_000).into_iter().map(|s| ImuSample {
+            stamp_ns: s.stamp_ns - 1_000_000 + t0,
+            gyro: s.gyro + bias,
+            ..s
+        }))
+        .collect()
+    }
+
+    #[test]
+    fn a_new_imu_runs_the_power_on_bias_not_the_model() {
+        let bias = Vector3::new(0.04, -0.06, 0.02);
+        let imu = rest_then_motion(bias);
+        let cfg = PipelineConfig { gravity_init_seconds: 0.2, ..Default::default() };
+        let mut p = Pipeline::new(Box::new(Wrong(ModelDomain::NewImu)), cfg.clone());
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert_eq!(p.correction().0, Correction::PowerOnBias);
+        let e = p.power_on_bias().expect("the rest measured");
+        assert!((e.bias - bias).amax() < 1e-12, "{}", e.bias);
+        // After the rest: the raw gyro minus the bias, not the model's output.
+        assert!((out[1000].gyro - (imu[1000].gyro - bias)).amax() < 1e-12);
+        assert!(out[1000].passed_through);
+        // Held over the rest: the attitude at its end is the one set from gravity.
+        let set = out.iter().position(|o| o.orientation.is_some()).unwrap();
+        let at_rest_end = out[399].orientation.unwrap().0;
+        assert!(
+            at_rest_end.angle_to(&out[set].orientation.unwrap().0) < 1e-9,
+            "{}",
+            at_rest_end.angle_to(&out[set].orientation.unwrap().0)
+        );
+        // Asked for, the model runs on the raw gyro; adapted after the bias, after it.
+        let mut p = Pipeline::new(Box::new(Wrong(ModelDomain::NewImu)), PipelineConfig { model_on_new_imu: true, ..cfg.clone() });
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!((out[1000].gyro - imu[1000].gyro - Vector3::new(0.01, 0.0, 0.0)).amax() < 1e-12);
+        let mut p = Pipeline::new(Box::new(Wrong(ModelDomain::AdaptedAfterPowerOnBias)), cfg.clone());
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!((out[1000].gyro - (imu[1000].gyro - bias) - Vector3::new(0.01, 0.0, 0.0)).amax() < 1e-12);
+        // Trained on this IMU: the model on the raw gyro, the rest reported only.
+        let mut p = Pipeline::new(Box::new(Wrong(ModelDomain::Trained)), cfg);
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!((out[1000].gyro - imu[1000].gyro - Vector3::new(0.01, 0.0, 0.0)).amax() < 1e-12);
+        assert!(p.power_on_bias().is_some());
+    }
+
+    #[test]
+    fn a_measured_power_on_bias_states_its_own_sigma() {
+        let imu = rest_then_motion(Vector3::new(0.03, 0.0, 0.0));
+        let cfg = PipelineConfig { gravity_init_seconds: 0.2, ..Default::default() };
+        let sigma_after = |c: Box<dyn GyroCorrector>| {
+            let mut p = Pipeline::new(c, cfg.clone());
+            imu.iter().map(|s| p.push(s).unwrap()).last().unwrap().orientation.unwrap().1[(0, 0)].sqrt()
+        };
+        // The rest measured the bias exactly (no noise): the bias term is bias_stddev's, far
+        // below the uncorrected gyro's.
+        let measured = sigma_after(Box::new(PassThrough));
+        let without = {
+            let mut p = Pipeline::new(Box::new(PassThrough), PipelineConfig { power_on_bias: false, ..cfg.clone() });
+            imu.iter().map(|s| p.push(s).unwrap()).last().unwrap().orientation.unwrap().1[(0, 0)].sqrt()
+        };
+        assert!(measured < without / 5.0, "{measured} {without}");
     }
 
     #[test]

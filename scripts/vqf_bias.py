@@ -1,0 +1,118 @@
+#!/usr/bin/env python3
+"""Rewrite a bag's /imu/data gyro with VQF's running gyro-bias estimate subtracted, causally.
+
+usage: vqf_bias.py IN.mcap OUT.mcap [--bias-clip DEG_PER_S] [--rest-only]
+
+VQF (Laidig & Seel 2023, the `vqf` package) runs sample by sample at dt = the median interval of
+the IMU header stamps; each angular velocity ω becomes ω − b, b being VQF's bias estimate right after
+that sample's update, so `imu-fsda eval OUT.mcap --method raw` scores "raw gyro minus VQF's running
+bias". VQF's defaults apply, except --bias-clip (VQF's biasClip, °/s, default 2) and --rest-only
+(motionBiasEstEnabled=False: bias estimated at rest only). Stamps, frame ids, covariances and
+accelerations are kept exactly; every other message is copied as it is. The output is written to
+OUT.part and renamed at the end. Run with the project's venv ($PYTHON from scripts/env.sh).
+"""
+import argparse
+import os
+import sys
+
+import numpy as np
+import vqf
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from mcap_ros2.writer import Writer
+
+IMU = '/imu/data'
+
+
+def plain(o):
+    if hasattr(o, '__slots__'):
+        return {k: plain(getattr(o, k)) for k in o.__slots__}
+    if isinstance(o, (list, tuple)):
+        return [plain(x) for x in o]
+    return o
+
+
+def vec(v):
+    return np.array([v.x, v.y, v.z], float)
+
+
+def fail(msg):
+    print(f'error: {msg}', file=sys.stderr)
+    sys.exit(2)
+
+
+def read_imu(path):
+    """Header stamps (ns), gyro and accel of every /imu/data message, in the bag's order."""
+    stamps, gyr, acc = [], [], []
+    with open(path, 'rb') as f:
+        for _, _, _, m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(topics=[IMU]):
+            stamps.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec)
+            gyr.append(vec(m.angular_velocity))
+            acc.append(vec(m.linear_acceleration))
+    return np.array(stamps, np.int64), np.array(gyr).reshape(-1, 3), np.array(acc).reshape(-1, 3)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('src', metavar='IN.mcap')
+    p.add_argument('dst', metavar='OUT.mcap')
+    p.add_argument('--bias-clip', type=float, default=2.0, metavar='DEG_PER_S', help="VQF's biasClip in °/s (default 2)")
+    p.add_argument('--rest-only', action='store_true', help='disable bias estimation during motion')
+    a = p.parse_args()
+    if not os.path.isfile(a.src):
+        fail(f'{a.src}: no such file')
+    if os.path.realpath(a.src) == os.path.realpath(a.dst):
+        fail('the output must not be the input')
+
+    try:
+        stamps, gyr, acc = read_imu(a.src)
+    except Exception as e:  # not an MCAP bag, or an undecodable one
+        fail(f'{a.src}: cannot read as an MCAP ros2 bag ({type(e).__name__}: {e})')
+    if len(stamps) < 2:
+        fail(f'{a.src}: no {IMU} topic' if len(stamps) == 0 else f'{a.src}: only one {IMU} message')
+    dt = float(np.median(np.diff(stamps))) * 1e-9
+    if dt <= 0:
+        fail(f'{a.src}: {IMU} stamps do not increase (median interval {dt} s)')
+
+    f = vqf.VQF(dt, dt, biasClip=a.bias_clip, motionBiasEstEnabled=False if a.rest_only else None)
+    out = np.empty_like(gyr)
+    rest = np.zeros(len(gyr), bool)
+    for i in range(len(gyr)):
+        f.update(np.ascontiguousarray(gyr[i]), np.ascontiguousarray(acc[i]))
+        bias, sigma = f.getBiasEstimate()
+        out[i] = gyr[i] - bias
+        rest[i] = f.getRestDetected()
+
+    part = a.dst + '.part'
+    try:
+        with open(a.src, 'rb') as fi, open(part, 'wb') as g:
+            writer = Writer(g)
+            schemas = {}
+            i = 0
+            for schema, channel, message, decoded in make_reader(fi, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+                if schema.name not in schemas:
+                    schemas[schema.name] = writer.register_msgdef(schema.name, schema.data.decode())
+                d = plain(decoded)
+                if channel.topic == IMU:
+                    st = d['header']['stamp']
+                    assert st['sec'] * 10**9 + st['nanosec'] == stamps[i], 'IMU messages out of step between the two passes'
+                    d['angular_velocity'] = dict(zip('xyz', map(float, out[i])))
+                    i += 1
+                writer.write_message(channel.topic, schemas[schema.name], d, log_time=message.log_time, publish_time=message.publish_time)
+            writer.finish()
+        assert i == len(stamps)
+        os.replace(part, a.dst)
+    except BaseException as e:
+        if os.path.exists(part):
+            os.remove(part)
+        if isinstance(e, OSError):
+            fail(f'cannot write {a.dst}: {e}')
+        raise
+
+    print(f'vqf_bias: {len(gyr)} samples, dt {dt:.6g} s, final bias [{bias[0]:.6e}, {bias[1]:.6e}, {bias[2]:.6e}] rad/s, '
+          f'sigma {sigma:.3e} rad/s, rest detected: {"yes" if rest.any() else "no"} ({rest.mean():.3f} of samples at rest)',
+          file=sys.stderr)
+
+
+if __name__ == '__main__':
+    main()

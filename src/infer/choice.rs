@@ -1,0 +1,115 @@
+//! Which correction runs on this IMU, and why: the guard that keeps the pipeline no worse than
+//! the rest calibration a user does at power-on.
+//!
+//! A learned correction is for the IMU it learned. On an IMU the model was neither trained nor
+//! adapted on, the bundled model was measured worse than the raw gyro and far worse than the
+//! bias measured at rest (docs/poweron.md); there the model is not applied and the power-on
+//! bias from the standstills is. A model adapted after its support's power-on bias was
+//! removed gets the same removal before it, so what it learned (the lasting errors) carries to
+//! the next power-on and the constant it did not learn is measured afresh.
+
+/// What the corrector is for the IMU it runs on, as established when it was loaded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ModelDomain {
+    /// No model: the gyro as measured.
+    NoModel,
+    /// The model was trained on this IMU (named by `imu_calibration`), on its raw stream: its
+    /// correction covers this IMU's bias as in training, so a rest is not subtracted before it.
+    Trained,
+    /// Adapted on this IMU after the support's power-on bias was removed.
+    AdaptedAfterPowerOnBias,
+    /// Adapted on this IMU with the support's power-on constant inside (an adaptation made
+    /// before the power-on rule): run as it was made.
+    AdaptedWithBias,
+    /// Neither trained nor adapted on this IMU.
+    NewImu,
+}
+
+impl ModelDomain {
+    /// A loaded model's domain from its metadata and the IMU it is run as (`imu_calibration`).
+    pub fn of(meta: &crate::model::ModelMetadata, imu: Option<&str>) -> Self {
+        match (&meta.adapted_from, imu) {
+            (Some(_), _) if meta.power_on_bias_removed => ModelDomain::AdaptedAfterPowerOnBias,
+            (Some(_), _) => ModelDomain::AdaptedWithBias,
+            (None, Some(name)) if meta.imu_names().contains(&name) => ModelDomain::Trained,
+            _ => ModelDomain::NewImu,
+        }
+    }
+}
+
+/// The correction the pipeline applies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Correction {
+    /// The gyro as measured.
+    Raw,
+    /// The gyro minus the power-on bias measured at standstills.
+    PowerOnBias,
+    /// The power-on bias removed, then the model.
+    PowerOnBiasThenModel,
+    /// The model on the gyro as measured.
+    Model,
+}
+
+impl Correction {
+    pub fn name(self) -> &'static str {
+        match self {
+            Correction::Raw => "raw",
+            Correction::PowerOnBias => "power-on bias",
+            Correction::PowerOnBiasThenModel => "power-on bias, then the model",
+            Correction::Model => "model",
+        }
+    }
+
+    /// The standstills' bias is subtracted from the gyro.
+    pub fn removes_power_on_bias(self) -> bool {
+        matches!(self, Correction::PowerOnBias | Correction::PowerOnBiasThenModel)
+    }
+
+    /// The model is stepped.
+    pub fn runs_model(self) -> bool {
+        matches!(self, Correction::Model | Correction::PowerOnBiasThenModel)
+    }
+}
+
+/// The rule: which correction for which model, with its reason for /diagnostics and `eval`.
+/// `power_on_bias`: the standstill estimate is on; `model_on_new_imu`: the user asked for the
+/// model on an IMU it does not know.
+pub fn choose(domain: ModelDomain, power_on_bias: bool, model_on_new_imu: bool) -> (Correction, &'static str) {
+    match domain {
+        ModelDomain::NoModel if power_on_bias => (Correction::PowerOnBias, "no model: the power-on bias measured at standstills"),
+        ModelDomain::NoModel => (Correction::Raw, "no model and power_on_bias off: the gyro as measured"),
+        ModelDomain::Trained => (Correction::Model, "the model was trained on this IMU (imu_calibration)"),
+        ModelDomain::AdaptedWithBias => {
+            (Correction::Model, "the model was adapted on this IMU with its support's constant inside (no power-on rule)")
+        }
+        ModelDomain::AdaptedAfterPowerOnBias if power_on_bias => {
+            (Correction::PowerOnBiasThenModel, "the model was adapted on this IMU after its power-on bias was removed")
+        }
+        ModelDomain::AdaptedAfterPowerOnBias => {
+            (Correction::Model, "power_on_bias off: the adapted model runs on the raw gyro (it was adapted without its support's bias)")
+        }
+        ModelDomain::NewImu if model_on_new_imu => (Correction::Model, "model_on_new_imu: the model on an IMU it was neither trained nor adapted on"),
+        ModelDomain::NewImu if power_on_bias => (
+            Correction::PowerOnBias,
+            "model not applied: it was neither trained nor adapted on this IMU (set imu_calibration, or adapt it); the power-on bias instead",
+        ),
+        ModelDomain::NewImu => (Correction::Raw, "model not applied: a new IMU, and power_on_bias off: the gyro as measured"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_new_imu_gets_the_rest_calibration_not_the_model() {
+        assert_eq!(choose(ModelDomain::NewImu, true, false).0, Correction::PowerOnBias);
+        assert_eq!(choose(ModelDomain::NewImu, true, true).0, Correction::Model);
+        assert_eq!(choose(ModelDomain::NewImu, false, false).0, Correction::Raw);
+        assert_eq!(choose(ModelDomain::Trained, true, false).0, Correction::Model);
+        assert_eq!(choose(ModelDomain::AdaptedAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
+        assert_eq!(choose(ModelDomain::NoModel, true, false).0, Correction::PowerOnBias);
+    }
+}

@@ -1,0 +1,97 @@
+//! The pipeline's settings (the node reads them from its ROS parameters).
+
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PipelineConfig {
+    /// Nominal input rate, Hz; 0 = take the corrector's, else measure it from the first samples.
+    pub nominal_rate_hz: f64,
+    /// An interval longer than this many nominal periods is a gap: the corrector's window is
+    /// reset (warm-up again) and the orientation is held and flagged, not integrated across.
+    pub gap_periods: f64,
+    /// A rate that differs from nominal by more than this fraction (smoothed) is reported.
+    pub rate_tolerance: f64,
+    /// Standard deviation of the corrected gyro, rad/s, per sample: its covariance, and the
+    /// orientation covariance growth (σ·dt per step, a random walk).
+    pub angular_velocity_stddev: f64,
+    /// Initial attitude from gravity: average the accelerometer over this long, s.
+    pub gravity_init_seconds: f64,
+    /// Variance of roll and pitch from the gravity initialisation, rad².
+    pub initial_tilt_variance: f64,
+    /// Variance of the initial yaw, rad² (gravity says nothing about it).
+    pub initial_yaw_variance: f64,
+    /// Orientation variance added per second of gap, rad² (the attitude is held over a gap).
+    pub gap_variance_per_second: f64,
+    /// Gyro bias left after the correction, rad/s per axis, constant over a run: the
+    /// orientation error it leaves grows as σ_b·t, which is what bounds an open-loop attitude
+    /// (the white noise alone, σ·√(t·dt), claimed 0.2° after 100 s where 3° were measured).
+    pub bias_stddev: f64,
+    /// [`Self::bias_stddev`] when nothing corrects the gyro at its rate (no model, or an input
+    /// rate off the model's): a MEMS gyro's own turn-on bias, rad/s. At 1 mrad/s a consumer
+    /// gyro's pass-through attitude claimed σ 5.8° where it was 14.8° off after 100 s.
+    pub uncorrected_bias_stddev: f64,
+    /// Feed a model an input whose rate is off the model's in the model's periods
+    /// ([`crate::resample`]); false runs it on the samples as they come (its window then spans
+    /// another time, and the orientation's covariance allows for an uncorrected bias).
+    pub resample_to_model_rate: bool,
+    /// Measure the gyro's power-on bias at standstills ([`crate::standstill`]): subtracted
+    /// where no model runs and before a model adapted after its support's bias was removed;
+    /// measured and reported (not subtracted) before a model trained on this IMU.
+    pub power_on_bias: bool,
+    /// How a standstill is recognised.
+    pub standstill: crate::standstill::StandstillConfig,
+    /// Run a model on an IMU it was neither trained nor adapted on (measured worse than the
+    /// rest calibration there: docs/poweron.md). Off: the power-on bias instead, said on
+    /// /diagnostics.
+    pub model_on_new_imu: bool,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        PipelineConfig {
+            nominal_rate_hz: 0.0,
+            gap_periods: crate::resample::GAP_PERIODS,
+            rate_tolerance: 0.2,
+            angular_velocity_stddev: 0.005,
+            gravity_init_seconds: 0.5,
+            initial_tilt_variance: 1e-4,
+            initial_yaw_variance: std::f64::consts::PI * std::f64::consts::PI,
+            gap_variance_per_second: 0.25,
+            bias_stddev: 1e-3,
+            uncorrected_bias_stddev: 1e-2,
+            resample_to_model_rate: true,
+            power_on_bias: true,
+            standstill: crate::standstill::StandstillConfig::default(),
+            model_on_new_imu: false,
+        }
+    }
+}
+
+impl PipelineConfig {
+    /// Refuses settings the pipeline cannot run with, naming the key: a NaN or a negative
+    /// variance would reach every published covariance, and a gap of at most one period would
+    /// make every sample a gap.
+    pub fn validate(&self) -> Result<(), String> {
+        for (key, value) in [
+            ("nominal_rate_hz", self.nominal_rate_hz),
+            ("angular_velocity_stddev", self.angular_velocity_stddev),
+            ("gravity_init_seconds", self.gravity_init_seconds),
+            ("initial_tilt_variance", self.initial_tilt_variance),
+            ("initial_yaw_variance", self.initial_yaw_variance),
+            ("gap_variance_per_second", self.gap_variance_per_second),
+            ("bias_stddev", self.bias_stddev),
+            ("uncorrected_bias_stddev", self.uncorrected_bias_stddev),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("pipeline.{key} must be finite and ≥ 0, not {value}"));
+            }
+        }
+        self.standstill.validate().map_err(|e| format!("pipeline.{e}"))?;
+        if !(self.gap_periods.is_finite() && self.gap_periods > 1.0) {
+            return Err(format!("pipeline.gap_periods must be finite and > 1 (nominal periods), not {}", self.gap_periods));
+        }
+        if !(self.rate_tolerance.is_finite() && self.rate_tolerance > 0.0) {
+            return Err(format!("pipeline.rate_tolerance must be finite and > 0, not {}", self.rate_tolerance));
+        }
+        Ok(())
+    }
+}

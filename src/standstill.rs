@@ -1,0 +1,786 @@
+//! Standstill detection and the gyro bias measured there: this power-on's turn-on constant.
+//!
+//! A MEMS gyro's bias is drawn anew at every power-on (a consumer part: up to a few °/s), far
+//! more than a learned model can tell from motion; at rest the gyro reads that bias alone. The
+//! stream is cut into windows of short blocks; a window is still when
+//! - the block means of every gyro axis span less than `max_gyro_spread` and those of every
+//!   accelerometer axis less than `max_accel_spread` (block means, not samples: a standing
+//!   robot's motors or engine vibrate, their block means stay put);
+//! - its mean specific force is gravity (within `max_gravity_error`);
+//! - its mean rate is a plausible bias (≤ `max_bias`): faster is a turn;
+//! - gravity has not turned in the body since the standstill began (≤ `max_tilt_change`): a
+//!   slow turn about a horizontal axis tilts it, and a standstill that tilts is dropped whole;
+//! - after an earlier standstill, its mean is within `max_bias_change` (plus 5 σ) of the
+//!   estimate: a steady turn about gravity reads like a bias to one IMU, and it is at least not
+//!   mixed into a bias already measured.
+//!
+//! Consecutive still windows are one standstill; its mean is fused with what earlier
+//! standstills measured (their variance grown by the bias's random walk since). A steady turn
+//! about gravity slower than `max_bias` at the *first* standstill cannot be told from a bias by
+//! an IMU alone: that is the stated limit (docs/poweron.md). Per sample: no allocation.
+
+use nalgebra::Vector3;
+
+use crate::core::{ImuSample, STANDARD_GRAVITY};
+
+/// Most blocks a window is judged on.
+pub const MAX_BLOCKS: usize = 16;
+
+/// How a standstill is recognised and how far its bias is trusted.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StandstillConfig {
+    /// Window judged at once, s.
+    pub window_s: f64,
+    /// Blocks per window whose means are compared (at most [`MAX_BLOCKS`]).
+    pub blocks: usize,
+    /// Still while the block means of every gyro axis span less than this, rad/s …
+    pub max_gyro_spread: f64,
+    /// … those of every accelerometer axis less than this, m/s² …
+    pub max_accel_spread: f64,
+    /// … and ‖mean specific force‖ is within this of standard gravity, m/s².
+    pub max_gravity_error: f64,
+    /// A window whose mean rate exceeds this on any axis is turning, not biased, rad/s.
+    pub max_bias: f64,
+    /// Gravity may turn in the body by at most this since the standstill began, rad.
+    pub max_tilt_change: f64,
+    /// A later standstill may differ from the estimate by at most this (plus 5 σ), rad/s.
+    pub max_bias_change: f64,
+    /// How fast the bias wanders between standstills, rad/s/√s: the estimate's variance grows by
+    /// its square per second.
+    pub bias_random_walk: f64,
+    /// An interval longer than this (or a stamp not after the last) breaks a window, s.
+    pub max_sample_gap_s: f64,
+}
+
+impl Default for StandstillConfig {
+    fn default() -> Self {
+        // The spreads are `eval`'s static-bias rule (0.1-s block means of a vibrating robot at
+        // rest scatter by ~0.005 rad/s; walking or driving moves them by far more than 0.02).
+        // max_bias: a consumer gyro's turn-on bias reaches ~5 °/s (0.09 rad/s).
+        // max_gravity_error: a consumer accelerometer's turn-on bias reaches 60 mg (0.6 m/s²):
+        // a simulated MPU-9250 at rest read |f| = 9.26 m/s² and, at 0.5, never stood still.
+        StandstillConfig {
+            window_s: 0.5,
+            blocks: 5,
+            max_gyro_spread: 0.02,
+            max_accel_spread: 0.2,
+            max_gravity_error: 1.0,
+            max_bias: 0.15,
+            max_tilt_change: 0.02,
+            max_bias_change: 0.01,
+            bias_random_walk: 1e-5,
+            max_sample_gap_s: 0.1,
+        }
+    }
+}
+
+impl StandstillConfig {
+    /// Refuses settings the detector cannot run with, naming the key.
+    pub fn validate(&self) -> Result<(), String> {
+        for (key, value) in [
+            ("window_s", self.window_s),
+            ("max_gyro_spread", self.max_gyro_spread),
+            ("max_accel_spread", self.max_accel_spread),
+            ("max_gravity_error", self.max_gravity_error),
+            ("max_bias", self.max_bias),
+            ("max_tilt_change", self.max_tilt_change),
+            ("max_bias_change", self.max_bias_change),
+            ("max_sample_gap_s", self.max_sample_gap_s),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(format!("standstill.{key} must be finite and > 0, not {value}"));
+            }
+        }
+        if !(self.bias_random_walk.is_finite() && self.bias_random_walk >= 0.0) {
+            return Err(format!("standstill.bias_random_walk must be finite and ≥ 0, not {}", self.bias_random_walk));
+        }
+        if !(2..=MAX_BLOCKS).contains(&self.blocks) {
+            return Err(format!("standstill.blocks must be 2 … {MAX_BLOCKS}, not {}", self.blocks));
+        }
+        Ok(())
+    }
+}
+
+/// The turn-on bias as measured at standstills, with its variance.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct BiasEstimate {
+    /// rad/s, IMU axes.
+    pub bias: Vector3<f64>,
+    /// Per-axis variance at [`Self::at_ns`], (rad/s)².
+    pub variance: Vector3<f64>,
+    /// The end of the last still window measured, ns.
+    pub at_ns: i64,
+    /// Seconds of standstill it rests on.
+    pub still_s: f64,
+}
+
+impl BiasEstimate {
+    /// Per-axis variance at `t_ns`, grown by the random walk since it was measured.
+    pub fn variance_at(&self, t_ns: i64, random_walk: f64) -> Vector3<f64> {
+        let dt = ((t_ns - self.at_ns) as f64 * 1e-9).max(0.0);
+        self.variance.add_scalar(random_walk * random_walk * dt)
+    }
+
+    /// The largest per-axis standard deviation at `t_ns`, rad/s.
+    pub fn stddev_at(&self, t_ns: i64, random_walk: f64) -> f64 {
+        self.variance_at(t_ns, random_walk).max().sqrt()
+    }
+}
+
+/// Why a window was not still (counted).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NotStill {
+    /// Its block means moved, or its specific force is not gravity.
+    Moving,
+    /// Its mean rate is above `max_bias`: a turn.
+    Turning,
+    /// Gravity turned in the body since the standstill began.
+    Tilting,
+    /// Its mean is off the estimate by more than `max_bias_change`: a slow turn about gravity,
+    /// or a bias that jumped (re-take the estimate to accept it).
+    Inconsistent,
+}
+
+/// A window judged, reported by [`PowerOnBias::push`] on the sample after its last.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum WindowVerdict {
+    /// Still from `start_ns` to `end_ns` (the stamp of the sample after it): the body did not
+    /// turn, and its time-weighted mean rate `hold_rate` is what the gyro read there.
+    Still {
+        start_ns: i64,
+        end_ns: i64,
+        hold_rate: Vector3<f64>,
+    },
+    NotStill(NotStill),
+}
+
+/// Counts of what the detector judged (published on /diagnostics).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct StandstillCounters {
+    pub still_windows: u64,
+    /// Standstills measured (runs of still windows).
+    pub standstills: u64,
+    pub moving_windows: u64,
+    pub turning_windows: u64,
+    pub tilting_windows: u64,
+    pub inconsistent_windows: u64,
+    /// Windows broken by a gap or a stamp that went back.
+    pub interrupted_windows: u64,
+}
+
+/// Sums over one block or window.
+#[derive(Debug, Clone, Copy)]
+struct Sums {
+    gyro: Vector3<f64>,
+    accel: Vector3<f64>,
+    n: u32,
+}
+
+impl Sums {
+    const ZERO: Sums = Sums { gyro: Vector3::new(0.0, 0.0, 0.0), accel: Vector3::new(0.0, 0.0, 0.0), n: 0 };
+}
+
+/// One standstill in progress: consecutive still windows.
+#[derive(Debug, Clone, Copy)]
+struct Run {
+    start_ns: i64,
+    end_ns: i64,
+    gyro_sum: Vector3<f64>,
+    n: u64,
+    /// Sum and sum of squares of its block means, per axis: the mean's variance.
+    block_sum: Vector3<f64>,
+    block_sq: Vector3<f64>,
+    blocks: u32,
+    /// Its first window's gravity direction.
+    gravity: Vector3<f64>,
+}
+
+impl Run {
+    fn mean(&self) -> Vector3<f64> {
+        self.gyro_sum / self.n.max(1) as f64
+    }
+
+    /// The mean's per-axis variance from the scatter of its block means.
+    fn variance(&self) -> Vector3<f64> {
+        let k = self.blocks.max(2) as f64;
+        let m = self.block_sum / k;
+        (self.block_sq / k - m.component_mul(&m)).map(|v| v.max(0.0) * k / (k - 1.0) / k)
+    }
+
+    fn seconds(&self) -> f64 {
+        (self.end_ns - self.start_ns) as f64 * 1e-9
+    }
+}
+
+/// The streaming standstill detector and the per-power-on bias it measures.
+#[derive(Debug, Clone)]
+pub struct PowerOnBias {
+    cfg: StandstillConfig,
+    block_ns: i64,
+    last: Option<(i64, Vector3<f64>)>,
+    block: Sums,
+    block_start_ns: i64,
+    /// The window's completed blocks' means.
+    gyro_means: [Vector3<f64>; MAX_BLOCKS],
+    accel_means: [Vector3<f64>; MAX_BLOCKS],
+    blocks_done: usize,
+    window: Sums,
+    window_start_ns: Option<i64>,
+    /// ∫ω dt over the window so far, and its duration, s.
+    window_turn: Vector3<f64>,
+    window_s: f64,
+    run: Option<Run>,
+    /// The estimate before the current run (what the run is fused with).
+    prior: Option<BiasEstimate>,
+    estimate: Option<BiasEstimate>,
+    counters: StandstillCounters,
+}
+
+impl PowerOnBias {
+    pub fn new(cfg: StandstillConfig) -> Self {
+        let block_ns = (cfg.window_s / cfg.blocks.clamp(2, MAX_BLOCKS) as f64 * 1e9) as i64;
+        PowerOnBias {
+            cfg,
+            block_ns: block_ns.max(1),
+            last: None,
+            block: Sums::ZERO,
+            block_start_ns: 0,
+            gyro_means: [Vector3::zeros(); MAX_BLOCKS],
+            accel_means: [Vector3::zeros(); MAX_BLOCKS],
+            blocks_done: 0,
+            window: Sums::ZERO,
+            window_start_ns: None,
+            window_turn: Vector3::zeros(),
+            window_s: 0.0,
+            run: None,
+            prior: None,
+            estimate: None,
+            counters: StandstillCounters::default(),
+        }
+    }
+
+    pub fn config(&self) -> &StandstillConfig {
+        &self.cfg
+    }
+
+    /// The bias in force, if any standstill was measured.
+    pub fn estimate(&self) -> Option<&BiasEstimate> {
+        self.estimate.as_ref()
+    }
+
+    /// The bias to subtract now (zero before any standstill).
+    pub fn bias(&self) -> Vector3<f64> {
+        self.estimate.map_or(Vector3::zeros(), |e| e.bias)
+    }
+
+    pub fn counters(&self) -> &StandstillCounters {
+        &self.counters
+    }
+
+    /// True while the last window judged was still (the platform is standing).
+    pub fn standing(&self) -> bool {
+        self.run.is_some()
+    }
+
+    /// The start of the window in progress, ns (the sample that opened it).
+    pub fn window_start_ns(&self) -> Option<i64> {
+        self.window_start_ns
+    }
+
+    /// Forgets every standstill measured: the next one measures the bias afresh (a re-take on
+    /// demand, or a new power-on).
+    pub fn retake(&mut self) {
+        self.interrupt();
+        self.prior = None;
+        self.estimate = None;
+    }
+
+    /// Breaks the window and the standstill in progress (a gap, a clock that went back); what
+    /// was measured stays.
+    pub fn interrupt(&mut self) {
+        if self.window_start_ns.is_some() {
+            self.counters.interrupted_windows += 1;
+        }
+        self.end_run();
+        self.clear_window();
+        self.last = None;
+    }
+
+    /// One sample, in stamp order. Returns the verdict on a window this sample closed.
+    pub fn push(&mut self, s: &ImuSample) -> Option<WindowVerdict> {
+        if let Some((t, _)) = self.last {
+            let dt = s.stamp_ns - t;
+            if dt <= 0 || dt as f64 * 1e-9 > self.cfg.max_sample_gap_s {
+                self.interrupt();
+            }
+        }
+        let mut verdict = None;
+        if let Some((t, w)) = self.last {
+            let dt = (s.stamp_ns - t) as f64 * 1e-9;
+            self.window_turn += w * dt;
+            self.window_s += dt;
+            if s.stamp_ns - self.block_start_ns >= self.block_ns {
+                verdict = self.close_block(s.stamp_ns);
+            }
+        }
+        if self.window_start_ns.is_none() {
+            self.window_start_ns = Some(s.stamp_ns);
+        }
+        if self.block.n == 0 {
+            self.block_start_ns = s.stamp_ns;
+        }
+        self.block.gyro += s.gyro;
+        self.block.accel += s.accel;
+        self.block.n += 1;
+        self.last = Some((s.stamp_ns, s.gyro));
+        verdict
+    }
+
+    fn clear_window(&mut self) {
+        self.block = Sums::ZERO;
+        self.window = Sums::ZERO;
+        self.blocks_done = 0;
+        self.window_start_ns = None;
+        self.window_turn = Vector3::zeros();
+        self.window_s = 0.0;
+    }
+
+    /// Closes the block at `now_ns` (the next sample's stamp); judges the window when full.
+    fn close_block(&mut self, now_ns: i64) -> Option<WindowVerdict> {
+        let n = self.block.n.max(1) as f64;
+        let k = self.blocks_done;
+        self.gyro_means[k] = self.block.gyro / n;
+        self.accel_means[k] = self.block.accel / n;
+        self.window.gyro += self.block.gyro;
+        self.window.accel += self.block.accel;
+        self.window.n += self.block.n;
+        self.blocks_done += 1;
+        self.block = Sums::ZERO;
+        if self.blocks_done < self.cfg.blocks {
+            return None;
+        }
+        let start_ns = self.window_start_ns.unwrap_or(now_ns);
+        let hold_rate = self.window_turn / self.window_s.max(1e-12);
+        let verdict = match self.judge() {
+            Ok(()) => {
+                self.accept_window(start_ns, now_ns);
+                WindowVerdict::Still { start_ns, end_ns: now_ns, hold_rate }
+            }
+            Err(why) => {
+                if why == NotStill::Tilting {
+                    // A standstill that tilts was a slow turn from its start: none of it was a
+                    // bias (a turn at 0.03 rad/s about x passed as runs of a few still windows).
+                    self.estimate = self.prior;
+                    self.run = None;
+                }
+                self.end_run();
+                let c = &mut self.counters;
+                match why {
+                    NotStill::Moving => c.moving_windows += 1,
+                    NotStill::Turning => c.turning_windows += 1,
+                    NotStill::Tilting => c.tilting_windows += 1,
+                    NotStill::Inconsistent => c.inconsistent_windows += 1,
+                }
+                WindowVerdict::NotStill(why)
+            }
+        };
+        self.clear_window();
+        // The sample that closed the window opens the next one (set by `push`).
+        Some(verdict)
+    }
+
+    /// The window's tests, in the order of the module's list.
+    fn judge(&self) -> Result<(), NotStill> {
+        let k = self.blocks_done;
+        let span = |m: &[Vector3<f64>]| {
+            let (lo, hi) =
+                m.iter().fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(lo, hi), v| (lo.inf(v), hi.sup(v)));
+            (hi - lo).max()
+        };
+        let n = self.window.n.max(1) as f64;
+        let gyro = self.window.gyro / n;
+        let accel = self.window.accel / n;
+        if span(&self.gyro_means[..k]) >= self.cfg.max_gyro_spread
+            || span(&self.accel_means[..k]) >= self.cfg.max_accel_spread
+            || (accel.norm() - STANDARD_GRAVITY).abs() >= self.cfg.max_gravity_error
+        {
+            return Err(NotStill::Moving);
+        }
+        if gyro.amax() > self.cfg.max_bias {
+            return Err(NotStill::Turning);
+        }
+        if let Some(run) = &self.run {
+            if run.gravity.angle(&accel) > self.cfg.max_tilt_change {
+                return Err(NotStill::Tilting);
+            }
+        }
+        // Against what earlier standstills measured (not the run in progress: it is this one).
+        if let Some(prior) = &self.prior {
+            let sigma = prior.variance_at(self.window_start_ns.unwrap_or(prior.at_ns), self.cfg.bias_random_walk).map(f64::sqrt);
+            let off = (gyro - prior.bias).abs() - sigma * 5.0;
+            if off.max() > self.cfg.max_bias_change {
+                return Err(NotStill::Inconsistent);
+            }
+        }
+        Ok(())
+    }
+
+    /// Adds a still window to the standstill in progress and updates the estimate.
+    fn accept_window(&mut self, start_ns: i64, end_ns: i64) {
+        self.counters.still_windows += 1;
+        let k = self.blocks_done;
+        let n = self.window.n.max(1) as f64;
+        let run = self.run.get_or_insert(Run {
+            start_ns,
+            end_ns,
+            gyro_sum: Vector3::zeros(),
+            n: 0,
+            block_sum: Vector3::zeros(),
+            block_sq: Vector3::zeros(),
+            blocks: 0,
+            gravity: self.window.accel / n,
+        });
+        run.end_ns = end_ns;
+        run.gyro_sum += self.window.gyro;
+        run.n += self.window.n as u64;
+        for m in &self.gyro_means[..k] {
+            run.block_sum += m;
+            run.block_sq += m.component_mul(m);
+        }
+        run.blocks += k as u32;
+        let measured = BiasEstimate { bias: run.mean(), variance: run.variance(), at_ns: end_ns, still_s: run.seconds() };
+        self.estimate = Some(match &self.prior {
+            None => measured,
+            Some(p) => fuse(p, &measured, self.cfg.bias_random_walk),
+        });
+    }
+
+    fn end_run(&mut self) {
+        if self.run.take().is_some() {
+            self.counters.standstills += 1;
+            self.prior = self.estimate;
+        }
+    }
+}
+
+/// Inverse-variance fusion of an earlier estimate (grown by the random walk up to the new one)
+/// and a new standstill, per axis.
+fn fuse(prior: &BiasEstimate, new: &BiasEstimate, random_walk: f64) -> BiasEstimate {
+    let vp = prior.variance_at(new.at_ns, random_walk);
+    let vn = new.variance;
+    let mut bias = Vector3::zeros();
+    let mut variance = Vector3::zeros();
+    for i in 0..3 {
+        let (a, b) = (vp[i].max(1e-18), vn[i].max(1e-18));
+        bias[i] = (prior.bias[i] * b + new.bias[i] * a) / (a + b);
+        variance[i] = a * b / (a + b);
+    }
+    BiasEstimate { bias, variance, at_ns: new.at_ns, still_s: prior.still_s + new.still_s }
+}
+
+/// [`PowerOnBias`] over a whole recording, as the pipeline runs it sample by sample.
+#[derive(Debug, Clone, Default)]
+pub struct BiasTrack {
+    /// The bias in force after each sample (zero before the first standstill), rad/s.
+    pub bias: Vec<Vector3<f64>>,
+    /// Still windows as sample indices [start, end): the body did not turn there.
+    pub still: Vec<(usize, usize)>,
+    /// The estimate at the end, if any standstill was found.
+    pub last: Option<BiasEstimate>,
+    pub counters: StandstillCounters,
+    /// A standstill was in progress at the end.
+    pub standing_at_end: bool,
+}
+
+impl BiasTrack {
+    /// Runs the detector over `imu` (stamp order, as `read_recording` gives it).
+    pub fn over(imu: &[ImuSample], cfg: &StandstillConfig) -> Self {
+        let mut p = PowerOnBias::new(*cfg);
+        let mut track = BiasTrack { bias: Vec::with_capacity(imu.len()), ..Default::default() };
+        let mut window_start = 0;
+        for (i, s) in imu.iter().enumerate() {
+            if let Some(WindowVerdict::Still { .. }) = p.push(s) {
+                track.still.push((window_start, i));
+            }
+            if p.window_start_ns() == Some(s.stamp_ns) {
+                window_start = i;
+            }
+            track.bias.push(p.bias());
+        }
+        track.last = p.estimate().copied();
+        track.counters = *p.counters();
+        track.standing_at_end = p.standing();
+        track
+    }
+
+    /// `gyro` (one per IMU sample) minus the bias in force at each sample.
+    pub fn remove_from(&self, gyro: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        gyro.iter().zip(&self.bias).map(|(g, b)| g - b).collect()
+    }
+
+    /// The attitude held over each still window, as the pipeline holds it, written as a rate:
+    /// `gyro` minus its own time-weighted mean there, so its integral over the window is zero.
+    pub fn hold_still_windows(&self, imu: &[ImuSample], gyro: &mut [Vector3<f64>]) {
+        for &(a, b) in &self.still {
+            let (mut turn, mut secs) = (Vector3::zeros(), 0.0);
+            for k in a..b.min(imu.len() - 1) {
+                let dt = (imu[k + 1].stamp_ns - imu[k].stamp_ns) as f64 * 1e-9;
+                turn += gyro[k] * dt;
+                secs += dt;
+            }
+            if secs > 0.0 {
+                let mean = turn / secs;
+                for g in &mut gyro[a..b] {
+                    *g -= mean;
+                }
+            }
+        }
+    }
+
+    /// What it measured, for a note: the bias, its σ and the seconds of standstill, or why none.
+    pub fn note(&self) -> String {
+        match &self.last {
+            Some(e) => format!(
+                "power-on bias [{:.5}, {:.5}, {:.5}] rad/s, σ {:.1e}, from {:.1} s of standstill in {} standstills",
+                e.bias.x,
+                e.bias.y,
+                e.bias.z,
+                e.variance.max().sqrt(),
+                e.still_s,
+                self.counters.standstills + u64::from(self.standing_at_end)
+            ),
+            None => format!(
+                "no standstill found (windows moving {}, turning {}, tilting {}): the turn-on bias is uncorrected",
+                self.counters.moving_windows, self.counters.turning_windows, self.counters.tilting_windows
+            ),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// A 200-Hz stream: `rate(t)` the true body rate, a bias, white noise σ (a seeded LCG), the
+    /// specific force `accel(t)`.
+    fn stream(
+        seconds: f64,
+        bias: Vector3<f64>,
+        sigma: f64,
+        rate: impl Fn(f64) -> Vector3<f64>,
+        accel: impl Fn(f64) -> Vector3<f64>,
+    ) -> Vec<ImuSample> {
+        let mut state: u64 = 12345;
+        let mut noise = move || {
+            // Sum of 4 uniforms: roughly normal, unit variance.
+            (0..4)
+                .map(|_| {
+                    state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                    (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+                })
+                .sum::<f64>()
+                * 3f64.sqrt()
+        };
+        (0..(seconds * 200.0) as usize)
+            .map(|k| {
+                let t = k as f64 * 0.005;
+                let n = Vector3::new(noise(), noise(), noise()) * sigma;
+                ImuSample { stamp_ns: 1_000_000_000 + k as i64 * 5_000_000, gyro: rate(t) + bias + n, accel: accel(t) }
+            })
+            .collect()
+    }
+
+    fn level(_: f64) -> Vector3<f64> {
+        Vector3::new(0.0, 0.0, STANDARD_GRAVITY)
+    }
+
+    fn run(imu: &[ImuSample]) -> PowerOnBias {
+        let mut p = PowerOnBias::new(StandstillConfig::default());
+        for s in imu {
+            p.push(s);
+        }
+        p
+    }
+
+    #[test]
+    fn a_rest_measures_the_bias_and_its_variance_covers_the_error() {
+        let bias = Vector3::new(0.03, -0.05, 0.08);
+        let imu = stream(5.0, bias, 0.005, |_| Vector3::zeros(), level);
+        let p = run(&imu);
+        let e = p.estimate().expect("a rest");
+        let err = e.bias - bias;
+        assert!(err.amax() < 1e-3, "{err}");
+        for i in 0..3 {
+            assert!(err[i].abs() < 4.0 * e.variance[i].sqrt(), "axis {i}: error {} σ {}", err[i], e.variance[i].sqrt());
+        }
+        assert!(e.still_s > 4.0, "{}", e.still_s);
+    }
+
+    #[test]
+    fn a_standing_robots_vibration_is_a_rest() {
+        // 30 Hz shaking of ±0.05 rad/s and ±2 m/s²: block means stay put.
+        let bias = Vector3::new(0.01, 0.0, -0.02);
+        let shake = |t: f64| (2.0 * std::f64::consts::PI * 30.0 * t).sin();
+        let imu =
+            stream(4.0, bias, 0.01, |t| Vector3::new(0.05, 0.0, 0.0) * shake(t), |t| level(t) + Vector3::new(2.0, 0.0, 0.0) * shake(t));
+        let e = *run(&imu).estimate().expect("a vibrating rest is a rest");
+        assert!((e.bias - bias).amax() < 2e-3, "{}", e.bias);
+    }
+
+    #[test]
+    fn a_slow_turn_about_a_horizontal_axis_is_not_a_rest() {
+        // 0.03 rad/s about x: gravity turns in the body, 0.15 rad in 5 s.
+        let w = 0.03;
+        let imu = stream(
+            5.0,
+            Vector3::zeros(),
+            0.001,
+            |_| Vector3::new(w, 0.0, 0.0),
+            |t| Vector3::new(0.0, (w * t).sin(), (w * t).cos()) * STANDARD_GRAVITY,
+        );
+        let p = run(&imu);
+        assert!(p.counters().tilting_windows > 0, "{:?}", p.counters());
+        // At most the first windows, before gravity had turned by max_tilt_change.
+        let e = p.estimate().map_or(0.0, |e| e.still_s);
+        assert!(e <= 1.0, "{e}");
+    }
+
+    #[test]
+    fn a_turn_faster_than_any_bias_is_not_a_rest() {
+        let imu = stream(3.0, Vector3::zeros(), 0.001, |_| Vector3::new(0.0, 0.0, 0.3), level);
+        let p = run(&imu);
+        assert!(p.estimate().is_none());
+        assert!(p.counters().turning_windows >= 4, "{:?}", p.counters());
+    }
+
+    #[test]
+    fn a_slow_turn_about_gravity_after_a_rest_is_not_mixed_in() {
+        let bias = Vector3::new(0.0, 0.0, 0.02);
+        let mut imu = stream(3.0, bias, 0.002, |_| Vector3::zeros(), level);
+        // Then it moves, then stands turning at 0.06 rad/s about z (reads as a bias of 0.08).
+        let moving = stream(3.0, bias, 0.002, |t| Vector3::new(0.5 * (3.0 * t).sin(), 0.0, 0.0), level);
+        let turning = stream(5.0, bias, 0.002, |_| Vector3::new(0.0, 0.0, 0.06), level);
+        let t_end = imu.last().unwrap().stamp_ns;
+        for (k, s) in moving.iter().chain(&turning).enumerate() {
+            imu.push(ImuSample { stamp_ns: t_end + (k as i64 + 1) * 5_000_000, ..*s });
+        }
+        let p = run(&imu);
+        let e = p.estimate().unwrap();
+        assert!((e.bias - bias).amax() < 1e-3, "{}", e.bias);
+        assert!(p.counters().inconsistent_windows >= 8, "{:?}", p.counters());
+    }
+
+    #[test]
+    fn a_later_rest_refines_the_estimate() {
+        let bias = Vector3::new(0.02, 0.01, -0.01);
+        let first = stream(1.0, bias, 0.01, |_| Vector3::zeros(), level);
+        let moving = stream(5.0, bias, 0.01, |t| Vector3::new(0.0, 0.8 * (2.0 * t).sin(), 0.0), level);
+        let later = stream(10.0, bias, 0.01, |_| Vector3::zeros(), level);
+        let mut imu = first.clone();
+        for (k, s) in moving.iter().chain(&later).enumerate() {
+            imu.push(ImuSample { stamp_ns: first.last().unwrap().stamp_ns + (k as i64 + 1) * 5_000_000, ..*s });
+        }
+        let after_first = run(&first).estimate().copied().unwrap();
+        let p = run(&imu);
+        let e = p.estimate().unwrap();
+        assert_eq!(p.counters().standstills, 1, "the first ended; the later one is in progress");
+        assert!(e.variance.max() < after_first.variance.max() / 3.0, "{} vs {}", e.variance, after_first.variance);
+        assert!((e.bias - bias).amax() < 1e-3);
+    }
+
+    #[test]
+    fn a_bump_or_a_clock_jump_breaks_the_rest_and_keeps_what_was_measured() {
+        let bias = Vector3::new(0.0, 0.04, 0.0);
+        let mut imu = stream(6.0, bias, 0.002, |_| Vector3::zeros(), level);
+        // A bump at 2 s: 0.05 s of a 1-rad/s knock and 5 m/s².
+        for s in imu.iter_mut().skip(400).take(10) {
+            s.gyro.x += 1.0;
+            s.accel.x += 5.0;
+        }
+        // A clock that goes back 1 s at 4 s.
+        for s in imu.iter_mut().skip(800) {
+            s.stamp_ns -= 1_000_000_000;
+        }
+        let p = run(&imu);
+        let c = p.counters();
+        assert!(c.moving_windows >= 1 && c.interrupted_windows >= 1, "{c:?}");
+        let e = p.estimate().unwrap();
+        assert!((e.bias - bias).amax() < 1e-3, "{}", e.bias);
+    }
+
+    #[test]
+    fn a_rest_hold_rate_integrates_the_window_to_zero() {
+        let imu = stream(1.2, Vector3::new(0.01, 0.02, 0.03), 0.003, |_| Vector3::zeros(), level);
+        let mut p = PowerOnBias::new(StandstillConfig::default());
+        let mut found = None;
+        for s in &imu {
+            if let Some(WindowVerdict::Still { start_ns, end_ns, hold_rate }) = p.push(s) {
+                found = Some((start_ns, end_ns, hold_rate));
+                break;
+            }
+        }
+        let (a, b, m) = found.expect("a still window");
+        let turn: Vector3<f64> = imu
+            .windows(2)
+            .filter(|w| w[0].stamp_ns >= a && w[1].stamp_ns <= b)
+            .map(|w| (w[0].gyro - m) * ((w[1].stamp_ns - w[0].stamp_ns) as f64 * 1e-9))
+            .sum();
+        assert!(turn.amax() < 1e-12, "{turn}");
+    }
+
+    #[test]
+    fn the_offline_track_holds_a_rest_and_removes_the_bias_after_it() {
+        let bias = Vector3::new(0.02, -0.01, 0.05);
+        let mut imu = stream(2.0, bias, 0.002, |_| Vector3::zeros(), level);
+        let t_end = imu.last().unwrap().stamp_ns;
+        for (k, s) in stream(2.0, bias, 0.002, |t| Vector3::new(0.0, 0.0, 0.4 * t.sin()), level).iter().enumerate() {
+            imu.push(ImuSample { stamp_ns: t_end + (k as i64 + 1) * 5_000_000, ..*s });
+        }
+        let track = BiasTrack::over(&imu, &StandstillConfig::default());
+        assert_eq!(track.still.len(), 4, "{:?}", track.still);
+        assert!(track.bias[0].norm() == 0.0 && (track.bias[imu.len() - 1] - bias).amax() < 1e-3);
+        let raw: Vec<Vector3<f64>> = imu.iter().map(|s| s.gyro).collect();
+        let mut g = track.remove_from(&raw);
+        track.hold_still_windows(&imu, &mut g);
+        let q = crate::so3::integrate_gyro(&imu, nalgebra::UnitQuaternion::identity(), |n| g[n]);
+        // Held over the rest (the body did not turn), then integrated with the bias removed.
+        let at_rest_end = track.still.last().unwrap().1;
+        assert!(q[at_rest_end].angle() < 1e-7, "{}", q[at_rest_end].angle());
+        assert!(track.note().contains("power-on bias"));
+    }
+
+    #[test]
+    fn retake_forgets_the_estimate() {
+        let mut p = run(&stream(2.0, Vector3::new(0.05, 0.0, 0.0), 0.001, |_| Vector3::zeros(), level));
+        assert!(p.estimate().is_some());
+        p.retake();
+        assert!(p.estimate().is_none());
+        assert_eq!(p.bias(), Vector3::zeros());
+    }
+
+    #[test]
+    fn bad_settings_are_refused_with_the_key() {
+        let e = StandstillConfig { blocks: 1, ..Default::default() }.validate().unwrap_err();
+        assert!(e.contains("standstill.blocks"), "{e}");
+        let e = StandstillConfig { max_bias: f64::NAN, ..Default::default() }.validate().unwrap_err();
+        assert!(e.contains("standstill.max_bias"), "{e}");
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+        /// Whatever the bias (within the limit) and noise, a rest's stated σ covers its error.
+        #[test]
+        fn the_stated_variance_covers_the_error(
+            bx in -0.1f64..0.1, by in -0.1f64..0.1, bz in -0.1f64..0.1,
+            sigma in 0.0005f64..0.02, seconds in 1.0f64..8.0,
+        ) {
+            let bias = Vector3::new(bx, by, bz);
+            let p = run(&stream(seconds, bias, sigma, |_| Vector3::zeros(), level));
+            let e = p.estimate().expect("a rest");
+            let z = (e.bias - bias).component_div(&e.variance.map(f64::sqrt));
+            prop_assert!(z.amax() < 5.0, "z {z}, σ {}", e.variance.map(f64::sqrt));
+        }
+    }
+}
