@@ -51,7 +51,7 @@ for d in "${domains[@]}"; do
   # 1. The paper's few-shot step (Embedding only) on the support set, judged on the query set.
   out="$run/adapted/$mstem-$d.pt"
   start=$(date +%s.%N)
-  if "$bin" adapt --model "$model" --bag "$bag" --support-seconds "$support_s" --embedding-only -o "$out" --json >"$run/adapted/$d.adapt.json" 2>"$run/adapted/$d.adapt.log"; then
+  if "$bin" adapt --keep-power-on-bias --model "$model" --bag "$bag" --support-seconds "$support_s" --embedding-only -o "$out" --json >"$run/adapted/$d.adapt.json" 2>"$run/adapted/$d.adapt.log"; then
     status=accepted
   else
     status=rejected
@@ -61,7 +61,7 @@ for d in "${domains[@]}"; do
   # 1b. The default: also the calibration head (Ĉ_ω and the output bias; beyond the paper).
   out_cal="$run/adapted/$mstem-$d-cal.pt"
   start=$(date +%s.%N)
-  if "$bin" adapt --model "$model" --bag "$bag" --support-seconds "$support_s" -o "$out_cal" --json >"$run/adapted/$d.cal.adapt.json" 2>"$run/adapted/$d.cal.adapt.log"; then
+  if "$bin" adapt --keep-power-on-bias --model "$model" --bag "$bag" --support-seconds "$support_s" -o "$out_cal" --json >"$run/adapted/$d.cal.adapt.json" 2>"$run/adapted/$d.cal.adapt.log"; then
     status_cal=accepted
   else
     status_cal=rejected

@@ -43,7 +43,7 @@ for bag in "${bag_list[@]}"; do
     out="$work/$mstem-$s-$variant.pt"
     rm -f "$out" "${out%.pt}".{ot,json,adapt.json}
     start=$(date +%s.%N)
-    if "$bin" adapt --model "$model" --bag "$bag" "${imu_flag[@]}" --support-seconds "$adapt_s" --query-seconds "$((support_s - adapt_s))" \
+    if "$bin" adapt --keep-power-on-bias --model "$model" --bag "$bag" "${imu_flag[@]}" --support-seconds "$adapt_s" --query-seconds "$((support_s - adapt_s))" \
       "${flag[@]}" -o "$out" --json >"$work/$s.$variant.adapt.json" 2>"$work/$s.$variant.log"; then
       status=accepted
       models+=(--model "$out")

@@ -15,7 +15,7 @@ model="${MODEL:-$here/models/fsda-f.pt}"
 require_models "$model"
 power_ons="${POWER_ONS:-5}"
 seconds="${SECONDS_PER_POWER_ON:-120}"
-rests=(3 0 5 1.5 2 4 0.8 6)
+rests=(3 5 1.5 2 0 4 0.8 6)
 work="$IMU_FSDA_CACHE/poweron"
 rm -rf "$work"; mkdir -p "$work"
 lasting() { # grade → the lasting terms of one unit of it

@@ -29,26 +29,33 @@ def main():
         adapt_log = open(os.path.join(work, imu + '.adapt.log')).read().strip().splitlines()
         verdict = adapt_log[-1] if adapt_log else ''
         others = sorted(k for k in by.get('raw', {}) if k > 1)
-        mean = lambda m, ks: statistics.mean(by[m][k] for k in ks) if m in by and all(k in by[m] for k in ks) else None
-        row = {
-            'imu': imu,
-            'power_ons': len(by.get('raw', {})),
-            'with_rest': sorted(by.get('static-bias', {})),
-            'raw': mean('raw', others),
-            'static_bias': mean('static-bias', [k for k in others if k in by.get('static-bias', {})]) if by.get('static-bias') else None,
-            'power_on_bias': mean('power-on-bias', others),
-            'model_alone': mean('fsda-f', others),
-            'model_deployed': mean('fsda-f as deployed', others),
-            'adapted': mean('adapted', others),
-            'adapt_verdict': verdict,
-        }
+        rested = [k for k in others if k in by.get('static-bias', {})]
+        unrested = [k for k in others if k not in rested]
+        mean = lambda m, ks: statistics.mean(by[m][k] for k in ks) if ks and m in by and all(k in by[m] for k in ks) else None
+        row = {'imu': imu, 'power_ons': len(by.get('raw', {})), 'with_rest': rested, 'without_rest': unrested, 'adapt_verdict': verdict}
+        for name, ks in (('rest', rested), ('no_rest', unrested)):
+            row[name] = {
+                'raw': mean('raw', ks),
+                'static_bias': mean('static-bias', ks),
+                'power_on_bias': mean('power-on-bias', ks),
+                'model_alone': mean('fsda-f', ks),
+                'model_deployed': mean('fsda-f as deployed', ks),
+                'adapted': mean('adapted', ks),
+            }
         rows.append(row)
     json.dump(rows, open(out_json, 'w'), indent=1)
     f = lambda v: '–' if v is None else f'{v:.2f}'
-    lines = ['| IMU (profile-grade) | power-ons with a rest | raw | static-bias (those with a rest) | power-on bias | bundled model alone | bundled as deployed | adapted on power-on 1 |',
-             '|---|---|---|---|---|---|---|---|']
+    lines = ['| IMU (profile-grade) | power-ons 2–N with a rest | raw | static-bias | power-on bias | bundled alone | bundled as deployed | adapted on power-on 1 | without a rest: raw / as deployed / adapted |',
+             '|---|---|---|---|---|---|---|---|---|']
     for r in rows:
-        lines.append(f"| {r['imu']} | {len(r['with_rest'])} of {r['power_ons']} | {f(r['raw'])} | {f(r['static_bias'])} | {f(r['power_on_bias'])} | {f(r['model_alone'])} | {f(r['model_deployed'])} | {f(r['adapted']) if r['adapted'] is not None else 'rejected'} |")
+        a, b = r['rest'], r['no_rest']
+        ad = lambda d: f(d['adapted']) if d['adapted'] is not None else 'refused'
+        lines.append(f"| {r['imu']} | {len(r['with_rest'])} | {f(a['raw'])} | {f(a['static_bias'])} | {f(a['power_on_bias'])} | {f(a['model_alone'])} | {f(a['model_deployed'])} | {ad(a)} | {f(b['raw'])} / {f(b['model_deployed'])} / {ad(b)} |")
+    lines.append('')
+    lines.append('Adaptation verdicts (`adapt --judge` on power-ons 2–N):')
+    lines.append('')
+    for r in rows:
+        lines.append(f"- {r['imu']}: {r['adapt_verdict'].replace('error: ', '')}")
     table = '\n'.join(lines)
     text = open(out_md).read()
     a, b = '<!-- poweron:begin -->', '<!-- poweron:end -->'

@@ -57,8 +57,8 @@ pub struct AdaptArgs {
     pub imu: Option<String>,
     /// Other recordings of this IMU (bags with ground truth: another power-on) to judge the
     /// adapted model on, beside raw, the gyro minus its power-on bias and the starting model;
-    /// repeatable. With any, the model is written only if its mean AOE over them is below what
-    /// the node runs without it (the power-on bias on a new IMU).
+    /// repeatable. With any, the model is written only if its AOE over them is below what the
+    /// node runs without it (the power-on bias on a new IMU), as a geometric mean of the ratios.
     #[arg(long = "judge", value_name = "BAG")]
     pub judges: Vec<PathBuf>,
     /// Adapt on the gyro as recorded, its power-on bias inside: the model is then for this
@@ -305,17 +305,20 @@ fn judge_on_other_recordings(
         let (rec, _) = read_recording(bag, topics).with_context(|| format!("reading --judge {}", bag.display()))?;
         judged.push(imu_fsda::adapt::judge(start, adapted, &rec, cfg).with_context(|| format!("judging on {}", bag.display()))?);
     }
+    // The geometric mean of the ratios: a recording without a rest (raw, 100°) would decide an
+    // arithmetic mean by a hundredth of a degree.
     let n = judged.len() as f64;
-    let after = judged.iter().map(|j| j.after.aoe_deg).sum::<f64>() / n;
-    let without = judged.iter().map(|j| j.without_adaptation_deg()).sum::<f64>() / n;
+    let ratio = (judged.iter().map(|j| (j.after.aoe_deg / j.without_adaptation_deg()).ln()).sum::<f64>() / n).exp();
     let r = &mut outcome.report;
     r.judged = judged;
-    if after >= without {
+    if ratio.is_nan() || ratio >= 1.0 {
         r.accepted = false;
         r.verdict = format!(
-            "rejected on the other recordings: mean AOE {after:.3}° adapted against {without:.3}° without adapting (the power-on bias where the recording has a standstill); the adaptation does not carry over to another power-on"
+            "rejected on the other recordings: AOE adapted / without adapting (the power-on bias where the recording has a standstill) is {ratio:.3} (geometric mean over {n}); the adaptation does not carry over to another power-on"
         );
         outcome.adapted = None;
+    } else {
+        eprintln!("on the other recordings: AOE adapted / without adapting {ratio:.3} (geometric mean over {n})");
     }
     Ok(())
 }
