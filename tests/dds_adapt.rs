@@ -401,3 +401,58 @@ fn adapt_service_answers_when_it_cannot_adapt() {
     assert!(saved.is_empty(), "stopped: an abandoned adaptation wrote {saved:?}");
     eprintln!("dds_adapt: no model → {no_model_msg:?}; stopped while adapting → {msg:?}");
 }
+
+/// `~/retake_power_on_bias` over DDS: on EuRoC V1_03 (3.5 s at rest, then flight) with the
+/// bundled model and no `imu_calibration` (a new IMU to it: the node runs the power-on bias,
+/// not the model), the node measures the power-on bias at the rest; a call at 20 s is answered
+/// at once, the node forgets the bias (/diagnostics: empty until a later standstill), and
+/// counts the re-take.
+#[test]
+fn power_on_bias_is_retaken_on_demand_over_dds() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Ok(pre) = prerequisites().map_err(|why| skip_or_fail(&why)) else { return };
+    let Ok(seq) = common::euroc_sequence("V1_03_difficult", &[]).map_err(|why| skip_or_fail(&why)) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let (imu_csv, gt_csv) = (seq.join("imu0/data.csv"), seq.join("state_groundtruth_estimate0/data.csv"));
+    let o = run(
+        &pre,
+        dir.path(),
+        "retake",
+        &["--model", manifest_dir().join("models/fsda-f.pt").to_str().unwrap()],
+        "adapt_peer.py",
+        &[
+            "--csv",
+            imu_csv.to_str().unwrap(),
+            "--gt-csv",
+            gt_csv.to_str().unwrap(),
+            "--gt-from-s",
+            "1000",
+            "--count",
+            "6000",
+            "--service",
+            "retake_power_on_bias",
+            "--requests",
+            "20",
+            "--after-s",
+            "2",
+        ],
+        RESTART_RUN_TIMEOUT,
+    );
+    let (p, logs) = (&o.peer, &o.logs);
+    assert_eq!(p["matched"], true, "the peer never matched the node: {}\n{logs}", p["match_status"]);
+    assert_eq!(o.rc, vec![0, 0], "peer / node exit codes\n{logs}");
+    let replies = p["replies"].as_array().unwrap();
+    assert_eq!(replies.len(), 1, "one call, one reply\n{logs}");
+    assert!(replies[0]["success"] == true && replies[0]["message"].as_str().unwrap().contains("power-on bias forgotten"), "{}", replies[0]);
+    assert_eq!(o.node_stats["power_on_bias_retakes"].as_u64(), Some(1), "stats: {}\n{logs}", o.node_stats);
+    // Measured at the rest before the call; forgotten after it (V1_03 has no standstill in
+    // the 2 s after it).
+    let values: Vec<&serde_json::Map<String, Value>> = p["diagnostics"].as_array().unwrap().iter().filter_map(diag_values).collect();
+    let measured = values.iter().position(|v| !value(v, "power_on_bias_rad_s").is_empty());
+    let retaken = values.iter().position(|v| value(v, "power_on_bias_retakes") == "1");
+    let (Some(m), Some(r)) = (measured, retaken) else { panic!("diagnostics: measured {measured:?}, retaken {retaken:?}\n{logs}") };
+    assert!(m < r, "the bias was measured before the re-take");
+    assert!(value(values[r], "power_on_bias_rad_s").is_empty(), "after the re-take: {:?}", value(values[r], "power_on_bias_rad_s"));
+    assert_eq!(value(values[r], "correction"), "power-on bias");
+    assert_eq!(o.node_stats["correction"], "power-on bias", "the bundled model on a new IMU: the power-on bias runs");
+}

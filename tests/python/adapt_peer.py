@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """Independent ROS 2 peer for tests/dds_adapt.rs and scripts/bench_adapt.sh: drives the
-node's on-demand adaptation service `~/adapt` (std_srvs/srv/Trigger) over plain Cyclone DDS
+node's on-demand adaptation service `~/adapt` (or, with `--service`, another of its
+std_srvs/srv/Trigger services: `retake_power_on_bias`) over plain Cyclone DDS
 (PyPI cyclonedds==11.0.1), without any ROS 2 library. The message types and helpers are
 dds_peer.py's (same folder).
 
@@ -133,6 +134,7 @@ def main() -> int:
     ap.add_argument("--rate-fast", type=float, default=2000.0, help="IMU rate with no request outstanding, Hz")
     ap.add_argument("--rate-busy", type=float, default=200.0, help="IMU rate while a request is outstanding, Hz")
     ap.add_argument("--node-name", default="imu_fsda")
+    ap.add_argument("--service", default="adapt", help="the node's Trigger service to call: adapt, retake_power_on_bias")
     ap.add_argument("--frame-id", default="imu_link")
     ap.add_argument("--domain", type=int, default=0)
     ap.add_argument("--max-in-flight", type=int, default=5)
@@ -163,8 +165,8 @@ def main() -> int:
     reliable_qos = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.Durability.Volatile, Policy.History.KeepAll)
     w_imu = DataWriter(pub, Topic(dp, "rt/imu/data_raw", Imu), qos=sensor_qos)
     w_gt = DataWriter(pub, Topic(dp, "rt/ground_truth/pose", PoseStamped), qos=sensor_qos)
-    w_req = DataWriter(pub, Topic(dp, f"rq/{args.node_name}/adaptRequest", TriggerRequest), qos=reliable_qos)
-    r_rep = DataReader(sub, Topic(dp, f"rr/{args.node_name}/adaptReply", TriggerResponse), qos=reliable_qos)
+    w_req = DataWriter(pub, Topic(dp, f"rq/{args.node_name}/{args.service}Request", TriggerRequest), qos=reliable_qos)
+    r_rep = DataReader(sub, Topic(dp, f"rr/{args.node_name}/{args.service}Reply", TriggerResponse), qos=reliable_qos)
     r_den = DataReader(sub, Topic(dp, "rt/imu/denoised", Imu), qos=reliable_qos)
     r_diag = DataReader(sub, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=reliable_qos)
 

@@ -4,6 +4,8 @@
 //! (geometry_msgs/Vector3Stamped) and `/diagnostics` (diagnostic_msgs/DiagnosticArray).
 //! Nothing below this module knows about DDS.
 
+mod power_on;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -420,6 +422,8 @@ pub struct NodeStats {
     pub power_on_bias: Option<crate::standstill::BiasEstimate>,
     pub standstills: crate::standstill::StandstillCounters,
     pub standing: bool,
+    /// Times `~/retake_power_on_bias` made the node forget the power-on bias.
+    pub power_on_bias_retakes: u64,
     pub model: String,
     pub window: usize,
     pub model_status: String,
@@ -435,37 +439,6 @@ pub struct NodeStats {
     /// unchanged. The process must then end without running libtorch's exit-time destructors
     /// under that thread (it crashed with SIGSEGV): see `imu-fsda node`.
     pub adaptation_abandoned: bool,
-}
-
-impl NodeStats {
-    /// The pipeline's correction and power-on bias, as /diagnostics says them; logs a change of
-    /// correction (a model swapped in) and the first power-on bias.
-    pub fn take_power_on(&mut self, pipeline: &crate::infer::Pipeline) {
-        let (correction, why) = pipeline.correction();
-        if correction.name() != self.correction {
-            tracing::info!("correction: {} ({why})", correction.name());
-        }
-        let estimate = pipeline.power_on_bias().copied();
-        if let (None, Some(e)) = (&self.power_on_bias, &estimate) {
-            tracing::info!(
-                "power-on gyro bias [{:.5}, {:.5}, {:.5}] rad/s measured at a standstill (σ {:.1e}){}",
-                e.bias.x,
-                e.bias.y,
-                e.bias.z,
-                e.variance.max().sqrt(),
-                if correction.removes_power_on_bias() {
-                    ", removed from the gyro"
-                } else {
-                    ": reported, not removed (the model was trained on this IMU)"
-                }
-            );
-        }
-        self.correction = correction.name();
-        self.correction_reason = why;
-        self.power_on_bias = estimate;
-        self.standstills = *pipeline.standstill_counters();
-        self.standing = pipeline.standing();
-    }
 }
 
 /// No input for this long after the first, s: the status says the input stopped.
@@ -591,6 +564,7 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("power_on_bias_standstill_s", stats.power_on_bias.map_or(String::new(), |e| format!("{:.1}", e.still_s))),
         kv("standing", stats.standing.to_string()),
         kv("standstill_windows", stats.standstills.still_windows.to_string()),
+        kv("power_on_bias_retakes", stats.power_on_bias_retakes.to_string()),
         kv("latency_p50_us", format!("{:.0}", stats.latency.quantile_us(0.5))),
         kv("latency_p99_us", format!("{:.0}", stats.latency.quantile_us(0.99))),
         kv("received", c.received.to_string()),
@@ -777,6 +751,7 @@ pub async fn run_node_with_adaptation(
             .map_err(dds)?,
         );
     }
+    let retake_server = if params.pipeline.power_on_bias { Some(power_on::retake_server(&mut node, node_name)?) } else { None };
     let spinner = node.spinner().map_err(dds)?;
 
     let stats = Arc::new(Mutex::new(NodeStats {
@@ -805,7 +780,16 @@ pub async fn run_node_with_adaptation(
     // The request a running adaptation will answer: answered at shutdown if it is still open.
     let open_request: Mutex<Option<ros2_client::RmwRequestId>> = Mutex::new(None);
     let tap = buffers.as_ref().map(|b| AdaptTap { buffers: b.clone(), adapting: adapting.clone() });
-    let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits, tap);
+    // Set by `~/retake_power_on_bias`, taken by the process loop between two samples.
+    let retake = Arc::new(AtomicBool::new(false));
+    let controls = LoopControls { tap, retake: retake.clone() };
+    let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits, controls);
+    let retake_task = async {
+        match &retake_server {
+            Some(srv) => power_on::retake_service_loop(srv, &retake).await,
+            None => std::future::pending().await,
+        }
+    };
     let gt_task = async {
         match (&gt_source, &buffers) {
             (Some(src), Some(b)) => ground_truth_loop(src, b).await,
@@ -856,6 +840,7 @@ pub async fn run_node_with_adaptation(
         _ = diagnostics => {}
         _ = gt_task => {}
         _ = service_task => {}
+        _ = retake_task => {}
         _ = shutdown => tracing::info!("shutting down"),
     }
     let open = open_request.lock().expect("request lock").take();
@@ -882,6 +867,12 @@ struct AdaptTap {
     adapting: Arc<AtomicBool>,
 }
 
+/// What reaches the process loop from the services: the adaptation's tap, and the re-take flag.
+struct LoopControls {
+    tap: Option<AdaptTap>,
+    retake: Arc<AtomicBool>,
+}
+
 async fn process_loop(
     subscription: &ros2_client::Subscription<Imu>,
     out_pub: &ros2_client::Publisher<Imu>,
@@ -889,8 +880,9 @@ async fn process_loop(
     mut pipeline: Pipeline,
     stats: Arc<Mutex<NodeStats>>,
     limits: RunLimits,
-    tap: Option<AdaptTap>,
+    controls: LoopControls,
 ) {
+    let LoopControls { tap, retake } = controls;
     let stream = subscription.async_stream();
     futures::pin_mut!(stream);
     let mut published = 0u64;
@@ -919,6 +911,9 @@ async fn process_loop(
             }
         };
         let sample = msg.sample();
+        if retake.swap(false, Ordering::AcqRel) {
+            power_on::retake(&mut pipeline, &stats);
+        }
         let result = pipeline.push(&sample);
         let mut frame_changed = false;
         if last_frame.as_deref() != Some(msg.header.frame_id.as_str()) {

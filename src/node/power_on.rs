@@ -1,0 +1,85 @@
+//! The node's share of the power-on bias: what /diagnostics says of it, and
+//! `~/retake_power_on_bias` (std_srvs/Trigger), which makes the node forget the bias measured
+//! so the next standstill measures it afresh: after the IMU was power-cycled under a running
+//! node, or a standstill the user knows was not one.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+
+use super::{topic_name, NodeError, NodeStats, TriggerRequest, TriggerResponse};
+use crate::infer::Pipeline;
+
+/// The reply to a re-take.
+pub const RETAKE_REPLY: &str =
+    "power-on bias forgotten: the next standstill (0.5 s or more at rest) measures it afresh; until then the gyro's turn-on bias is uncorrected";
+
+type Server = ros2_client::service::Server<TriggerRequest, TriggerResponse>;
+
+/// The `~/retake_power_on_bias` server (the Enhanced mapping, as `~/adapt`).
+pub(super) fn retake_server(node: &mut ros2_client::Node, node_name: &str) -> Result<Server, NodeError> {
+    let qos = ros2_client::QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 10 });
+    node.create_server::<TriggerRequest, TriggerResponse>(
+        ros2_client::service::ServiceMapping::Enhanced,
+        &topic_name(&format!("/{node_name}/retake_power_on_bias"))?,
+        &ros2_client::ServiceTypeName::new("std_srvs", "Trigger"),
+        qos.clone(),
+        qos,
+    )
+    .map_err(|e| NodeError::Dds(format!("{e:?}")))
+}
+
+/// Answers every call at once; the process loop forgets the bias before its next sample.
+pub(super) async fn retake_service_loop(server: &Server, retake: &AtomicBool) {
+    loop {
+        match server.async_receive_request().await {
+            Ok((id, _)) => {
+                retake.store(true, Ordering::Release);
+                tracing::info!("~/retake_power_on_bias: {RETAKE_REPLY}");
+                let reply = TriggerResponse { success: true, message: RETAKE_REPLY.into() };
+                if let Err(e) = server.async_send_response(id, reply).await {
+                    tracing::warn!("~/retake_power_on_bias response: {e:?}");
+                }
+            }
+            Err(e) => tracing::warn!("~/retake_power_on_bias request: {e:?}"),
+        }
+    }
+}
+
+/// Between two samples: forget the bias, and count it.
+pub(super) fn retake(pipeline: &mut Pipeline, stats: &Arc<Mutex<NodeStats>>) {
+    pipeline.retake_power_on_bias();
+    if let Ok(mut s) = stats.lock() {
+        s.power_on_bias_retakes += 1;
+    }
+}
+
+impl NodeStats {
+    /// The pipeline's correction and power-on bias, as /diagnostics says them; logs a change of
+    /// correction (a model swapped in) and the first power-on bias.
+    pub fn take_power_on(&mut self, pipeline: &crate::infer::Pipeline) {
+        let (correction, why) = pipeline.correction();
+        if correction.name() != self.correction {
+            tracing::info!("correction: {} ({why})", correction.name());
+        }
+        let estimate = pipeline.power_on_bias().copied();
+        if let (None, Some(e)) = (&self.power_on_bias, &estimate) {
+            tracing::info!(
+                "power-on gyro bias [{:.5}, {:.5}, {:.5}] rad/s measured at a standstill (σ {:.1e}){}",
+                e.bias.x,
+                e.bias.y,
+                e.bias.z,
+                e.variance.max().sqrt(),
+                if correction.removes_power_on_bias() {
+                    ", removed from the gyro"
+                } else {
+                    ": reported, not removed (the model was trained on this IMU)"
+                }
+            );
+        }
+        self.correction = correction.name();
+        self.correction_reason = why;
+        self.power_on_bias = estimate;
+        self.standstills = *pipeline.standstill_counters();
+        self.standing = pipeline.standing();
+    }
+}
