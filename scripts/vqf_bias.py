@@ -21,15 +21,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
+from rotate_imu_bag import plain  # the decoded message as plain dicts, for the writer
+
 IMU = '/imu/data'
-
-
-def plain(o):
-    if hasattr(o, '__slots__'):
-        return {k: plain(getattr(o, k)) for k in o.__slots__}
-    if isinstance(o, (list, tuple)):
-        return [plain(x) for x in o]
-    return o
 
 
 def vec(v):

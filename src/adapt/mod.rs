@@ -646,16 +646,13 @@ pub fn remove_power_on_bias(
     query: &mut Recording,
     cfg: &crate::standstill::StandstillConfig,
 ) -> Result<crate::standstill::BiasEstimate, AdaptError> {
+    let in_support = crate::standstill::BiasTrack::over(&support.imu, cfg);
+    let Some(estimate) = in_support.last else {
+        return Err(AdaptError::NoStandstill(support.name.clone(), in_support.note()));
+    };
+    // The bias in force at each sample of the one stream, as the node would have it.
     let whole: Vec<_> = support.imu.iter().chain(&query.imu).copied().collect();
     let track = crate::standstill::BiasTrack::over(&whole, cfg);
-    let n = support.imu.len();
-    let at_support_end = track.bias.get(n.saturating_sub(1)).copied().unwrap_or_default();
-    if n == 0 || at_support_end == nalgebra::Vector3::zeros() {
-        let mut none = crate::standstill::BiasTrack::over(&support.imu, cfg);
-        none.last = None;
-        return Err(AdaptError::NoStandstill(support.name.clone(), none.note()));
-    }
-    let estimate = crate::standstill::BiasTrack::over(&support.imu, cfg).last.expect("a standstill in the support");
     for (s, b) in support.imu.iter_mut().chain(query.imu.iter_mut()).zip(&track.bias) {
         s.gyro -= b;
     }
