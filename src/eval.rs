@@ -776,9 +776,7 @@ impl BaselineMethod {
             }
             BaselineMethod::PowerOnBias => {
                 let track = crate::standstill::BiasTrack::over(&rec.imu, &crate::standstill::StandstillConfig::default());
-                let mut gyro = track.remove_from(&raw.collect::<Vec<_>>());
-                track.hold_still_windows(&rec.imu, &mut gyro);
-                Ok((gyro, track.note()))
+                Ok((track.corrected_gyro(&rec.imu), track.note()))
             }
         }
     }

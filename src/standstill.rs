@@ -519,6 +519,20 @@ impl BiasTrack {
         gyro.iter().zip(&self.bias).map(|(g, b)| g - b).collect()
     }
 
+    /// The samples with the bias in force at each removed: what the pipeline feeds a model
+    /// adapted after its support's power-on bias was removed.
+    pub fn debiased(&self, imu: &[ImuSample]) -> Vec<ImuSample> {
+        imu.iter().zip(&self.bias).map(|(s, b)| ImuSample { gyro: s.gyro - b, ..*s }).collect()
+    }
+
+    /// The gyro the pipeline's power-on-bias correction gives `imu` (each sample minus the bias
+    /// in force, the attitude held over still windows).
+    pub fn corrected_gyro(&self, imu: &[ImuSample]) -> Vec<Vector3<f64>> {
+        let mut gyro = self.remove_from(&imu.iter().map(|s| s.gyro).collect::<Vec<_>>());
+        self.hold_still_windows(imu, &mut gyro);
+        gyro
+    }
+
     /// The attitude held over each still window, as the pipeline holds it, written as a rate:
     /// `gyro` minus its own time-weighted mean there, so its integral over the window is zero.
     pub fn hold_still_windows(&self, imu: &[ImuSample], gyro: &mut [Vector3<f64>]) {
@@ -741,9 +755,7 @@ mod tests {
         let track = BiasTrack::over(&imu, &StandstillConfig::default());
         assert_eq!(track.still.len(), 4, "{:?}", track.still);
         assert!(track.bias[0].norm() == 0.0 && (track.bias[imu.len() - 1] - bias).amax() < 1e-3);
-        let raw: Vec<Vector3<f64>> = imu.iter().map(|s| s.gyro).collect();
-        let mut g = track.remove_from(&raw);
-        track.hold_still_windows(&imu, &mut g);
+        let g = track.corrected_gyro(&imu);
         let q = crate::so3::integrate_gyro(&imu, nalgebra::UnitQuaternion::identity(), |n| g[n]);
         // Held over the rest (the body did not turn), then integrated with the bias removed.
         let at_rest_end = track.still.last().unwrap().1;

@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::{to_task, AdaptConfig, AdaptError};
-use crate::core::{ImuSample, Recording};
+use crate::core::Recording;
 use crate::eval::{EvalOptions, OrientationErrors};
 use crate::model::export::LoadedNet;
 use crate::standstill::BiasTrack;
@@ -45,8 +45,7 @@ pub fn judge(start: &LoadedNet, adapted: &LoadedNet, rec: &Recording, cfg: &Adap
     let raw = evaluate_raw(&task, &eopts)?;
     let before = evaluate_net_with_gain(&start.net, &task, &eopts, start.correction_gain())?;
     let track = BiasTrack::over(&rec.imu, &cfg.standstill);
-    let debiased =
-        Recording { imu: rec.imu.iter().zip(&track.bias).map(|(s, b)| ImuSample { gyro: s.gyro - b, ..*s }).collect(), ..rec.clone() };
+    let debiased = Recording { imu: track.debiased(&rec.imu), ..rec.clone() };
     let debiased_task = to_task(&debiased, "judge", cfg)?;
     let power_on_bias = match track.last {
         Some(_) => Some(evaluate_raw(&debiased_task, &eopts)?),

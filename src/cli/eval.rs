@@ -246,7 +246,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 let (correction, why) = choose(ModelDomain::of(&metas[model_index], imu), true, args.model_on_new_imu);
                 let track = correction.removes_power_on_bias().then(|| BiasTrack::over(&source.imu, &StandstillConfig::default()));
                 let input = match (&track, correction.runs_model()) {
-                    (Some(t), true) => debiased(&source.imu, t),
+                    (Some(t), true) => t.debiased(&source.imu),
                     _ => source.imu.clone(),
                 };
                 let run =
@@ -281,11 +281,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                     // runs on this IMU instead.
                     add_note(&mut note, &format!("the model alone; as deployed the node runs {}", correction.name()));
                     let deployed = match &track {
-                        Some(t) => {
-                            let mut g = t.remove_from(&source.imu.iter().map(|s| s.gyro).collect::<Vec<_>>());
-                            t.hold_still_windows(&source.imu, &mut g);
-                            (g[span.clone()].to_vec(), format!("{why}: {}", t.note()))
-                        }
+                        Some(t) => (t.corrected_gyro(&source.imu)[span.clone()].to_vec(), format!("{why}: {}", t.note())),
                         None => (source.imu[span.clone()].iter().map(|s| s.gyro).collect(), why.to_string()),
                     };
                     streams.push((label.clone(), Ok((gyro, note))));
@@ -510,12 +506,6 @@ fn model_labels(models: &[std::path::PathBuf], metas: &[imu_fsda::model::export:
 fn scored_span(whole: &Recording, span: &Recording) -> std::ops::Range<usize> {
     let start = span.imu.first().map_or(0, |s| whole.imu.partition_point(|w| w.stamp_ns < s.stamp_ns));
     start..start + span.imu.len()
-}
-
-/// The IMU samples with the bias in force at each removed, as the node feeds a model adapted
-/// after its support's power-on bias was removed.
-fn debiased(imu: &[ImuSample], track: &BiasTrack) -> Vec<ImuSample> {
-    imu.iter().zip(&track.bias).map(|(s, b)| ImuSample { gyro: s.gyro - b, ..*s }).collect()
 }
 
 #[cfg(test)]
