@@ -756,7 +756,13 @@ impl BaselineMethod {
     }
 
     /// Corrected gyro for each IMU sample, and a note on what was done.
-    pub fn apply(self, rec: &Recording, det: &RestDetector) -> Result<(Vec<Vector3<f64>>, String), EvalError> {
+    /// `standstill`: how the power-on bias finds standstills (the node's `pipeline.standstill`).
+    pub fn apply(
+        self,
+        rec: &Recording,
+        det: &RestDetector,
+        standstill: &crate::standstill::StandstillConfig,
+    ) -> Result<(Vec<Vector3<f64>>, String), EvalError> {
         let raw = rec.imu.iter().map(|s| s.gyro);
         match self {
             BaselineMethod::Raw => Ok((raw.collect(), String::new())),
@@ -775,7 +781,7 @@ impl BaselineMethod {
                 Ok((raw.map(|g| g - bias).collect(), note))
             }
             BaselineMethod::PowerOnBias => {
-                let track = crate::standstill::BiasTrack::over(&rec.imu, &crate::standstill::StandstillConfig::default());
+                let track = crate::standstill::BiasTrack::over(&rec.imu, standstill);
                 Ok((track.corrected_gyro(&rec.imu), track.note()))
             }
         }
@@ -1055,12 +1061,12 @@ mod tests {
         }
         let end = detect_initial_rest(&rec.imu, &RestDetector::default()).unwrap();
         assert!((800..=1000).contains(&end), "{end}");
-        let (g, note) = BaselineMethod::StaticBias.apply(&rec, &RestDetector::default()).unwrap();
+        let (g, note) = BaselineMethod::StaticBias.apply(&rec, &RestDetector::default(), &Default::default()).unwrap();
         assert!((g[0] - (rec.imu[0].gyro - b)).norm() < 1e-3, "{note}");
         // Moving from the start: no rest, a clear error.
         let mut moving = rec.clone();
         moving.imu.drain(..1000);
-        assert!(BaselineMethod::StaticBias.apply(&moving, &RestDetector::default()).is_err());
+        assert!(BaselineMethod::StaticBias.apply(&moving, &RestDetector::default(), &Default::default()).is_err());
     }
 
     #[test]

@@ -13,6 +13,7 @@ pub mod eval;
 pub mod figures;
 pub mod infer;
 pub mod model;
+pub mod motion_bias;
 pub mod msg;
 pub mod node;
 pub mod physics;

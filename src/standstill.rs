@@ -22,6 +22,20 @@
 use nalgebra::Vector3;
 
 use crate::core::{ImuSample, STANDARD_GRAVITY};
+use crate::motion_bias::{MotionBias, MotionBiasConfig};
+
+/// Where the bias observed in motion ([`crate::motion_bias`]) is used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InMotion {
+    /// Never: only standstills measure the bias.
+    Off,
+    /// Until the first standstill (a recording that starts moving); a standstill's estimate
+    /// then rules.
+    UntilStandstill,
+    /// Always: standstills seed the filter, motion refines it between them.
+    Always,
+}
 
 /// Most blocks a window is judged on.
 pub const MAX_BLOCKS: usize = 16;
@@ -51,6 +65,10 @@ pub struct StandstillConfig {
     pub bias_random_walk: f64,
     /// An interval longer than this (or a stamp not after the last) breaks a window, s.
     pub max_sample_gap_s: f64,
+    /// Where the bias seen in motion through gravity is used.
+    pub in_motion: InMotion,
+    /// That filter's noise model.
+    pub motion: MotionBiasConfig,
 }
 
 impl Default for StandstillConfig {
@@ -71,6 +89,8 @@ impl Default for StandstillConfig {
             max_bias_change: 0.01,
             bias_random_walk: 1e-5,
             max_sample_gap_s: 0.1,
+            in_motion: InMotion::UntilStandstill,
+            motion: MotionBiasConfig::default(),
         }
     }
 }
@@ -98,7 +118,7 @@ impl StandstillConfig {
         if !(2..=MAX_BLOCKS).contains(&self.blocks) {
             return Err(format!("standstill.blocks must be 2 … {MAX_BLOCKS}, not {}", self.blocks));
         }
-        Ok(())
+        self.motion.validate().map_err(|e| format!("standstill.{e}"))
     }
 }
 
@@ -235,6 +255,8 @@ pub struct PowerOnBias {
     prior: Option<BiasEstimate>,
     estimate: Option<BiasEstimate>,
     counters: StandstillCounters,
+    /// The bias seen in motion (unless `in_motion: off`).
+    motion: Option<MotionBias>,
 }
 
 impl PowerOnBias {
@@ -257,6 +279,7 @@ impl PowerOnBias {
             prior: None,
             estimate: None,
             counters: StandstillCounters::default(),
+            motion: (cfg.in_motion != InMotion::Off).then(|| MotionBias::new(cfg.motion)),
         }
     }
 
@@ -269,9 +292,42 @@ impl PowerOnBias {
         self.estimate.as_ref()
     }
 
-    /// The bias to subtract now (zero before any standstill).
+    /// The bias to subtract now: the standstills' (and, per `in_motion`, the one seen in
+    /// motion); zero before any.
     pub fn bias(&self) -> Vector3<f64> {
-        self.estimate.map_or(Vector3::zeros(), |e| e.bias)
+        self.in_force(0).map_or(Vector3::zeros(), |e| e.bias)
+    }
+
+    /// The bias in force and its variance: a standstill's, or the one seen in motion where
+    /// `in_motion` uses it (stamped `now_ns`, its variance the filter's own).
+    pub fn in_force(&self, now_ns: i64) -> Option<BiasEstimate> {
+        let from_motion = |m: &MotionBias| BiasEstimate {
+            bias: m.applied().0,
+            variance: m.applied().1,
+            at_ns: now_ns,
+            still_s: self.estimate.map_or(0.0, |e| e.still_s),
+        };
+        match (self.cfg.in_motion, self.motion.as_ref()) {
+            (InMotion::Always | InMotion::UntilStandstill, Some(m)) if self.estimate.is_none() => m.applies_any().then(|| from_motion(m)),
+            (InMotion::Always, Some(m)) if !m.misfit() => Some(from_motion(m)),
+            _ => self.estimate,
+        }
+    }
+
+    /// Where [`Self::in_force`] comes from: `standstill`, `motion`, or "" (nothing yet).
+    pub fn source(&self) -> &'static str {
+        let applies = self.motion.as_ref().is_some_and(MotionBias::applies_any);
+        match (self.cfg.in_motion, applies, self.estimate.is_some()) {
+            (InMotion::Always, _, true) if self.motion.is_some() => "standstill, then motion",
+            (_, _, true) => "standstill",
+            (InMotion::Always | InMotion::UntilStandstill, true, false) => "motion",
+            _ => "",
+        }
+    }
+
+    /// The filter of the bias seen in motion, if it runs.
+    pub fn motion(&self) -> Option<&MotionBias> {
+        self.motion.as_ref()
     }
 
     pub fn counters(&self) -> &StandstillCounters {
@@ -294,6 +350,9 @@ impl PowerOnBias {
         self.interrupt();
         self.prior = None;
         self.estimate = None;
+        if let Some(m) = self.motion.as_mut() {
+            m.restart();
+        }
     }
 
     /// Breaks the window and the standstill in progress (a gap, a clock that went back); what
@@ -309,6 +368,9 @@ impl PowerOnBias {
 
     /// One sample, in stamp order. Returns the verdict on a window this sample closed.
     pub fn push(&mut self, s: &ImuSample) -> Option<WindowVerdict> {
+        if let Some(m) = self.motion.as_mut() {
+            m.push(s);
+        }
         if let Some((t, _)) = self.last {
             let dt = s.stamp_ns - t;
             if dt <= 0 || dt as f64 * 1e-9 > self.cfg.max_sample_gap_s {
@@ -373,6 +435,7 @@ impl PowerOnBias {
                     // bias (a turn at 0.03 rad/s about x passed as runs of a few still windows).
                     self.estimate = self.prior;
                     self.run = None;
+                    self.seed_motion();
                 }
                 self.end_run();
                 let c = &mut self.counters;
@@ -454,6 +517,17 @@ impl PowerOnBias {
             None => measured,
             Some(p) => fuse(p, &measured, self.cfg.bias_random_walk),
         });
+        self.seed_motion();
+    }
+
+    /// The filter in motion starts from what the standstills measured (or from its prior, when
+    /// a standstill was dropped and none is left).
+    fn seed_motion(&mut self) {
+        let Some(m) = self.motion.as_mut() else { return };
+        match &self.estimate {
+            Some(e) => m.seed(e.bias, e.variance),
+            None => m.seed(Vector3::zeros(), Vector3::repeat(self.cfg.motion.prior_stddev.powi(2))),
+        }
     }
 
     fn end_run(&mut self) {
@@ -488,6 +562,10 @@ pub struct BiasTrack {
     pub still: Vec<(usize, usize)>,
     /// The estimate at the end, if any standstill was found.
     pub last: Option<BiasEstimate>,
+    /// The bias in force at the end (a standstill's, or the one seen in motion) and where it
+    /// comes from.
+    pub in_force_at_end: Option<BiasEstimate>,
+    pub source: &'static str,
     pub counters: StandstillCounters,
     /// A standstill was in progress at the end.
     pub standing_at_end: bool,
@@ -509,6 +587,8 @@ impl BiasTrack {
             track.bias.push(p.bias());
         }
         track.last = p.estimate().copied();
+        track.in_force_at_end = p.in_force(imu.last().map_or(0, |s| s.stamp_ns));
+        track.source = p.source();
         track.counters = *p.counters();
         track.standing_at_end = p.standing();
         track
@@ -554,20 +634,25 @@ impl BiasTrack {
 
     /// What it measured, for a note: the bias, its σ and the seconds of standstill, or why none.
     pub fn note(&self) -> String {
-        match &self.last {
+        let standstills = match &self.last {
+            Some(e) => {
+                format!("{:.1} s of standstill in {} standstills", e.still_s, self.counters.standstills + u64::from(self.standing_at_end))
+            }
+            None => format!(
+                "no standstill (windows moving {}, turning {}, tilting {})",
+                self.counters.moving_windows, self.counters.turning_windows, self.counters.tilting_windows
+            ),
+        };
+        match &self.in_force_at_end {
             Some(e) => format!(
-                "power-on bias [{:.5}, {:.5}, {:.5}] rad/s, σ {:.1e}, from {:.1} s of standstill in {} standstills",
+                "power-on bias [{:.5}, {:.5}, {:.5}] rad/s at the end, σ {:.1e} (from {}), {standstills}",
                 e.bias.x,
                 e.bias.y,
                 e.bias.z,
                 e.variance.max().sqrt(),
-                e.still_s,
-                self.counters.standstills + u64::from(self.standing_at_end)
+                self.source
             ),
-            None => format!(
-                "no standstill found (windows moving {}, turning {}, tilting {}): the turn-on bias is uncorrected",
-                self.counters.moving_windows, self.counters.turning_windows, self.counters.tilting_windows
-            ),
+            None => format!("{standstills}: the turn-on bias is uncorrected"),
         }
     }
 }

@@ -414,6 +414,18 @@ pub fn frame_check(rec: &Recording, cfg: &AdaptConfig) -> Option<FrameCheck> {
 /// `loaded` is not modified. Errors: not an FSDA model, too little support or query data,
 /// ground truth missing / not overlapping the IMU / in another frame (policy `error`).
 pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &AdaptConfig) -> Result<AdaptOutcome, AdaptError> {
+    adapt_knowing(loaded, support, query, cfg, None)
+}
+
+/// [`adapt`], with the power-on bias the caller measured earlier in this power-on (the node's,
+/// from a standstill its buffer no longer holds): used where the support has no standstill.
+pub fn adapt_knowing(
+    loaded: &LoadedNet,
+    support: &Recording,
+    query: &Recording,
+    cfg: &AdaptConfig,
+    known_power_on_bias: Option<&crate::standstill::BiasEstimate>,
+) -> Result<AdaptOutcome, AdaptError> {
     let t_all = Instant::now();
     cfg.validate().map_err(AdaptError::Other)?;
     let meta = &loaded.metadata;
@@ -434,7 +446,7 @@ pub fn adapt(loaded: &LoadedNet, support: &Recording, query: &Recording, cfg: &A
     // This power-on's bias out of both sets, as the node removes it (causal over the recording).
     let query_as_recorded = cfg.power_on_bias.then(|| query.clone());
     let support_power_on_bias =
-        if cfg.power_on_bias { Some(remove_power_on_bias(&mut support, &mut query, &cfg.standstill)?) } else { None };
+        if cfg.power_on_bias { Some(remove_power_on_bias(&mut support, &mut query, &cfg.standstill, known_power_on_bias)?) } else { None };
     let s_task0 = to_task(&support, "support", cfg)?;
     // Seconds with ground truth, not the span: gaps in it are not data to adapt on.
     require_covered(&s_task0, "support", cfg.min_support_seconds)?;
@@ -639,16 +651,30 @@ pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name:
 }
 
 /// Removes the power-on bias in force at each sample (the node's [`crate::standstill`] rule,
-/// run over support then query as one stream) from both sets; the support's estimate, or
-/// [`AdaptError::NoStandstill`] when the support has none.
+/// run over support then query as one stream) from both sets; the support's estimate. A
+/// support without a standstill takes `known` (measured earlier in this power-on) off every
+/// sample instead, or is refused with [`AdaptError::NoStandstill`].
 pub fn remove_power_on_bias(
     support: &mut Recording,
     query: &mut Recording,
     cfg: &crate::standstill::StandstillConfig,
+    known: Option<&crate::standstill::BiasEstimate>,
 ) -> Result<crate::standstill::BiasEstimate, AdaptError> {
     let in_support = crate::standstill::BiasTrack::over(&support.imu, cfg);
     let Some(estimate) = in_support.last else {
-        return Err(AdaptError::NoStandstill(support.name.clone(), in_support.note()));
+        let Some(known) = known else {
+            return Err(AdaptError::NoStandstill(support.name.clone(), in_support.note()));
+        };
+        tracing::info!(
+            "the support has no standstill: the power-on bias measured earlier ([{:.5}, {:.5}, {:.5}] rad/s) is removed",
+            known.bias.x,
+            known.bias.y,
+            known.bias.z
+        );
+        for s in support.imu.iter_mut().chain(query.imu.iter_mut()) {
+            s.gyro -= known.bias;
+        }
+        return Ok(*known);
     };
     // The bias in force at each sample of the one stream, as the node would have it.
     let whole: Vec<_> = support.imu.iter().chain(&query.imu).copied().collect();
@@ -711,5 +737,44 @@ impl TensorAdam {
                 })
                 .collect()
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::ImuSample;
+    use nalgebra::Vector3;
+
+    fn moving(from_s: f64, seconds: f64, bias: Vector3<f64>) -> Recording {
+        let imu = (0..(seconds * 200.0) as i64)
+            .map(|k| {
+                let t = from_s + k as f64 * 0.005;
+                ImuSample {
+                    stamp_ns: (t * 1e9) as i64,
+                    gyro: Vector3::new(0.5 * (3.0 * t).sin(), 0.4 * (2.0 * t).cos(), 0.3) + bias,
+                    accel: Vector3::new(0.0, 0.0, 9.81) + Vector3::new(3.0 * (5.0 * t).sin(), 0.0, 0.0),
+                }
+            })
+            .collect();
+        Recording { name: "moving".into(), imu, ..Default::default() }
+    }
+
+    /// The node's buffer after its rest scrolled out: refused without what the node measured,
+    /// that bias off every sample with it.
+    #[test]
+    fn a_support_without_a_standstill_takes_the_bias_measured_earlier() {
+        let bias = Vector3::new(0.02, -0.01, 0.03);
+        let cfg = crate::standstill::StandstillConfig { in_motion: crate::standstill::InMotion::Off, ..Default::default() };
+        let (mut support, mut query) = (moving(1.0, 10.0, bias), moving(11.0, 5.0, bias));
+        let err = remove_power_on_bias(&mut support.clone(), &mut query.clone(), &cfg, None).unwrap_err();
+        assert!(matches!(err, AdaptError::NoStandstill(..)), "{err}");
+        let known = crate::standstill::BiasEstimate { bias, variance: Vector3::repeat(1e-8), at_ns: 0, still_s: 3.0 };
+        let raw = (support.clone(), query.clone());
+        let used = remove_power_on_bias(&mut support, &mut query, &cfg, Some(&known)).unwrap();
+        assert_eq!(used, known);
+        for (after, before) in support.imu.iter().chain(&query.imu).zip(raw.0.imu.iter().chain(&raw.1.imu)) {
+            assert!((before.gyro - after.gyro - bias).amax() < 1e-15);
+        }
     }
 }

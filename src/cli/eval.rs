@@ -63,6 +63,10 @@ pub struct EvalArgs {
     /// deployed`: the power-on bias the node runs there instead.
     #[arg(long)]
     pub model_on_new_imu: bool,
+    /// The node's parameter file: its `pipeline.standstill` is how `power-on-bias` and the
+    /// `as deployed` rows find this power-on's bias (default: the node's defaults).
+    #[arg(long)]
+    pub params: Option<PathBuf>,
     /// Also write the table as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -107,6 +111,14 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
     let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
     let detector = RestDetector::default();
+    let standstill = match &args.params {
+        Some(path) => {
+            let node =
+                imu_fsda::node::NodeParams::from_yaml_file(path, "imu_fsda").with_context(|| format!("--params {}", path.display()))?;
+            node.pipeline.standstill
+        }
+        None => StandstillConfig::default(),
+    };
     // The models' metadata, read once, before any bag.
     let metas: Vec<imu_fsda::model::export::ModelMetadata> = args
         .models
@@ -232,7 +244,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             let span = scored_span(source, &rec);
             let mut streams: Vec<(String, Stream)> = Vec::new();
             for &m in &methods {
-                let got = match m.apply(source, &detector) {
+                let got = match m.apply(source, &detector, &standstill) {
                     Ok((g, note)) => Ok((g[span.clone()].to_vec(), note)),
                     Err(imu_fsda::eval::EvalError::Method { why, .. }) => Err(why),
                     Err(e) => Err(e.to_string()),
@@ -244,7 +256,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 let imu = imu.filter(|_| per_imu);
                 // The node's decision for this model on this IMU ([`imu_fsda::infer::choose`]).
                 let (correction, why) = choose(ModelDomain::of(&metas[model_index], imu), true, args.model_on_new_imu);
-                let track = correction.removes_power_on_bias().then(|| BiasTrack::over(&source.imu, &StandstillConfig::default()));
+                let track = correction.removes_power_on_bias().then(|| BiasTrack::over(&source.imu, &standstill));
                 let input = match (&track, correction.runs_model()) {
                     (Some(t), true) => t.debiased(&source.imu),
                     _ => source.imu.clone(),

@@ -123,12 +123,15 @@ impl Pipeline {
     fn bias_stddev(&self) -> f64 {
         let uncorrected = self.cfg.uncorrected_bias_stddev.max(self.cfg.bias_stddev);
         let (correction, _) = self.correction();
-        let measured = self.power_on_bias().filter(|_| correction.removes_power_on_bias());
         let at = self.last.map_or(0, |(t, _)| t);
+        let measured = self.bias_in_force().filter(|_| correction.removes_power_on_bias());
         match correction {
             Correction::Raw => uncorrected,
             Correction::PowerOnBias => {
-                measured.map_or(uncorrected, |e| e.stddev_at(at, self.cfg.standstill.bias_random_walk).max(self.cfg.bias_stddev))
+                // Never above the uncorrected gyro's: a direction not measured is left as it was.
+                measured.map_or(uncorrected, |e| {
+                    e.stddev_at(at, self.cfg.standstill.bias_random_walk).min(uncorrected).max(self.cfg.bias_stddev)
+                })
             }
             Correction::PowerOnBiasThenModel if measured.is_none() => uncorrected,
             _ if self.rate.rate_off && self.corrector.rate_hz().is_some() && !self.resampling => uncorrected,
@@ -144,6 +147,17 @@ impl Pipeline {
     /// The power-on bias measured so far, if a standstill was found.
     pub fn power_on_bias(&self) -> Option<&BiasEstimate> {
         self.standstill.estimate()
+    }
+
+    /// The bias subtracted where the correction removes it, and its variance: a standstill's,
+    /// or before one, the bias seen in motion ([`crate::standstill::InMotion`]).
+    pub fn bias_in_force(&self) -> Option<BiasEstimate> {
+        self.standstill.in_force(self.last.map_or(0, |(t, _)| t))
+    }
+
+    /// Where [`Self::bias_in_force`] comes from: `standstill`, `motion` or nothing yet.
+    pub fn bias_source(&self) -> &'static str {
+        self.standstill.source()
     }
 
     pub fn standstill_counters(&self) -> &StandstillCounters {
@@ -392,12 +406,19 @@ mod tests {
         assert_eq!(c.dropped(), 4);
     }
 
+    /// [`stream`]'s specific force does not turn with its rate (it is no body's motion): where
+    /// a test runs the power-on bias on it, the bias seen in motion is off (it is tested on a
+    /// body's motion in `the_bias_seen_in_motion_is_removed_without_a_rest`).
+    fn no_motion_bias() -> crate::standstill::StandstillConfig {
+        crate::standstill::StandstillConfig { in_motion: crate::standstill::InMotion::Off, ..Default::default() }
+    }
+
     /// Without a model the attitude's σ allows for the gyro's own bias, not a model's residual:
     /// after 10 s at 10 mrad/s the tilt σ is about 0.1 rad (at 1 mrad/s, 0.01, both beside
     /// the initial 0.01 rad).
     #[test]
     fn an_uncorrected_gyro_states_its_own_bias() {
-        let cfg = PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..Default::default() };
+        let cfg = PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, standstill: no_motion_bias(), ..Default::default() };
         let tilt_sigma = |corrector: Box<dyn GyroCorrector>| {
             let mut p = Pipeline::new(corrector, cfg.clone());
             let last = stream(2001, 5_000_000).iter().map(|s| p.push(s).unwrap()).last().unwrap();
@@ -447,7 +468,7 @@ mod tests {
     fn a_new_imu_runs_the_power_on_bias_not_the_model() {
         let bias = Vector3::new(0.04, -0.06, 0.02);
         let imu = rest_then_motion(bias);
-        let cfg = PipelineConfig { gravity_init_seconds: 0.2, ..Default::default() };
+        let cfg = PipelineConfig { gravity_init_seconds: 0.2, standstill: no_motion_bias(), ..Default::default() };
         let mut p = Pipeline::new(Box::new(Wrong(ModelDomain::NewImu)), cfg.clone());
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         assert_eq!(p.correction().0, Correction::PowerOnBias);
@@ -481,7 +502,7 @@ mod tests {
     #[test]
     fn a_measured_power_on_bias_states_its_own_sigma() {
         let imu = rest_then_motion(Vector3::new(0.03, 0.0, 0.0));
-        let cfg = PipelineConfig { gravity_init_seconds: 0.2, ..Default::default() };
+        let cfg = PipelineConfig { gravity_init_seconds: 0.2, standstill: no_motion_bias(), ..Default::default() };
         let sigma_after = |c: Box<dyn GyroCorrector>| {
             let mut p = Pipeline::new(c, cfg.clone());
             imu.iter().map(|s| p.push(s).unwrap()).last().unwrap().orientation.unwrap().1[(0, 0)].sqrt()
@@ -494,6 +515,29 @@ mod tests {
             imu.iter().map(|s| p.push(s).unwrap()).last().unwrap().orientation.unwrap().1[(0, 0)].sqrt()
         };
         assert!(measured < without / 5.0, "{measured} {without}");
+    }
+
+    /// No rest at all, a consumer gyro's bias, a body that turns about every axis: the bias
+    /// seen in motion is removed once known, its σ on the attitude below the uncorrected one.
+    #[test]
+    fn the_bias_seen_in_motion_is_removed_without_a_rest() {
+        let bias = Vector3::new(0.05, -0.04, 0.03);
+        let imu = crate::motion_bias::tumbling(bias, 120.0, 0.5);
+        let cfg = PipelineConfig { gravity_init_seconds: 0.2, ..Default::default() };
+        let mut p = Pipeline::new(Box::new(PassThrough), cfg.clone());
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!(p.power_on_bias().is_none(), "no standstill in a tumble");
+        let e = p.bias_in_force().expect("the bias seen in motion");
+        assert_eq!(p.bias_source(), "motion");
+        let last = out.len() - 1;
+        let removed = imu[last].gyro - out[last].gyro;
+        assert!((removed - bias).amax() < 0.005, "removed {removed}, bias {bias}");
+        assert!((e.bias - removed).amax() < 1e-12);
+        // Its σ stands in the attitude's covariance: below what the uncorrected gyro allows.
+        let mut off = Pipeline::new(Box::new(PassThrough), PipelineConfig { standstill: no_motion_bias(), ..cfg });
+        let unaided = imu.iter().map(|s| off.push(s).unwrap()).last().unwrap();
+        assert!(out[last].orientation.unwrap().1.trace() < unaided.orientation.unwrap().1.trace());
+        assert!((imu[last].gyro - unaided.gyro).amax() < 1e-15, "off: nothing removed");
     }
 
     #[test]

@@ -418,8 +418,13 @@ pub struct NodeStats {
     /// Which correction runs on this IMU and why ([`crate::infer::choose`]).
     pub correction: &'static str,
     pub correction_reason: &'static str,
-    /// This power-on's gyro bias from the standstills, and whether the platform stands now.
+    /// This power-on's gyro bias in force (from the standstills, or before one the bias seen in
+    /// motion), where it comes from, and whether the platform stands now.
     pub power_on_bias: Option<crate::standstill::BiasEstimate>,
+    pub power_on_bias_from: &'static str,
+    /// What the standstills alone measured: what `~/adapt` removes from a buffer that no
+    /// longer holds one.
+    pub standstill_bias: Option<crate::standstill::BiasEstimate>,
     pub standstills: crate::standstill::StandstillCounters,
     pub standing: bool,
     /// Times `~/retake_power_on_bias` made the node forget the power-on bias.
@@ -561,6 +566,7 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
             stats.power_on_bias.map_or(String::new(), |e| format!("{:.6} {:.6} {:.6}", e.bias.x, e.bias.y, e.bias.z)),
         ),
         kv("power_on_bias_stddev_rad_s", stats.power_on_bias.map_or(String::new(), |e| format!("{:.2e}", e.variance.max().sqrt()))),
+        kv("power_on_bias_from", stats.power_on_bias_from.to_string()),
         kv("power_on_bias_standstill_s", stats.power_on_bias.map_or(String::new(), |e| format!("{:.1}", e.still_s))),
         kv("standing", stats.standing.to_string()),
         kv("standstill_windows", stats.standstills.still_windows.to_string()),
@@ -1125,6 +1131,7 @@ async fn service_loop(
                     ground_truth: format!("{} as {}", params.ground_truth_topic, params.ground_truth_type),
                     out_dir: params.adapted_model_dir.clone(),
                     cfg: params.adapt.clone(),
+                    known_power_on_bias: stats.lock().ok().and_then(|s| s.standstill_bias),
                 };
                 adapting.store(true, Ordering::Relaxed);
                 let flag = adapting.clone();
@@ -1225,6 +1232,8 @@ struct Job {
     ground_truth: String,
     out_dir: String,
     cfg: crate::adapt::AdaptConfig,
+    /// The node's power-on bias from a standstill at the request, if any.
+    known_power_on_bias: Option<crate::standstill::BiasEstimate>,
 }
 
 impl Job {
@@ -1265,7 +1274,7 @@ impl Job {
             rec.imu_seconds(),
             self.support_seconds
         );
-        let outcome = crate::adapt::adapt(&loaded, &support, &query, &self.cfg)?;
+        let outcome = crate::adapt::adapt_knowing(&loaded, &support, &query, &self.cfg, self.known_power_on_bias.as_ref())?;
         let r = outcome.report;
         let figures = format!(
             "query AOE {:.3}° → {:.3}° (raw gyro {:.3}°), support {:.1} s, query {:.1} s, {} steps in {:.1} s",

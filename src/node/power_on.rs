@@ -11,7 +11,7 @@ use crate::infer::Pipeline;
 
 /// The reply to a re-take.
 pub const RETAKE_REPLY: &str =
-    "power-on bias forgotten: the next standstill (0.5 s or more at rest) measures it afresh; until then the gyro's turn-on bias is uncorrected";
+    "power-on bias forgotten: the next standstill (0.5 s or more at rest) measures it afresh; until then only what gravity reveals of it in motion is removed";
 
 type Server = ros2_client::service::Server<TriggerRequest, TriggerResponse>;
 
@@ -62,7 +62,7 @@ impl NodeStats {
             tracing::info!("correction: {} ({why})", correction.name());
         }
         let estimate = pipeline.power_on_bias().copied();
-        if let (None, Some(e)) = (&self.power_on_bias, &estimate) {
+        if let (false, Some(e)) = (self.power_on_bias_from.starts_with("standstill"), &estimate) {
             tracing::info!(
                 "power-on gyro bias [{:.5}, {:.5}, {:.5}] rad/s measured at a standstill (σ {:.1e}){}",
                 e.bias.x,
@@ -78,7 +78,9 @@ impl NodeStats {
         }
         self.correction = correction.name();
         self.correction_reason = why;
-        self.power_on_bias = estimate;
+        self.power_on_bias = pipeline.bias_in_force();
+        self.standstill_bias = estimate;
+        self.power_on_bias_from = pipeline.bias_source();
         self.standstills = *pipeline.standstill_counters();
         self.standing = pipeline.standing();
     }

@@ -1,0 +1,457 @@
+//! The gyro bias in motion, observed through gravity.
+//!
+//! Between standstills the bias is seen only through what it does to the attitude: the gyro
+//! integrated with a wrong bias tilts away from the gravity the accelerometer measures. A
+//! small Kalman filter carries the attitude (`world_from_body`), the gyro bias and the
+//! accelerometer's bias, with a 9-state error (attitude about world x, y, z; the two biases
+//! on IMU axes): a consumer accelerometer's bias (up to 0.6 m/s², 3.5° of tilt) turns with the
+//! body and would otherwise read as a gyro bias. Each block (`block_s`) the
+//! specific force is averaged *in the world frame* of the integrated attitude: a vehicle's own
+//! accelerations average out there (its velocity stays bounded), so the block mean is gravity
+//! plus a small rest, stated as `accel_stddev`; a quadrotor's thrust-aligned reading does not
+//! average out in the body. The block's tilt from vertical is the measurement. Only the bias's
+//! horizontal part (in the world) is seen at any one time; the part about gravity becomes
+//! visible as the body turns. Heading is not observed: its variance grows.
+//!
+//! A standstill's bias (`crate::standstill`) is far more precise; [`MotionBias::seed`] sets
+//! the filter's bias and variance to it. Per sample: no allocation.
+
+use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
+
+use crate::core::{ImuSample, STANDARD_GRAVITY};
+use crate::so3::{exp, renormalize};
+
+/// The filter's noise model and its gates.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MotionBiasConfig {
+    /// Specific force averaged in the world frame over this long per measurement, s.
+    pub block_s: f64,
+    /// The platform's own acceleration left in a block's world-frame mean, m/s² (1 σ).
+    pub accel_stddev: f64,
+    /// A block whose ‖mean specific force‖ is farther than this from g is not used, m/s².
+    pub max_gravity_error: f64,
+    /// The gyro's white noise, rad/s/√Hz.
+    pub gyro_noise_density: f64,
+    /// The bias before anything is measured: 0 ± this, rad/s.
+    pub prior_stddev: f64,
+    /// The accelerometer's bias before anything is measured: 0 ± this, m/s².
+    pub accel_bias_stddev: f64,
+    /// How fast the bias wanders, rad/s/√s.
+    pub bias_random_walk: f64,
+    /// The attitude's tilt at the first sample (from its specific force): ± this, rad.
+    pub initial_tilt_stddev: f64,
+    /// An interval longer than this (or a stamp not after the last) restarts the attitude, s.
+    pub max_sample_gap_s: f64,
+    /// A direction of the bias is applied only once its σ is below this, rad/s …
+    pub apply_max_stddev: f64,
+    /// … and the estimate along it is this many σ from zero (there is a bias to remove).
+    pub apply_min_z: f64,
+    /// The model is taken not to fit this platform's motion (nothing is applied for the rest of
+    /// the power-on) once the mean normalised innovation squared of the last `fit_blocks`
+    /// blocks exceeds this (3 where it fits) …
+    pub max_mean_nis: f64,
+    /// … judged over this many blocks; nothing is applied before that many were used (the
+    /// check has not had its say).
+    pub fit_blocks: u32,
+    /// … or the accelerometer's bias estimate leaves this many prior σ (sustained accelerations
+    /// taken for a bias: a car braking).
+    pub max_accel_bias_sigmas: f64,
+}
+
+impl Default for MotionBiasConfig {
+    fn default() -> Self {
+        // accel_stddev: a hand-held or flying body's velocity changes by up to ~1 m/s within a
+        // second; its mean acceleration over a second is that, over the second.
+        // apply_max_stddev: 0.02 rad/s (1.1 °/s) is a fifth of a consumer gyro's turn-on bias;
+        // a direction known worse than that is left alone (docs/poweron.md).
+        MotionBiasConfig {
+            block_s: 1.0,
+            accel_stddev: 1.0,
+            max_gravity_error: 1.0,
+            gyro_noise_density: 1e-3,
+            prior_stddev: 0.1,
+            accel_bias_stddev: 0.5,
+            bias_random_walk: 1e-4,
+            initial_tilt_stddev: 0.3,
+            max_sample_gap_s: 0.1,
+            apply_max_stddev: 0.02,
+            apply_min_z: 3.0,
+            max_mean_nis: 6.0,
+            fit_blocks: 30,
+            max_accel_bias_sigmas: 2.0,
+        }
+    }
+}
+
+impl MotionBiasConfig {
+    /// Refuses settings the filter cannot run with, naming the key.
+    pub fn validate(&self) -> Result<(), String> {
+        for (key, value) in [
+            ("block_s", self.block_s),
+            ("accel_stddev", self.accel_stddev),
+            ("max_gravity_error", self.max_gravity_error),
+            ("gyro_noise_density", self.gyro_noise_density),
+            ("prior_stddev", self.prior_stddev),
+            ("accel_bias_stddev", self.accel_bias_stddev),
+            ("initial_tilt_stddev", self.initial_tilt_stddev),
+            ("max_sample_gap_s", self.max_sample_gap_s),
+            ("apply_max_stddev", self.apply_max_stddev),
+            ("max_mean_nis", self.max_mean_nis),
+            ("max_accel_bias_sigmas", self.max_accel_bias_sigmas),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(format!("in_motion.{key} must be finite and > 0, not {value}"));
+            }
+        }
+        if self.fit_blocks == 0 {
+            return Err("in_motion.fit_blocks must be ≥ 1".into());
+        }
+        if !(self.apply_min_z.is_finite() && self.apply_min_z >= 0.0) {
+            return Err(format!("in_motion.apply_min_z must be finite and ≥ 0, not {}", self.apply_min_z));
+        }
+        if !(self.bias_random_walk.is_finite() && self.bias_random_walk >= 0.0) {
+            return Err(format!("in_motion.bias_random_walk must be finite and ≥ 0, not {}", self.bias_random_walk));
+        }
+        Ok(())
+    }
+}
+
+/// The current block's world-frame sums.
+#[derive(Debug, Clone, Copy)]
+struct Block {
+    start_ns: i64,
+    n: u32,
+    /// Σ R̂ f.
+    force: Vector3<f64>,
+    /// Σ R̂ and Σ R̂ (t − start), s: how a bias error since each sample reaches the block end.
+    rotation: Matrix3<f64>,
+    rotation_t: Matrix3<f64>,
+}
+
+impl Block {
+    fn empty(start_ns: i64) -> Self {
+        Block { start_ns, n: 0, force: Vector3::zeros(), rotation: Matrix3::zeros(), rotation_t: Matrix3::zeros() }
+    }
+}
+
+/// What one block did, for counters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BlockVerdict {
+    Used,
+    /// ‖mean specific force‖ was not g: free fall, a launch, a crash.
+    NotGravity,
+}
+
+/// The error state: attitude about world x, y, z (rad), gyro bias (rad/s), accelerometer bias
+/// (m/s²), IMU axes for both.
+type Cov = SMatrix<f64, 9, 9>;
+
+/// The running filter.
+#[derive(Debug, Clone)]
+pub struct MotionBias {
+    cfg: MotionBiasConfig,
+    world_from_body: Option<UnitQuaternion<f64>>,
+    bias: Vector3<f64>,
+    accel_bias: Vector3<f64>,
+    p: Cov,
+    last: Option<(i64, Vector3<f64>)>,
+    block: Block,
+    used_blocks: u64,
+    skipped_blocks: u64,
+    /// The part of the bias that is applied, and its variance along the IMU axes.
+    applied: (Vector3<f64>, Vector3<f64>),
+    /// Normalised innovation squared per block, averaged over the last ~`fit_blocks`.
+    nis: f64,
+    /// The model was found not to fit this platform's motion: nothing is applied.
+    misfit: bool,
+    /// A standstill set the bias ([`Self::seed`]): it is applied without waiting for the fit.
+    seeded: bool,
+}
+
+impl MotionBias {
+    pub fn new(cfg: MotionBiasConfig) -> Self {
+        let mut p = Cov::zeros();
+        p.fixed_view_mut::<3, 3>(3, 3).copy_from(&(Matrix3::identity() * cfg.prior_stddev.powi(2)));
+        p.fixed_view_mut::<3, 3>(6, 6).copy_from(&(Matrix3::identity() * cfg.accel_bias_stddev.powi(2)));
+        MotionBias {
+            cfg,
+            world_from_body: None,
+            bias: Vector3::zeros(),
+            accel_bias: Vector3::zeros(),
+            p,
+            last: None,
+            block: Block::empty(0),
+            used_blocks: 0,
+            skipped_blocks: 0,
+            applied: (Vector3::zeros(), Vector3::repeat(cfg.prior_stddev.powi(2))),
+            nis: 3.0,
+            misfit: false,
+            seeded: false,
+        }
+    }
+
+    /// True once the model was found not to fit the platform's motion (`max_mean_nis`,
+    /// `max_accel_bias_sigmas`): nothing is applied until [`Self::restart`].
+    pub fn misfit(&self) -> bool {
+        self.misfit
+    }
+
+    /// The blocks' normalised innovation squared, averaged (3 where the model fits).
+    pub fn nis(&self) -> f64 {
+        self.nis
+    }
+
+    /// The bias estimate, rad/s (IMU axes).
+    pub fn bias(&self) -> Vector3<f64> {
+        self.bias
+    }
+
+    /// Its per-axis variance, (rad/s)².
+    pub fn bias_variance(&self) -> Vector3<f64> {
+        Vector3::new(self.p[(3, 3)], self.p[(4, 4)], self.p[(5, 5)])
+    }
+
+    /// The accelerometer's bias estimate, m/s² (IMU axes).
+    pub fn accel_bias(&self) -> Vector3<f64> {
+        self.accel_bias
+    }
+
+    /// The bias to subtract: the estimate along the directions it is known in (σ below
+    /// `apply_max_stddev`, the estimate `apply_min_z` σ from zero); nothing along the others.
+    /// With its variance per IMU axis: the estimate's where applied, else the whole bias's.
+    pub fn applied(&self) -> (Vector3<f64>, Vector3<f64>) {
+        self.applied
+    }
+
+    /// True once some direction of the bias is known well enough to be applied.
+    pub fn applies_any(&self) -> bool {
+        self.applied.0 != Vector3::zeros()
+    }
+
+    /// Re-decides [`Self::applied`] from the estimate and its covariance.
+    fn decide_applied(&mut self) {
+        if self.misfit || (!self.seeded && self.used_blocks < u64::from(self.cfg.fit_blocks)) {
+            self.applied = (Vector3::zeros(), Vector3::repeat(self.cfg.prior_stddev.powi(2)));
+            return;
+        }
+        let p_bb: Matrix3<f64> = self.p.fixed_view::<3, 3>(3, 3).into_owned();
+        let eig = nalgebra::SymmetricEigen::new((p_bb + p_bb.transpose()) * 0.5);
+        let mut bias = Vector3::zeros();
+        let mut variance = Matrix3::zeros();
+        for i in 0..3 {
+            let v = eig.eigenvectors.column(i).into_owned();
+            let sigma = eig.eigenvalues[i].max(0.0).sqrt();
+            let along = v.dot(&self.bias);
+            let known = sigma < self.cfg.apply_max_stddev && along.abs() > self.cfg.apply_min_z * sigma;
+            bias += v * if known { along } else { 0.0 };
+            // Not applied: the whole bias along it is left, as large as the prior allows.
+            let left = if known { sigma * sigma } else { self.cfg.prior_stddev.powi(2).max(sigma * sigma) };
+            variance += v * v.transpose() * left;
+        }
+        self.applied = (bias, variance.diagonal());
+    }
+
+    /// Blocks used as measurements, and blocks left out.
+    pub fn blocks(&self) -> (u64, u64) {
+        (self.used_blocks, self.skipped_blocks)
+    }
+
+    /// Sets the bias to a standstill's estimate and its variance (no correlation with the
+    /// rest of the state is kept: the standstill measured it directly).
+    pub fn seed(&mut self, bias: Vector3<f64>, variance: Vector3<f64>) {
+        self.bias = bias;
+        self.seeded = true;
+        let mut p = self.p;
+        p.fixed_view_mut::<3, 9>(3, 0).fill(0.0);
+        p.fixed_view_mut::<9, 3>(0, 3).fill(0.0);
+        p.fixed_view_mut::<3, 3>(3, 3).copy_from(&Matrix3::from_diagonal(&variance));
+        self.p = p;
+        self.decide_applied();
+    }
+
+    /// Forgets everything: a new power-on.
+    pub fn restart(&mut self) {
+        *self = MotionBias::new(self.cfg);
+    }
+
+    /// One sample, in stamp order. Returns the verdict on a block this sample closed.
+    pub fn push(&mut self, s: &ImuSample) -> Option<BlockVerdict> {
+        let mut verdict = None;
+        match (self.last, self.world_from_body) {
+            (Some((t, w)), Some(q)) if s.stamp_ns > t && (s.stamp_ns - t) as f64 * 1e-9 <= self.cfg.max_sample_gap_s => {
+                let dt = (s.stamp_ns - t) as f64 * 1e-9;
+                self.propagate(q, &w, dt);
+                if (s.stamp_ns - self.block.start_ns) as f64 * 1e-9 >= self.cfg.block_s {
+                    verdict = Some(self.close_block(s.stamp_ns));
+                    self.block = Block::empty(s.stamp_ns);
+                }
+            }
+            _ => self.start_attitude(s),
+        }
+        self.accumulate(s);
+        self.last = Some((s.stamp_ns, s.gyro));
+        verdict
+    }
+
+    /// The attitude from this sample's specific force (heading 0); the biases and their
+    /// variances stay (a gap does not change the sensor).
+    fn start_attitude(&mut self, s: &ImuSample) {
+        let up = Vector3::z();
+        let tilt = UnitQuaternion::rotation_between(&(s.accel - self.accel_bias), &up).unwrap_or_else(UnitQuaternion::identity);
+        self.world_from_body = Some(tilt);
+        let v = self.cfg.initial_tilt_stddev.powi(2);
+        let mut p = self.p;
+        p.fixed_view_mut::<3, 9>(0, 0).fill(0.0);
+        p.fixed_view_mut::<9, 3>(0, 0).fill(0.0);
+        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::from_diagonal(&Vector3::new(v, v, 1.0)));
+        self.p = p;
+        self.block = Block::empty(s.stamp_ns);
+    }
+
+    fn accumulate(&mut self, s: &ImuSample) {
+        let Some(q) = self.world_from_body else { return };
+        let r = *q.to_rotation_matrix().matrix();
+        let b = &mut self.block;
+        b.n += 1;
+        b.force += r * (s.accel - self.accel_bias);
+        b.rotation += r;
+        b.rotation_t += r * ((s.stamp_ns - b.start_ns) as f64 * 1e-9);
+    }
+
+    /// The attitude turned by the last rate minus the bias; the error's covariance grown:
+    /// δθ̇ = −R̂ δb + noise, δḃ = random walk, the accelerometer's bias constant.
+    fn propagate(&mut self, q: UnitQuaternion<f64>, w: &Vector3<f64>, dt: f64) {
+        let r = *q.to_rotation_matrix().matrix();
+        self.world_from_body = Some(renormalize(q * exp(&((w - self.bias) * dt))));
+        let mut phi = Cov::identity();
+        phi.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-r * dt));
+        let (ng, nb) = (self.cfg.gyro_noise_density.powi(2) * dt, self.cfg.bias_random_walk.powi(2) * dt);
+        self.p = phi * self.p * phi.transpose();
+        for i in 0..3 {
+            self.p[(i, i)] += ng;
+            self.p[(i + 3, i + 3)] += nb;
+        }
+    }
+
+    /// The block's world-frame mean specific force against gravity: a 3-row update.
+    fn close_block(&mut self, end_ns: i64) -> BlockVerdict {
+        let b = self.block;
+        let n = f64::from(b.n.max(1));
+        let mean = b.force / n;
+        if b.n == 0 || (mean.norm() - STANDARD_GRAVITY).abs() > self.cfg.max_gravity_error {
+            self.skipped_blocks += 1;
+            return BlockVerdict::NotGravity;
+        }
+        let Some(q) = self.world_from_body else { return BlockVerdict::NotGravity };
+        // m/g ≈ e_z + e_z × δθ̄ + R̄ δb_a / g, with δθ̄ = δθ_end + mean(R̂ (t_end − t)) δb the
+        // block's mean attitude error and R̄ its mean attitude.
+        let span_s = (end_ns - b.start_ns) as f64 * 1e-9;
+        let lag = (b.rotation * span_s - b.rotation_t) / n;
+        let residual = mean / STANDARD_GRAVITY - Vector3::z();
+        // e_z × δθ = (−δθ_y, δθ_x, 0).
+        let cross = Matrix3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut h = SMatrix::<f64, 3, 9>::zeros();
+        h.fixed_view_mut::<3, 3>(0, 0).copy_from(&cross);
+        h.fixed_view_mut::<3, 3>(0, 3).copy_from(&(cross * lag));
+        h.fixed_view_mut::<3, 3>(0, 6).copy_from(&(b.rotation / (n * STANDARD_GRAVITY)));
+        let sigma = self.cfg.accel_stddev / STANDARD_GRAVITY;
+        let s = h * self.p * h.transpose() + Matrix3::identity() * sigma * sigma;
+        let Some(s_inv) = s.try_inverse() else {
+            self.skipped_blocks += 1;
+            return BlockVerdict::NotGravity;
+        };
+        let nis = (residual.transpose() * s_inv * residual)[0];
+        self.nis += (nis - self.nis) / f64::from(self.cfg.fit_blocks);
+        let k = self.p * h.transpose() * s_inv;
+        let dx: SVector<f64, 9> = k * residual;
+        let i_kh = Cov::identity() - k * h;
+        self.p = i_kh * self.p * i_kh.transpose() + k * k.transpose() * (sigma * sigma);
+        let dtheta = Vector3::new(dx[0], dx[1], dx[2]);
+        self.world_from_body = Some(renormalize(exp(&dtheta) * q));
+        self.bias += Vector3::new(dx[3], dx[4], dx[5]);
+        self.accel_bias += Vector3::new(dx[6], dx[7], dx[8]);
+        self.used_blocks += 1;
+        if self.nis > self.cfg.max_mean_nis || self.accel_bias.amax() > self.cfg.max_accel_bias_sigmas * self.cfg.accel_bias_stddev {
+            self.misfit = true;
+        }
+        self.decide_applied();
+        BlockVerdict::Used
+    }
+}
+
+/// A body turning about all three axes (so every bias axis is seen), a constant gyro bias, the
+/// specific force of gravity plus a wobble that averages out: 200 Hz, for tests.
+#[cfg(test)]
+pub(crate) fn tumbling(bias: Vector3<f64>, seconds: f64, wobble: f64) -> Vec<ImuSample> {
+    tests::tumbling(bias, seconds, wobble)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(super) fn tumbling(bias: Vector3<f64>, seconds: f64, wobble: f64) -> Vec<ImuSample> {
+        let dt = 0.005;
+        let mut q = UnitQuaternion::identity();
+        (0..(seconds / dt) as usize)
+            .map(|k| {
+                let t = k as f64 * dt;
+                let rate = Vector3::new(0.4 * (0.3 * t).sin(), 0.3 * (0.23 * t).cos(), 0.5 * (0.17 * t).sin());
+                let accel_world = Vector3::new((1.3 * t).sin(), (0.9 * t).cos(), (1.1 * t).sin()) * wobble;
+                let f = q.inverse() * (Vector3::z() * STANDARD_GRAVITY + accel_world);
+                let s = ImuSample { stamp_ns: 1_000_000_000 + (t * 1e9) as i64, gyro: rate + bias, accel: f };
+                q = renormalize(q * exp(&(rate * dt)));
+                s
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_tumbling_body_reveals_its_bias_within_the_stated_sigma() {
+        let bias = Vector3::new(0.03, -0.05, 0.02);
+        let mut f = MotionBias::new(MotionBiasConfig::default());
+        for s in tumbling(bias, 120.0, 0.5) {
+            f.push(&s);
+        }
+        let err = f.bias() - bias;
+        let sigma = f.bias_variance().map(f64::sqrt);
+        for i in 0..3 {
+            assert!(err[i].abs() < 4.0 * sigma[i] && err[i].abs() < 0.005, "axis {i}: error {} σ {}", err[i], sigma[i]);
+        }
+        assert!(f.blocks().0 >= 100, "{:?}", f.blocks());
+    }
+
+    /// About gravity alone the bias is not seen: it stays at its prior, its variance too.
+    #[test]
+    fn a_bias_about_gravity_is_not_seen_while_the_body_stays_level() {
+        let dt = 0.005;
+        let bias = Vector3::new(0.0, 0.0, 0.04);
+        let mut f = MotionBias::new(MotionBiasConfig::default());
+        for k in 0..(60.0 / dt) as usize {
+            let s =
+                ImuSample { stamp_ns: 1_000_000_000 + (k as f64 * dt * 1e9) as i64, gyro: bias, accel: Vector3::z() * STANDARD_GRAVITY };
+            f.push(&s);
+        }
+        assert!(f.bias().z.abs() < 1e-6, "{}", f.bias().z);
+        assert!((f.bias_variance().z.sqrt() - 0.1).abs() < 0.01, "{:?}", f.bias_variance());
+        // The level axes are measured: held at zero with a small σ.
+        assert!(f.bias().xy().norm() < 1e-4 && f.bias_variance().x.sqrt() < 0.01);
+    }
+
+    #[test]
+    fn a_seed_sets_the_bias_and_a_gap_keeps_it() {
+        let mut f = MotionBias::new(MotionBiasConfig::default());
+        let mut imu = tumbling(Vector3::new(0.01, 0.0, 0.0), 5.0, 0.0);
+        f.push(&imu[0]);
+        f.seed(Vector3::new(0.01, 0.0, 0.0), Vector3::repeat(1e-8));
+        // Half a second missing after 2.5 s: the attitude restarts, the bias stays.
+        for s in &mut imu[500..] {
+            s.stamp_ns += 500_000_000;
+        }
+        for s in &imu[1..] {
+            f.push(s);
+        }
+        assert!((f.bias() - Vector3::new(0.01, 0.0, 0.0)).norm() < 1e-3, "{:?}", f.bias());
+    }
+}
