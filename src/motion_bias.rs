@@ -324,10 +324,20 @@ impl MotionBias {
     fn propagate(&mut self, q: UnitQuaternion<f64>, w: &Vector3<f64>, dt: f64) {
         let r = *q.to_rotation_matrix().matrix();
         self.world_from_body = Some(renormalize(q * exp(&((w - self.bias) * dt))));
-        let mut phi = Cov::identity();
-        phi.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-r * dt));
+        // Φ = I + E, E's only block A = −R̂ dt at (attitude, bias): Φ P Φᵀ = P + E P + (E P)ᵀ
+        // + E P Eᵀ, with E P = A P[bias rows] in the attitude rows (≈ 150 products, not 1,500).
+        let a = -r * dt;
+        let ep: SMatrix<f64, 3, 9> = a * self.p.fixed_view::<3, 9>(3, 0);
+        let epe: Matrix3<f64> = ep.fixed_view::<3, 3>(0, 3) * a.transpose();
+        let mut p = self.p;
+        let mut rows = p.fixed_view_mut::<3, 9>(0, 0);
+        rows += ep;
+        let mut cols = p.fixed_view_mut::<9, 3>(0, 0);
+        cols += ep.transpose();
+        let mut corner = p.fixed_view_mut::<3, 3>(0, 0);
+        corner += epe;
+        self.p = p;
         let (ng, nb) = (self.cfg.gyro_noise_density.powi(2) * dt, self.cfg.bias_random_walk.powi(2) * dt);
-        self.p = phi * self.p * phi.transpose();
         for i in 0..3 {
             self.p[(i, i)] += ng;
             self.p[(i + 3, i + 3)] += nb;
@@ -437,6 +447,26 @@ mod tests {
         assert!((f.bias_variance().z.sqrt() - 0.1).abs() < 0.01, "{:?}", f.bias_variance());
         // The level axes are measured: held at zero with a small σ.
         assert!(f.bias().xy().norm() < 1e-4 && f.bias_variance().x.sqrt() < 0.01);
+    }
+
+    /// The structured Φ P Φᵀ equals the dense product.
+    #[test]
+    fn the_covariance_step_is_the_dense_one() {
+        let mut f = MotionBias::new(MotionBiasConfig::default());
+        let m = SMatrix::<f64, 9, 9>::from_fn(|i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
+        f.p = m * m.transpose() + Cov::identity() * 0.1;
+        let q = UnitQuaternion::from_euler_angles(0.3, -0.2, 1.1);
+        let (w, dt) = (Vector3::new(0.2, -0.4, 0.1), 0.005);
+        let mut phi = Cov::identity();
+        phi.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-*q.to_rotation_matrix().matrix() * dt));
+        let mut dense = phi * f.p * phi.transpose();
+        f.propagate(q, &w, dt);
+        let (ng, nb) = (f.cfg.gyro_noise_density.powi(2) * dt, f.cfg.bias_random_walk.powi(2) * dt);
+        for i in 0..3 {
+            dense[(i, i)] += ng;
+            dense[(i + 3, i + 3)] += nb;
+        }
+        assert!((f.p - dense).amax() < 1e-15, "{}", (f.p - dense).amax());
     }
 
     #[test]
