@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use imu_fsda::core::ImuSample;
-use imu_fsda::infer::{FullWindowCorrector, GyroCorrector, ModelCorrector, Pipeline, PipelineConfig};
+use imu_fsda::infer::{FullWindowCorrector, GyroCorrector, ModelCorrector, PassThrough, Pipeline, PipelineConfig};
 use imu_fsda::model::export::{export_model, ExportInfo};
 use imu_fsda::model::{Config, Mode, Net};
 use imu_fsda::msg::{Imu, RosMessage};
@@ -121,12 +121,24 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     throughput(&mut naive, &input[..naive_warm])?;
     let nai = throughput(&mut naive, naive_in)?;
 
+    // The power-on bias stage alone (standstills and the bias seen in motion): the pipeline
+    // without a model, with it and without it, on the same samples in the same run.
+    let stage_input = &input[..warm + samples];
+    let mut without_stage = Pipeline::new(Box::new(PassThrough), PipelineConfig { power_on_bias: false, ..cfg.clone() });
+    let mut with_stage = Pipeline::new(Box::new(PassThrough), cfg.clone());
+    let bare = throughput(&mut without_stage, stage_input)?;
+    let staged = throughput(&mut with_stage, stage_input)?;
+    let stage_us = 1e6 / staged - 1e6 / bare;
+
     out!("model: {} ({:?}), window N = {n}", loaded.metadata.name, loaded.metadata.mode)?;
     out!("decode → correct → integrate → encode, one thread:")?;
     out!("  incremental (streaming) : {inc:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / inc, timed.len())?;
     out!("  naive full-window (tch) : {nai:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / nai, naive_in.len())?;
     out!("  speed-up                : {:>12.1}×", inc / nai)?;
     out!("  target ≥ 20,000 samples/s: {}", if inc >= 20_000.0 { "met" } else { "NOT met" })?;
+    out!(
+        "  of which the power-on bias (standstills, bias in motion): {stage_us:.2} µs/sample (no model: {staged:.0} samples/s with it, {bare:.0} without)"
+    )?;
 
     let mut memory = Vec::new();
     if args.memory_hours > 0.0 {
@@ -161,6 +173,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         let v = serde_json::json!({
             "model": loaded.metadata.name, "window_n": n,
             "incremental_samples_per_s": inc, "naive_samples_per_s": nai,
+            "power_on_bias_us_per_sample": stage_us,
             "memory_kib": memory.iter().map(|(h, k)| serde_json::json!({"hours": h, "rss_kib": k})).collect::<Vec<_>>(),
         });
         std::fs::write(path, serde_json::to_string_pretty(&v)?)?;
