@@ -317,8 +317,9 @@ impl PowerOnBias {
     /// Where [`Self::in_force`] comes from: `standstill`, `motion`, or "" (nothing yet).
     pub fn source(&self) -> &'static str {
         let applies = self.motion.as_ref().is_some_and(MotionBias::applies_any);
+        let fits = self.motion.as_ref().is_some_and(|m| !m.misfit());
         match (self.cfg.in_motion, applies, self.estimate.is_some()) {
-            (InMotion::Always, _, true) if self.motion.is_some() => "standstill, then motion",
+            (InMotion::Always, _, true) if fits => "standstill, then motion",
             (_, _, true) => "standstill",
             (InMotion::Always | InMotion::UntilStandstill, true, false) => "motion",
             _ => "",
