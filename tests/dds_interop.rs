@@ -301,7 +301,8 @@ fn check_run(run: &Run, reference: &Reference, expect: &Expect) {
     for (k, v) in want {
         assert_eq!(final_diag.get(k).and_then(Value::as_str), Some(v.to_string().as_str()), "/diagnostics {k}: {final_diag:?}");
     }
-    let status = diags.iter().find_map(|d| d["status"].as_array()?.first().cloned()).unwrap();
+    // The last status (the first ones come before any input, when no frame is known yet).
+    let status = diags.iter().rev().find_map(|d| d["status"].as_array()?.first().cloned()).unwrap();
     assert_eq!(status["hardware_id"], FRAME_ID, "/diagnostics hardware_id");
 
     eprintln!(

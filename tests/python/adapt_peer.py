@@ -230,6 +230,12 @@ def main() -> int:
             return 2
         time.sleep(0.002)
     result.update({"matched": True, "all_matched_s": now()})
+    # As in dds_peer.py: a first /diagnostics says the node's writers took in our readers
+    # (before it, an output is for nobody: the first /imu/denoised was lost so under load).
+    while not diagnostics and now() < args.match_timeout_s:
+        drain()
+        time.sleep(0.01)
+    result["node_heard_s"] = now()
     time.sleep(args.settle_s)
     drain()
 

@@ -323,6 +323,15 @@ def main() -> int:
     result["match_status"] = matched()
     result["first_match_s"] = first_match
     result["all_matched_s"] = time.monotonic() - t_start
+    # Our readers matched the node's writers; whether the node's writers matched our readers
+    # we cannot observe, except by receiving from one: a first /diagnostics (published from the
+    # start, "no input yet") says the node has taken in our readers. A sample published
+    # before that is, by DDS's volatile durability, for nobody (the first output was lost so
+    # on a loaded machine).
+    while not diagnostics and time.monotonic() - t_start < args.match_timeout_s:
+        drain()
+        time.sleep(0.01)
+    result["node_heard_s"] = time.monotonic() - t_start
     time.sleep(args.settle_s)
     drain()
     result["diagnostics_before_input"] = len(diagnostics)
