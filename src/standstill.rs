@@ -369,7 +369,10 @@ impl PowerOnBias {
 
     /// One sample, in stamp order. Returns the verdict on a window this sample closed.
     pub fn push(&mut self, s: &ImuSample) -> Option<WindowVerdict> {
-        if let Some(m) = self.motion.as_mut() {
+        // Until a standstill rules (`until_standstill`), or always: a filter whose output is not
+        // used is not stepped (a retake, or a dropped standstill, restarts its attitude).
+        let in_use = self.cfg.in_motion == InMotion::Always || self.estimate.is_none();
+        if let (Some(m), true) = (self.motion.as_mut(), in_use) {
             m.push(s);
         }
         if let Some((t, _)) = self.last {
