@@ -1,23 +1,12 @@
 //! `imu-fsda import` + `imu-fsda eval` on the real EuRoC and TUM-VI recordings in
 //! ../shared/data, checked against an independent computation (tests/python/independent_eval.py).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 mod common;
 
-use common::{bin, venv_python as python};
-
-fn shared_data() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
-    if p.join("euroc").is_dir() {
-        Some(p)
-    } else {
-        assert!(std::env::var_os("CI").is_none(), "../shared/data is missing in CI");
-        eprintln!("SKIPPED: ../shared/data not found; the real-data tests need it");
-        None
-    }
-}
+use common::{bin, shared_data, venv_python as python};
 
 fn run(cmd: &mut Command) -> String {
     let out = cmd.output().expect("spawn");

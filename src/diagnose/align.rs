@@ -42,8 +42,15 @@ pub struct Aligned {
     /// Per common stamp: true inside a gap of the real stream (no real sample there, only an
     /// interpolation across the gap), which the fit leaves out. Empty: no gap.
     pub in_real_gap: Vec<bool>,
+    /// Per common stamp: true where the reference the sim was made from has a dropout (a
+    /// ground truth that lost tracking: the sim there is made up across the hole), which the
+    /// fit leaves out too. Empty: none.
+    pub in_reference_gap: Vec<bool>,
     /// The sim recording as read (for writing the corrected bag).
     pub sim_recording: Recording,
+    /// Samples of the recordings each common point is the mean of: 1 at full rate, more when
+    /// compared at a measured reference's bandwidth ([`Aligned::block_means`]).
+    pub samples_per_point: usize,
 }
 
 impl Aligned {
@@ -111,10 +118,18 @@ impl Aligned {
     /// sensor whose in-use noise is not the stated one (e.g. rotor vibration above the
     /// motion band on a MAV); the estimate is written to the notes.
     pub fn estimate_real_white_noise(&mut self) {
+        let flag = |v: &[bool], i: usize| v.get(i).copied().unwrap_or(false);
+        let left_out: Vec<bool> = (0..self.len()).map(|i| flag(&self.in_real_gap, i) || flag(&self.in_reference_gap, i)).collect();
         let est = |s: usize, sim_var: f64| {
             let v = (3 * s..3 * s + 3)
                 .map(|c| {
-                    let r: Vec<f64> = self.real[c].iter().zip(&self.sim[c]).map(|(a, b)| a - b).collect();
+                    let mut r: Vec<f64> = self.real[c].iter().zip(&self.sim[c]).map(|(a, b)| a - b).collect();
+                    if self.samples_per_point > 1 {
+                        // Window means are not smooth at their own rate: a scale's 1 % of the
+                        // motion would read as noise in the third differences. The residual's
+                        // best affine map of the sensor's sim channels is taken out first.
+                        r = without_affine_fit(&r, &self.sim[3 * s..3 * s + 3], &left_out);
+                    }
                     white_variance_from_data(&r)
                 })
                 .sum::<f64>()
@@ -128,6 +143,25 @@ impl Aligned {
             (a / self.real_variance.1).sqrt()
         ));
         self.real_variance = (g, a);
+    }
+}
+
+/// `y` less its least-squares fit by 1 and the three channels `x`, fitted on the samples not
+/// `left_out` (unchanged when the normal equations are singular).
+fn without_affine_fit(y: &[f64], x: &[Vec<f64>], left_out: &[bool]) -> Vec<f64> {
+    let row = |i: usize| nalgebra::Vector4::new(1.0, x[0][i], x[1][i], x[2][i]);
+    let (mut g, mut b) = (nalgebra::Matrix4::<f64>::zeros(), nalgebra::Vector4::<f64>::zeros());
+    for (i, v) in y.iter().enumerate().filter(|(i, _)| !left_out[*i]) {
+        let r = row(i);
+        g += r * r.transpose();
+        b += r * *v;
+    }
+    match g.cholesky() {
+        Some(ch) => {
+            let beta = ch.solve(&b);
+            y.iter().enumerate().map(|(i, v)| v - row(i).dot(&beta)).collect()
+        }
+        None => y.to_vec(),
     }
 }
 
@@ -471,7 +505,9 @@ pub fn align(sim: Recording, real: Recording, stated: Option<(f64, f64)>, mut no
         notes,
         artefacts,
         in_real_gap,
+        in_reference_gap: vec![],
         sim_recording: sim,
+        samples_per_point: 1,
     })
 }
 

@@ -14,7 +14,7 @@
 //! are 1-D searches in [`super::select`]; `quantization` and `saturation` are read directly
 //! off the real samples ([`detect_quantization`], [`detect_saturation`]).
 
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, Vector3};
 
 use super::residual::Column;
 use super::DiagnoseError;
@@ -110,6 +110,18 @@ impl Catalogue {
             Map::Temperature => 3,
         };
         self.candidates.push(Candidate { name, atoms, params, map });
+    }
+
+    /// Replace the time_offset atom by −ẋ (x(t − τ) − x(t) ≈ −τ ẋ) with the derivatives
+    /// given, for signals whose own differences would not give them (window means).
+    pub fn set_time_offset_derivatives(&mut self, gyro: &[Vector3<f64>], accel: &[Vector3<f64>]) {
+        let Some(c) = self.candidate("time_offset") else { return };
+        let atom = self.candidates[c].atoms[0];
+        let col: Column = std::array::from_fn(|k| {
+            let v: Vec<f64> = if k < 3 { gyro.iter().map(|d| -d[k]).collect() } else { accel.iter().map(|d| -d[k - 3]).collect() };
+            self.atoms[atom].column[k].as_ref().map(|_| v)
+        });
+        self.atoms[atom].column = col;
     }
 
     /// The candidate called `name`.
@@ -265,6 +277,19 @@ impl Catalogue {
         }
         if !sensors.judges(1) {
             self.excluded.push(("vibration".into(), format!("--sensors {}: the accelerometer is not judged", sensors.name())));
+        }
+        // One sensor alone cannot tell a turned frame from its own cross-axis errors: a small
+        // rotation is exactly the antisymmetric part of its misalignment, which reports it.
+        let misalignment = if sensors.judges(0) { "gyro_misalignment" } else { "accel_misalignment" };
+        if self.candidates.iter().any(|c| c.name == "mount_rotation") {
+            self.candidates.retain(|c| c.name != "mount_rotation");
+            self.excluded.push((
+                "mount_rotation".into(),
+                format!(
+                    "--sensors {}: with one sensor a small frame rotation is the antisymmetric part of {misalignment}, reported there",
+                    sensors.name()
+                ),
+            ));
         }
     }
 

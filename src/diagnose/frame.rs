@@ -197,7 +197,9 @@ mod tests {
             notes: vec![],
             artefacts: vec![],
             in_real_gap: vec![],
+            in_reference_gap: vec![],
             sim_recording: Recording { name: "t".into(), imu: vec![], ground_truth: vec![], temperature: vec![] },
+            samples_per_point: 1,
         }
     }
 

@@ -177,6 +177,47 @@ pub fn ideal_from_poses_with(poses: &[PoseSample], stamps_ns: &[i64], smoothing:
     Ok(ImuSignals { stamps_ns: stamps_ns.to_vec(), world_from_imu: att, alpha_in_imu: alpha, temperature_c: vec![25.0; m], gyro, accel })
 }
 
+/// A ground-truth interval longer than this many times its median is a dropout (tracking
+/// lost), not jitter: a motion-capture system that misses one frame leaves twice its interval.
+pub const DROPOUT_INTERVALS: f64 = 1.5;
+
+/// The median interval between poses, s (0 for fewer than two): a dropout does not move it.
+pub fn median_interval_s(poses: &[PoseSample]) -> f64 {
+    let mut dt: Vec<i64> = poses.windows(2).map(|w| w[1].stamp_ns - w[0].stamp_ns).collect();
+    if dt.is_empty() {
+        return 0.0;
+    }
+    let mid = dt.len() / 2;
+    *dt.select_nth_unstable(mid).1 as f64 * 1e-9
+}
+
+/// The dropouts of a ground truth: (last pose before, first pose after) in ns, for every
+/// interval longer than [`DROPOUT_INTERVALS`] times the median interval.
+pub fn reference_dropouts(poses: &[PoseSample]) -> Vec<(i64, i64)> {
+    let median_ns = median_interval_s(poses) * 1e9;
+    poses
+        .windows(2)
+        .filter(|w| (w[1].stamp_ns - w[0].stamp_ns) as f64 > DROPOUT_INTERVALS * median_ns)
+        .map(|w| (w[0].stamp_ns, w[1].stamp_ns))
+        .collect()
+}
+
+/// Per stamp: true where a simulation from this ground truth is not a simulation: inside a
+/// dropout, or within `margin_s` of one (where the smoother's window, or the interpolant's
+/// derivative, reaches across it). Sorted stamps and dropouts; O(n + gaps).
+pub fn near_dropouts(stamps_ns: &[i64], dropouts: &[(i64, i64)], margin_s: f64) -> Vec<bool> {
+    let margin = (margin_s * 1e9) as i64;
+    let mut out = vec![false; stamps_ns.len()];
+    let mut g = 0;
+    for (i, &t) in stamps_ns.iter().enumerate() {
+        while g < dropouts.len() && dropouts[g].1 + margin < t {
+            g += 1;
+        }
+        out[i] = g < dropouts.len() && t > dropouts[g].0 - margin;
+    }
+    out
+}
+
 /// Drop the IMU samples outside the ground truth's span shrunk by `margin_s` at both ends
 /// (where a simulation from it would be extrapolated, and where a smoother's window is
 /// one-sided); returns how many were dropped at the start and at the end.
@@ -261,5 +302,26 @@ mod tests {
         let (ws, as_) = rms_err(&by_local_cubic(&noisy, &t, 0.05), &truth, k0, k1);
         assert!(wd > 0.1 && ad > 50.0, "differences: ω {wd}, a {ad}");
         assert!(ws < wd / 5.0 && as_ < ad / 100.0, "local cubic: ω {ws} (differences {wd}), a {as_} (differences {ad})");
+    }
+
+    #[test]
+    fn dropouts_are_found_and_the_stamps_near_them_left_out() {
+        // 120 Hz poses with one missed frame at 1 s and a 0.5 s hole at 2 s.
+        let stamp = |t: f64| (t * 1e9).round() as i64;
+        let mut ts: Vec<f64> = (0..480).map(|k| k as f64 / 120.0).filter(|t| (*t - 1.0).abs() > 1e-9).collect();
+        ts.retain(|t| !(*t > 2.0 + 1e-9 && *t < 2.5 - 1e-9));
+        let poses: Vec<PoseSample> = ts
+            .iter()
+            .map(|&t| PoseSample { stamp_ns: stamp(t), position_in_world: Vector3::zeros(), world_from_body: UnitQuaternion::identity() })
+            .collect();
+        assert!((median_interval_s(&poses) - 1.0 / 120.0).abs() < 1e-9);
+        let d = reference_dropouts(&poses);
+        assert_eq!(d.len(), 2, "{d:?}");
+        assert_eq!(d[1], (stamp(2.0), stamp(2.5)));
+        let imu: Vec<i64> = (0..800).map(|k| stamp(k as f64 / 200.0)).collect();
+        let near = near_dropouts(&imu, &d, 0.05);
+        let at = |t: f64| near[(t * 200.0).round() as usize];
+        assert!(at(2.2) && at(1.96) && at(2.54) && at(1.0), "inside a hole and within the margin");
+        assert!(!at(1.9) && !at(2.6) && !at(0.5) && !at(3.5), "away from the holes");
     }
 }

@@ -27,6 +27,7 @@
 pub mod adequacy;
 pub mod align;
 pub mod allan;
+pub mod bandwidth;
 pub mod catalogue;
 pub mod figures;
 pub mod fit;
@@ -132,8 +133,13 @@ impl Sensors {
 pub struct Finding {
     pub term: String,
     pub params: serde_json::Value,
-    /// 1-σ uncertainty of each parameter, same layout as `params` where it applies.
+    /// 1-σ uncertainty of each parameter, same layout as `params` where it applies: the GLS
+    /// covariance's, widened by √(χ²/n) of the residual after the fit where that exceeds 1
+    /// (a noise model the residual does not meet understates every σ by that much).
     pub uncertainty: serde_json::Value,
+    /// [low, high] per parameter, ±1.96 σ (`uncertainty`): to put beside a datasheet.
+    #[serde(skip_serializing_if = "serde_json::Value::is_null")]
+    pub interval_95: serde_json::Value,
     pub evidence: serde_json::Value,
     /// Why the fitted value is not physically plausible (a term in `Diagnosis::implausible`).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -276,6 +282,7 @@ fn diagnose_in_frame(
     };
     let n = a.len();
     let dt = a.dt();
+    let full_rate = a.samples_per_point == 1;
     let mut notes = a.notes.clone();
     if let Some(g) = &gross {
         notes.push(format!(
@@ -304,16 +311,24 @@ fn diagnose_in_frame(
     // Terms read directly off the real samples.
     let mut direct: Vec<(Term, serde_json::Value)> = Vec::new();
     // Stamps inside a gap of the real stream hold an interpolation across it, not a sample.
-    let mut mask: Vec<bool> = (0..n).map(|i| !a.in_real_gap.get(i).copied().unwrap_or(false)).collect();
-    let in_gaps = mask.iter().filter(|m| !**m).count();
+    let flag = |v: &[bool], i: usize| v.get(i).copied().unwrap_or(false);
+    let mut mask: Vec<bool> = (0..n).map(|i| !flag(&a.in_real_gap, i) && !flag(&a.in_reference_gap, i)).collect();
+    let in_gaps = (0..n).filter(|&i| flag(&a.in_real_gap, i)).count();
     if in_gaps > 0 {
         notes.push(format!("{in_gaps} sim stamps inside gaps of the real stream left out of the fit"));
+    }
+    let in_reference_gaps = (0..n).filter(|&i| flag(&a.in_reference_gap, i)).count();
+    if in_reference_gaps > 0 {
+        notes.push(format!(
+            "{in_reference_gaps} stamps ({:.1} % of the recording) at or near dropouts of the ground truth left out of the fit: the sim there is made up across the hole, not simulated",
+            100.0 * in_reference_gaps as f64 / n.max(1) as f64
+        ));
     }
     let mut white_real = [a.real_variance.0, a.real_variance.1];
     let sim_var = [a.sim_variance.0, a.sim_variance.1];
     let mut ranges = [f64::INFINITY; 2];
     let mut lsbs = [0.0; 2];
-    for s in (0..2).filter(|s| opts.sensors.judges(*s)) {
+    for s in (0..2).filter(|s| full_rate && opts.sensors.judges(*s)) {
         if let Some((range, idx)) = catalogue::detect_saturation(&a.real[3 * s..3 * s + 3], &a.sim[3 * s..3 * s + 3], sim_var[s].sqrt()) {
             ranges[s] = range;
             for &i in &idx {
@@ -340,6 +355,17 @@ fn diagnose_in_frame(
         a.temperature_c.as_ref().map(|t| t.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(*v), hi.max(*v))));
     let mut catalogue = Catalogue::build(&base, a.world_from_imu.is_some(), temperature.map(|(lo, hi)| hi - lo))?;
     catalogue.restrict(opts.sensors);
+    if let Some((gyro_rate, accel_rate)) = bandwidth::window_mean_derivatives(a, opts.gt_smoothing_s) {
+        catalogue.set_time_offset_derivatives(&gyro_rate, &accel_rate);
+    }
+    if !full_rate {
+        catalogue.candidates.retain(|c| !bandwidth::NOT_JUDGED.contains(&c.name));
+        for t in bandwidth::NOT_JUDGED {
+            catalogue
+                .excluded
+                .push((t.into(), format!("compared as means over {} samples: the term lives above that bandwidth", a.samples_per_point)));
+        }
+    }
     let excluded = catalogue.excluded.clone();
     let sensor_noise = |s: usize| ChannelNoise { white_sim: sim_var[s], white_real: white_real[s], pole: 0.0, walk: sim_var[s] * 1e-6 };
     let noise = NoiseModel { sensors: [sensor_noise(0), sensor_noise(1)] };
@@ -350,7 +376,8 @@ fn diagnose_in_frame(
         catalogue,
         noise,
         stated: a.real_variance,
-        judge_noise_density: a.real_variance == a.sim_variance && lsbs[0] == 0.0 && opts.sensors.judges(0),
+        judge_noise_density: a.real_variance == a.sim_variance && lsbs[0] == 0.0 && opts.sensors.judges(0) && full_rate,
+        full_rate,
         temperature,
         opts: opts.select,
         sensors: opts.sensors,
@@ -377,6 +404,12 @@ fn diagnose_in_frame(
             )),
         }
     }
+    // A frame rotation and both sensors' misalignments share a null space: a small rotation
+    // δ is the antisymmetric part [δ]× of each, so only their sum is determined.
+    let chosen_names: Vec<&str> = fitted.iter().map(|(t, _)| t.name()).collect();
+    if ["mount_rotation", "gyro_misalignment", "accel_misalignment"].iter().all(|n| chosen_names.contains(n)) {
+        notes.push("mount_rotation, gyro_misalignment and accel_misalignment are all in the fit: a small frame rotation is the antisymmetric part of both misalignments, so how the three split it is not determined by any recording; only their combined effect is".into());
+    }
     let mut findings = Vec::new();
     let mut implausible = Vec::new();
     let mut terms = Vec::new();
@@ -392,13 +425,29 @@ fn diagnose_in_frame(
         }
         let step = sel.steps.iter().rev().find(|s| s.action == "add" && s.term == term.name());
         let uncertainty = uncertainty_json(term, sd);
-        let evidence = serde_json::json!({
+        let mut evidence = serde_json::json!({
             "heldout_loglik_gain": step.map(|s| s.heldout_gain),
             "runner_up": step.and_then(|s| s.runner_up.clone()).map(|(t, g)| serde_json::json!({"term": t, "heldout_loglik_gain": g})),
             "rule": format!("added while the held-out log-likelihood gain exceeded {} + {} per parameter", opts.select.threshold, opts.select.per_param),
         });
-        let why = catalogue::implausible(term, 1.0 / dt);
-        let f = Finding { term: term.name().into(), params: catalogue::params_json(term), uncertainty, evidence, implausible: why };
+        // Plausibility is judged at the sensor's own rate, not the comparison's.
+        let sample_rate_hz = a.samples_per_point as f64 / dt;
+        if let (Term::TimeOffset(t), false) = (term, full_rate) {
+            if let Some(f_c) = bandwidth::equivalent_low_pass_hz(t.seconds, 1.0 / sample_rate_hz) {
+                evidence["also_explained_by"] = serde_json::json!(format!(
+                    "a first-order low-pass at {f_c:.1} Hz (its delay), or any mix of a delay and a filter: the two are one effect at the compared bandwidth; the delay is given once, and neither is a finding on its own"
+                ));
+            }
+        }
+        let why = catalogue::implausible(term, sample_rate_hz);
+        let f = Finding {
+            term: term.name().into(),
+            params: catalogue::params_json(term),
+            uncertainty,
+            interval_95: serde_json::Value::Null,
+            evidence,
+            implausible: why,
+        };
         if f.implausible.is_some() {
             implausible.push(f)
         } else {
@@ -411,6 +460,7 @@ fn diagnose_in_frame(
             term: term.name().into(),
             params: catalogue::params_json(&term),
             uncertainty: serde_json::json!(null),
+            interval_95: serde_json::Value::Null,
             evidence,
             implausible: None,
         });
@@ -448,6 +498,25 @@ fn diagnose_in_frame(
         "real − (sim + fitted terms), each time block predicted by a fit on the other blocks; noise terms included in the model",
     );
 
+    // σ from a noise model the residual exceeds is too small by √(χ²/n): widened by the
+    // worst judged channel's excess, and the 95 % intervals from it.
+    let excess = residual_after
+        .chi2_per_sample
+        .iter()
+        .filter(|(c, _)| (0..2).any(|s| opts.sensors.judges(s) && c.starts_with(["gyro", "accel"][s])))
+        .map(|(_, v)| *v)
+        .fold(1.0f64, f64::max);
+    if excess > 1.0 {
+        notes.push(format!(
+            "the residual after the fit has χ²/n up to {excess:.2}: every stated σ is widened by √{excess:.2} = {:.2}",
+            excess.sqrt()
+        ));
+    }
+    for f in findings.iter_mut().chain(implausible.iter_mut()) {
+        scale_numbers(&mut f.uncertainty, excess.sqrt());
+        f.interval_95 = interval(&f.params, &f.uncertainty, 1.96);
+    }
+
     // The same tests on the residual after the fit: what is left there, the catalogue does
     // not explain.
     let mut located_after = adequacy::claims_after(&w1, dt);
@@ -455,6 +524,11 @@ fn diagnose_in_frame(
     let verdict = adequacy::judge(located_after, &residual_after.chi2_per_sample, terms.len());
 
     let mut curves = Curves::default();
+    // Left-out samples (gaps, the reference's dropouts, clipping) hold no comparison: the
+    // spectra and Allan curves see the last compared value there, not the spikes.
+    let held = |x: &[f64]| held_over_mask(x, &mask);
+    let (y_all, after): ([Vec<f64>; 6], [Vec<f64>; 6]) =
+        (std::array::from_fn(|c| held(&y_all[c])), std::array::from_fn(|c| held(&after[c])));
     for c in 0..6 {
         let ab = allan::allan_deviation(&y_all[c], dt);
         let aa = allan::allan_deviation(&after[c], dt);
@@ -496,6 +570,58 @@ fn diagnose_in_frame(
         },
         fine_rotvec,
     ))
+}
+
+/// Every number in `v` times `k`.
+fn scale_numbers(v: &mut serde_json::Value, k: f64) {
+    match v {
+        serde_json::Value::Number(n) => {
+            if let Some(x) = n.as_f64() {
+                *v = serde_json::json!(x * k);
+            }
+        }
+        serde_json::Value::Array(a) => a.iter_mut().for_each(|x| scale_numbers(x, k)),
+        serde_json::Value::Object(o) => o.values_mut().for_each(|x| scale_numbers(x, k)),
+        _ => {}
+    }
+}
+
+/// [p − z·σ, p + z·σ] for every parameter p of `params` with its σ in `sd` (same layout);
+/// null where `sd` gives none.
+fn interval(params: &serde_json::Value, sd: &serde_json::Value, z: f64) -> serde_json::Value {
+    use serde_json::Value;
+    match (params, sd) {
+        (Value::Number(p), Value::Number(s)) => match (p.as_f64(), s.as_f64()) {
+            (Some(p), Some(s)) => serde_json::json!([p - z * s, p + z * s]),
+            _ => Value::Null,
+        },
+        (Value::Array(p), Value::Array(s)) if p.len() == s.len() => Value::Array(p.iter().zip(s).map(|(p, s)| interval(p, s, z)).collect()),
+        (Value::Object(p), Value::Object(s)) => {
+            let o: serde_json::Map<String, Value> =
+                p.iter().filter_map(|(k, pv)| s.get(k).map(|sv| (k.clone(), interval(pv, sv, z)))).filter(|(_, v)| !v.is_null()).collect();
+            if o.is_empty() {
+                Value::Null
+            } else {
+                Value::Object(o)
+            }
+        }
+        _ => Value::Null,
+    }
+}
+
+/// `x` with every sample where `mask` is false replaced by the last one where it is true
+/// (the first such before any: the first true one).
+fn held_over_mask(x: &[f64], mask: &[bool]) -> Vec<f64> {
+    let mut last = mask.iter().position(|m| *m).map_or(0.0, |i| x[i]);
+    x.iter()
+        .zip(mask)
+        .map(|(v, m)| {
+            if *m {
+                last = *v;
+            }
+            last
+        })
+        .collect()
 }
 
 /// Means of consecutive blocks of `block` samples, masked samples left out (NaN if none).
@@ -595,7 +721,9 @@ mod tests {
             notes: vec![],
             artefacts: vec![],
             in_real_gap: vec![],
+            in_reference_gap: vec![],
             sim_recording: crate::core::Recording { name: "t".into(), imu: vec![], ground_truth: vec![], temperature: vec![] },
+            samples_per_point: 1,
         }
     }
 

@@ -105,14 +105,15 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
             }
         );
     } else {
-        let _ = writeln!(s, "| term | parameters | 1σ | evidence |\n|---|---|---|---|");
+        let _ = writeln!(s, "| term | parameters | 1σ | 95 % interval | evidence |\n|---|---|---|---|---|");
         for f in &d.findings {
             let _ = writeln!(
                 s,
-                "| {} | `{}` | `{}` | {} |",
+                "| {} | `{}` | `{}` | `{}` | {} |",
                 f.term,
                 f.params,
                 f.uncertainty,
+                f.interval_95,
                 f.evidence.get("heldout_loglik_gain").map(|g| format!("held-out Δlog L = {g}")).unwrap_or_else(|| f.evidence.to_string())
             );
         }

@@ -274,11 +274,20 @@ pub fn filter(x: &[f64], w: &[f64], edge: impl Fn(usize) -> f64) -> Vec<f64> {
 pub fn base_signals(a: &Aligned, half_window_s: f64, max_smoothing_s: f64, gt_smoothing: Option<f64>) -> ImuSignals {
     let dt = a.dt();
     let kd = ((2.0 * half_window_s / dt).round() as usize).max(1);
-    let kdeg = [cv_smoother(&a.sim[..3], dt, max_smoothing_s), cv_smoother(&a.sim[3..], dt, max_smoothing_s)];
-    let wd = derivative_weights(kd);
-    let mut smooth: [Vec<f64>; 6] = std::array::from_fn(|c| smooth_leave_out(&a.sim[c], kdeg[c / 3].0, kdeg[c / 3].1));
     let var = [a.sim_variance.0, a.sim_variance.1];
-    for s in 0..2 {
+    let wd = derivative_weights(kd);
+    // Window means: the sim's noise is divided by the window's length (its errors-in-variables
+    // pull on a scale, −σ²/⟨ω²⟩, is then ~1e-6) while a smoother at the window rate would
+    // round the motion itself, so the means are the regressors' signals as they are.
+    let full_rate = a.samples_per_point == 1;
+    let kdeg = if full_rate {
+        [cv_smoother(&a.sim[..3], dt, max_smoothing_s), cv_smoother(&a.sim[3..], dt, max_smoothing_s)]
+    } else {
+        [(0, 0); 2]
+    };
+    let mut smooth: [Vec<f64>; 6] =
+        std::array::from_fn(|c| if full_rate { smooth_leave_out(&a.sim[c], kdeg[c / 3].0, kdeg[c / 3].1) } else { a.sim[c].clone() });
+    for s in (0..2).filter(|_| full_rate) {
         let r = restore_sharp_motion(&a.sim[3 * s..3 * s + 3], &mut smooth[3 * s..3 * s + 3], kdeg[s].0, kdeg[s].1, var[s]);
         tracing::debug!("sensor {s}: smoother (±{}, degree {}), sharp motion restored at {r} of {} samples", kdeg[s].0, kdeg[s].1, a.len());
     }
@@ -298,6 +307,18 @@ pub fn base_signals(a: &Aligned, half_window_s: f64, max_smoothing_s: f64, gt_sm
     // ω̇ from the noise-free ground truth when there is one (a derivative of the noisy sim gyro
     // is noise-dominated on gentle motion), else from the sim gyro.
     let gt = &a.sim_recording.ground_truth;
+    if !full_rate && gt.len() >= 4 {
+        if let Some((alpha, _)) = super::bandwidth::window_mean_derivatives(a, gt_smoothing) {
+            return ImuSignals {
+                stamps_ns: a.stamps_ns.clone(),
+                world_from_imu: a.world_from_imu.clone().unwrap_or_else(|| vec![nalgebra::UnitQuaternion::identity(); n]),
+                alpha_in_imu: alpha,
+                temperature_c: a.temperature_c.clone().unwrap_or_else(|| vec![25.0; n]),
+                gyro: (0..n).map(|i| v3(&smooth[..3], i)).collect(),
+                accel: (0..n).map(|i| v3(&smooth[3..], i)).collect(),
+            };
+        }
+    }
     let alpha_in_imu = match (gt.len() >= 4, super::kinematics::ideal_from_poses_with(gt, &a.stamps_ns, gt_smoothing)) {
         (true, Ok(s)) => {
             let (alpha, kept) = sharp_angular_acceleration(&s.alpha_in_imu, &s.gyro, &a.sim[..3], var[0], dt);

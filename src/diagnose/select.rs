@@ -84,6 +84,9 @@ pub struct Problem<'a> {
     pub stated: (f64, f64),
     /// Judge gyro_noise_density (real and sim at the same rate).
     pub judge_noise_density: bool,
+    /// The recordings are compared sample by sample (not as window means): the terms that
+    /// live at high frequency (low_pass, vibration) are candidates.
+    pub full_rate: bool,
     pub temperature: Option<(f64, f64)>,
     pub opts: SelectOptions,
     /// The sensors judged (the others' channels are zero in `y` and in every atom).
@@ -380,7 +383,7 @@ fn noise_candidates(
         let fit = fit_reduced(p, &y2, chosen, &n2);
         out.push((t, fit, n2, y2));
     }
-    if !have.iter().any(|t| matches!(t, NoiseTerm::LowPass { .. })) {
+    if p.full_rate && !have.iter().any(|t| matches!(t, NoiseTerm::LowPass { .. })) {
         let fs = 1.0 / p.base.nominal_dt();
         let judged = |sensor: &LowPassSensor| sensor.sensors().iter().all(|s| p.sensors.judges(*s as usize));
         for sensor in [LowPassSensor::Gyro, LowPassSensor::Accel, LowPassSensor::Both].into_iter().filter(judged) {
@@ -474,7 +477,7 @@ pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
 
     for _round in 0..12 {
         // A vibration candidate at the strongest accelerometer line of the current residual.
-        if p.sensors.judges(1) && !chosen.iter().any(|c| p.catalogue.candidates[c.cand].name == "vibration") {
+        if p.full_rate && p.sensors.judges(1) && !chosen.iter().any(|c| p.catalogue.candidates[c.cand].name == "vibration") {
             let r = model_residual(&p.catalogue, &y, &chosen, &current.beta);
             let w = whitened(&r, &noise, &p.mask);
             let dt = p.base.nominal_dt();
@@ -669,6 +672,7 @@ mod tests {
             noise: NoiseModel { sensors: [ch, ch] },
             stated: (white / 2.0, white / 2.0),
             judge_noise_density: false,
+            full_rate: true,
             temperature: Some((20.0, 40.0)),
             opts: SelectOptions::default(),
             sensors: super::super::Sensors::Both,

@@ -168,6 +168,19 @@ pub fn prerequisites() -> Result<Prereqs, String> {
 /// after ~7.6 s, toolchain.md).
 pub const LO_SETUP: &str = "ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo";
 
+/// ../shared/data (the real EuRoC and TUM-VI recordings); `None` after a loud skip, a
+/// failure under CI.
+pub fn shared_data() -> Option<PathBuf> {
+    let p = manifest_dir().join("../shared/data");
+    if p.join("euroc").is_dir() && p.join("tumvi").is_dir() {
+        Some(p)
+    } else {
+        assert!(std::env::var_os("CI").is_none(), "../shared/data is missing in CI");
+        eprintln!("SKIPPED: ../shared/data not found; the real-data tests need it");
+        None
+    }
+}
+
 /// The folder `mav0/` of an EuRoC sequence: `preferred`, else the first of the fallbacks found.
 pub fn euroc_sequence(preferred: &str, fallbacks: &[&str]) -> Result<PathBuf, String> {
     let root = manifest_dir().join("../shared/data/euroc");

@@ -1,0 +1,285 @@
+//! `imu-fsda diagnose`: sim-vs-real diagnosis (see `imu_fsda::diagnose`).
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use imu_fsda::bag::{read_recording, RecordingTopics};
+use imu_fsda::diagnose::{align, diagnose, report, DiagnoseOptions, Sensors};
+
+/// Default half-width (s) of the ground-truth smoother with --noise-model: ±10 poses at
+/// EuRoC's 200 Hz, passing motion up to ≈ 15 Hz (see `kinematics::ideal_from_poses_with`).
+const NOISE_MODEL_GT_SMOOTHING_S: f64 = 0.05;
+
+#[derive(Debug, clap::Args)]
+pub struct DiagnoseArgs {
+    /// The simulated bag (ROS 2 MCAP: /imu/data with the sim's white-noise variance on the
+    /// covariance diagonals, /ground_truth/pose, optional /imu/temperature).
+    #[arg(long, required_unless_present_any = ["noise_model", "score_generated", "score_injected"])]
+    pub sim: Option<PathBuf>,
+    /// The real bag of the same motion.
+    #[arg(long, required_unless_present_any = ["score_generated", "score_injected"])]
+    pub real: Option<PathBuf>,
+    /// Instead of --sim: simulate the real bag's ground truth with this noise model (YAML:
+    /// gyro_noise_density, accel_noise_density, gyro_bias_random_walk, accel_bias_random_walk).
+    #[arg(long, conflicts_with = "sim")]
+    pub noise_model: Option<PathBuf>,
+    /// IMU topic of both bags (sensor_msgs/Imu).
+    #[arg(long, default_value = imu_fsda::bag::IMU_TOPIC)]
+    pub imu_topic: String,
+    /// Ground-truth topic of both bags (PoseStamped, Odometry, or an Imu carrying orientation).
+    #[arg(long, default_value = imu_fsda::bag::GROUND_TRUTH_TOPIC)]
+    pub ground_truth_topic: String,
+    /// Temperature topic of both bags (sensor_msgs/Temperature), if any.
+    #[arg(long, default_value = imu_fsda::bag::TEMPERATURE_TOPIC)]
+    pub temperature_topic: String,
+    /// The simulated bag's IMU topic, where it differs from the real one's (default:
+    /// --imu-topic).
+    #[arg(long, conflicts_with_all = ["noise_model", "score_generated"])]
+    pub sim_imu_topic: Option<String>,
+    /// The simulated bag's ground-truth topic (default: --ground-truth-topic).
+    #[arg(long, conflicts_with_all = ["noise_model", "score_generated"])]
+    pub sim_ground_truth_topic: Option<String>,
+    /// The simulated bag's temperature topic (default: --temperature-topic).
+    #[arg(long, conflicts_with_all = ["noise_model", "score_generated"])]
+    pub sim_temperature_topic: Option<String>,
+    /// Output directory: report.json, report.md, patch.yaml, CSVs, PNG figures (psd, allan,
+    /// residual), corrected_sim.mcap.
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// The sensors judged. `gyro`: the accelerometer's residual and every accelerometer term
+    /// are left out (listed under not_judged), e.g. when the simulated accelerometer comes
+    /// from a measured ground truth differentiated twice.
+    #[arg(long, value_enum, default_value_t = Sensors::Both)]
+    pub sensors: Sensors,
+    /// Half-width (s) of the local cubic fitted to the ground-truth poses before they are
+    /// differentiated (a measured ground truth's noise would otherwise be amplified by 1/dt
+    /// and 1/dt²). Default: 0.05 with --noise-model, none with --sim (a simulator's ground
+    /// truth is noise-free); 0 turns it off.
+    #[arg(long, value_parser = super::non_negative)]
+    pub gt_smoothing: Option<f64>,
+    /// Compare the recordings as means over windows of this many seconds (the bandwidth where
+    /// a measured reference is good: its jitter, differentiated, would otherwise dominate the
+    /// residual and pull every scale towards −1). Default with --noise-model: 0.2 s, or 4 of
+    /// the reference's intervals if longer; with --sim (a simulator's exact ground truth):
+    /// sample by sample. 0: sample by sample. low_pass, vibration, gyro_noise_density,
+    /// quantization and saturation are not judged on window means (a low-pass's delay is
+    /// time_offset, with the filter named beside it).
+    #[arg(long, value_parser = super::non_negative)]
+    pub compare_window: Option<f64>,
+    /// Estimate the real sensor's white-noise level from the residual (third differences)
+    /// instead of taking the simulator's: for a real sensor whose in-use noise is not the
+    /// stated one (vibration). gyro_noise_density is then not judged. Implied when the
+    /// recordings are compared over windows (--compare-window): there the residual's white
+    /// part is mostly the reference's own error, which no sensor model states.
+    #[arg(long)]
+    pub real_noise_from_data: bool,
+    /// Seed of the simulation from ground truth.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Held-out log-likelihood gain a term needs (plus 0.5 per parameter).
+    #[arg(long, default_value_t = 12.0, value_parser = super::non_negative)]
+    pub threshold: f64,
+    /// Score the diagnosis on this many generated cases (the project's simulator, random
+    /// profiles, rates, grades, durations, terms near the detection limit); prints recall,
+    /// spurious-term rate and parameter error, writes `score.json` and `cases.csv` to --out.
+    #[arg(long, hide = true)]
+    pub score_generated: Option<usize>,
+    /// Score the diagnosis on real recordings with effects injected by the physics code
+    /// (needs --noise-model, the IMU's stated noise): each bag is diagnosed as recorded (the
+    /// control) and with --score-draws random injected cases; prints recall, spurious-term
+    /// rate beyond the control and parameter error, writes `score.json` and `cases.csv`.
+    #[arg(long, hide = true, num_args = 1.., requires = "noise_model", conflicts_with_all = ["sim", "real", "score_generated"])]
+    pub score_injected: Vec<PathBuf>,
+    /// With --score-injected: injected cases per recording.
+    #[arg(long, hide = true, default_value_t = 6)]
+    pub score_draws: usize,
+    /// With --score-generated: draw the left-out terms only from these names.
+    #[arg(long, hide = true, value_delimiter = ',')]
+    pub score_only: Vec<String>,
+    /// With --score-generated: fixed duration (s) and rate (Hz) instead of random ones.
+    #[arg(long, hide = true, value_parser = super::positive)]
+    pub score_seconds: Option<f64>,
+    #[arg(long, hide = true, value_parser = super::positive)]
+    pub score_rate: Option<f64>,
+    /// With --score-generated: diagnose only these case indices (the others are still drawn,
+    /// so every case is the same as in the full run; for development).
+    #[arg(long, hide = true, value_delimiter = ',')]
+    pub score_cases: Vec<usize>,
+}
+
+pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
+    let mut opts = DiagnoseOptions::default();
+    opts.select.threshold = args.threshold;
+    opts.sensors = args.sensors;
+    anyhow::ensure!(
+        !args.out.exists() || args.out.is_dir(),
+        "--out {}: exists and is not a directory (the report is a directory of files)",
+        args.out.display()
+    );
+    if let Some(n) = args.score_generated {
+        return generated::run(n, args.seed, &args.out, &opts, &args.score_only, (args.score_seconds, args.score_rate), &args.score_cases);
+    }
+    if !args.score_injected.is_empty() {
+        return score_injected(&args, &opts);
+    }
+    let real_path = args.real.clone().context("--real is required")?;
+    // A report directory rewritten over one of its inputs (the last run's corrected_sim.mcap
+    // given back as --sim) would destroy it: refused before anything is written.
+    let inputs: Vec<&std::path::Path> = [&args.sim, &args.real, &args.noise_model].into_iter().flatten().map(|p| p.as_path()).collect();
+    for name in report::FILES {
+        super::refuse_overwriting_input(&args.out.join(name), &inputs)?;
+    }
+    match diagnose_to(&args, &real_path, &opts) {
+        Ok(()) => Ok(()),
+        Err(e) => {
+            // Partial results: say what failed where the report would be.
+            std::fs::create_dir_all(&args.out).ok();
+            let j = serde_json::json!({"error": super::error_text(&e), "findings": [], "located": [], "residual_before": null, "residual_after": null});
+            std::fs::write(args.out.join("report.json"), serde_json::to_string_pretty(&j)?).ok();
+            Err(e)
+        }
+    }
+}
+
+/// The ground-truth smoother's half-width: the option's, else the default for a measured
+/// reference (--noise-model), else none.
+fn gt_smoothing(args: &DiagnoseArgs) -> Option<f64> {
+    match (args.gt_smoothing, &args.noise_model) {
+        (Some(h), _) => Some(h).filter(|h| *h > 0.0),
+        (None, Some(_)) => Some(NOISE_MODEL_GT_SMOOTHING_S),
+        (None, None) => None,
+    }
+}
+
+fn read_noise_model(path: &std::path::Path) -> anyhow::Result<imu_fsda::sim::NoiseModel> {
+    let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
+        std::io::ErrorKind::InvalidData => anyhow::anyhow!(
+            "{}: not a text file; --noise-model takes YAML (gyro_noise_density, accel_noise_density, gyro_bias_random_walk, accel_bias_random_walk), a simulated bag goes to --sim",
+            path.display()
+        ),
+        _ => anyhow::Error::new(e).context(format!("reading {}", path.display())),
+    })?;
+    serde_yaml::from_str(&text).with_context(|| format!("{}: not a noise model", path.display()))
+}
+
+fn score_injected(args: &DiagnoseArgs, opts: &DiagnoseOptions) -> anyhow::Result<()> {
+    let mut opts = *opts;
+    opts.gt_smoothing_s = gt_smoothing(args);
+    let set = injected::InjectedSet {
+        bags: &args.score_injected,
+        topics: RecordingTopics {
+            imu: args.imu_topic.clone(),
+            ground_truth: Some(args.ground_truth_topic.clone()),
+            temperature: Some(args.temperature_topic.clone()),
+        },
+        noise: read_noise_model(args.noise_model.as_deref().context("--score-injected needs --noise-model")?)?,
+        smoothing: opts.gt_smoothing_s,
+        compare_window: args.compare_window,
+        real_noise_from_data: args.real_noise_from_data,
+        draws: args.score_draws,
+        seed: args.seed,
+        only: args.score_only.clone(),
+    };
+    injected::run(&set, &args.out, &opts)
+}
+
+/// The window a measured reference is compared over: the option's, else
+/// [`bandwidth::window_for`] its pose interval with --noise-model, else sample by sample.
+pub(super) fn compare_window(option: Option<f64>, measured_reference: bool, gt: &[imu_fsda::core::PoseSample]) -> f64 {
+    match (option, measured_reference) {
+        (Some(w), _) => w,
+        (None, true) => imu_fsda::diagnose::bandwidth::window_for(imu_fsda::diagnose::kinematics::median_interval_s(gt)),
+        (None, false) => 0.0,
+    }
+}
+
+fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &DiagnoseOptions) -> anyhow::Result<()> {
+    let mut opts = *opts;
+    let smoothing = gt_smoothing(args);
+    opts.gt_smoothing_s = smoothing;
+    let opts = &opts;
+    let topics = RecordingTopics {
+        imu: args.imu_topic.clone(),
+        ground_truth: Some(args.ground_truth_topic.clone()),
+        temperature: Some(args.temperature_topic.clone()),
+    };
+    let sim_topics = RecordingTopics {
+        imu: args.sim_imu_topic.clone().unwrap_or_else(|| topics.imu.clone()),
+        ground_truth: args.sim_ground_truth_topic.clone().or_else(|| topics.ground_truth.clone()),
+        temperature: args.sim_temperature_topic.clone().or_else(|| topics.temperature.clone()),
+    };
+    let mut aligned = match (&args.sim, &args.noise_model) {
+        (Some(sim), _) => align::load_each_on(sim, &sim_topics, real_path, &topics)?,
+        (None, Some(model)) => {
+            let noise = read_noise_model(model)?;
+            let (mut real, _) = read_recording(real_path, &topics)?;
+            // Outside the ground truth's span there is nothing to simulate (and its first
+            // samples fix the bias walk's start, W₀ = 0, which the bias estimate rests on).
+            let (cut0, cut1) = imu_fsda::diagnose::kinematics::crop_to_ground_truth(&mut real, smoothing.unwrap_or(0.0));
+            let (sim, var) = imu_fsda::diagnose::kinematics::simulate_from_ground_truth(&real, &noise, args.seed, smoothing)?;
+            let how = match smoothing {
+                Some(h) => format!("poses smoothed by a local cubic over ±{h} s, then differentiated"),
+                None => "poses differentiated sample to sample".into(),
+            };
+            let notes = vec![
+                format!("sim side simulated from the real bag's ground truth ({how}) with {noise:?} (seed {})", args.seed),
+                format!("real IMU samples outside the ground truth's span (less the smoother's half-width) left out: {cut0} at the start, {cut1} at the end"),
+            ];
+            let mut a = align::align(sim, real, Some(var), notes)?;
+            leave_out_reference_dropouts(&mut a, smoothing);
+            a
+        }
+        (None, None) => anyhow::bail!("give --sim SIM.mcap or --noise-model FILE.yaml"),
+    };
+    let window = compare_window(args.compare_window, args.noise_model.is_some(), &aligned.sim_recording.ground_truth);
+    if window > 0.0 {
+        aligned = aligned.block_means(window);
+    }
+    if args.real_noise_from_data || aligned.samples_per_point > 1 {
+        aligned.estimate_real_white_noise();
+    }
+    let d = diagnose(&aligned, opts)?;
+    report::write_all(&args.out, &aligned, &d)?;
+    // The verdict first: when the catalogue does not explain the recording, the terms below
+    // are its best fit, and must not read as a diagnosis.
+    for a in &d.artefacts {
+        out!("recording artefact: {a}")?;
+    }
+    out!("{}", d.verdict.statement)?;
+    let label = if d.verdict.explained { "" } else { "best catalogue fit, not a diagnosis: " };
+    for f in &d.findings {
+        out!("{label}{}: {}", f.term, f.params)?;
+    }
+    for f in &d.implausible {
+        out!("implausible, not a finding: {}: {} ({})", f.term, f.params, f.implausible.as_deref().unwrap_or_default())?;
+    }
+    out!("report: {} ({:.2} s)", args.out.join("report.md").display(), d.seconds)?;
+    Ok(())
+}
+
+/// Where the ground truth lost tracking, the sim made from it is interpolated across the hole
+/// (and differentiated there: spikes of rad/s), so those stamps, and those whose smoother
+/// window or interpolant reaches into a hole, leave the fit; the dropouts are a recording
+/// artefact of the reference, said in the report.
+pub(super) fn leave_out_reference_dropouts(a: &mut align::Aligned, smoothing: Option<f64>) {
+    use imu_fsda::diagnose::kinematics::{near_dropouts, reference_dropouts};
+    let gt = &a.sim_recording.ground_truth;
+    let dropouts = reference_dropouts(gt);
+    if dropouts.is_empty() {
+        return;
+    }
+    let span = |(a, b): &(i64, i64)| (b - a) as f64 * 1e-9;
+    let longest = dropouts.iter().map(span).fold(0.0, f64::max);
+    let total: f64 = dropouts.iter().map(span).sum();
+    let interval = imu_fsda::diagnose::kinematics::median_interval_s(gt);
+    let margin = smoothing.unwrap_or(0.0) + 2.0 * interval;
+    a.in_reference_gap = near_dropouts(&a.stamps_ns, &dropouts, margin);
+    a.artefacts.push(format!(
+        "the ground truth has {} dropouts (intervals over {} times its median; longest {longest:.3} s, {total:.1} s in all): the stamps within {margin:.3} s of one are left out of the fit",
+        dropouts.len(),
+        imu_fsda::diagnose::kinematics::DROPOUT_INTERVALS
+    ));
+}
+
+mod generated;
+mod injected;
