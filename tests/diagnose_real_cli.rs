@@ -157,3 +157,61 @@ fn injected_scales_and_biases_are_scored_against_the_control() {
     let csv = std::fs::read_to_string(out.join("cases.csv")).unwrap();
     assert!(csv.lines().any(|l| l.starts_with("room2,control,")), "{csv}");
 }
+
+/// A reference on its own clock, 0.5 s behind the IMU (a motion-capture system stamping on
+/// its own time base): lined up first and said, so the comparison finds what the recording
+/// as stamped finds, not a delay or a scale made of the offset.
+#[test]
+fn a_reference_half_a_second_late_is_lined_up_and_said() {
+    let Some(seq) = room2() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("room2.mcap");
+    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag));
+    let (mut rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
+    rec.ground_truth.iter_mut().for_each(|p| p.stamp_ns += 500_000_000);
+    let late = dir.path().join("late.mcap");
+    write_recording(&late, &rec).unwrap();
+    let r = diagnose(dir.path(), &late, "late");
+    let artefacts = r["recording_artefacts"].to_string();
+    let said = artefacts.split("lag the IMU's by ").nth(1).and_then(|t| t.split(" ms").next()).and_then(|v| v.parse::<f64>().ok());
+    assert!(said.is_some_and(|ms| (ms - 500.0).abs() <= 5.0), "the lag is said: {artefacts}");
+    // The stamps move by whole IMU samples (100 of 5.016 ms); the remainder is a delay.
+    let terms = fitted(&r);
+    let names: Vec<&str> = terms.iter().map(|f| f["term"].as_str().unwrap()).collect();
+    assert!(names.iter().all(|n| *n == "time_offset"), "nothing but the remainder of the lag: {names:?}");
+    let remainder_ms = terms.first().map_or(0.0, |f| f["params"]["seconds"].as_f64().unwrap() * 1e3);
+    eprintln!("lag said {said:?} ms, remainder {remainder_ms} ms");
+    // Within a fifth of a sample (the recording's own offset against its mocap is ≈ 0.3 ms).
+    assert!((said.unwrap() - remainder_ms - 500.0).abs() < 1.0, "lag {said:?} ms and remainder {remainder_ms} ms make 500 ms");
+}
+
+/// A coarse or a short reference: the same recording with its motion capture kept at 20 Hz
+/// (every sixth pose), and its first 20 s alone. The coarse one gives nothing (the smoother
+/// widens to hold its poses; before, it read as gyro scales of +0.2 to +1.6 %). The short
+/// one may give a delay and nothing else: 20-s pieces of these recordings carry delays of
+/// +1.9 to −1.6 ms against their mocap (its clock drifts; the whole recording averages them
+/// out), which are the recording's, not made up.
+#[test]
+fn a_20_hz_or_a_short_reference_gives_no_term_of_its_own() {
+    let Some(seq) = room2() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("room2.mcap");
+    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag));
+    let (rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
+    let coarse = imu_fsda::core::Recording { ground_truth: rec.ground_truth.iter().step_by(6).copied().collect(), ..rec.clone() };
+    let t0 = rec.imu[0].stamp_ns;
+    let short = imu_fsda::core::Recording {
+        imu: rec.imu.iter().filter(|s| s.stamp_ns < t0 + 20_000_000_000).copied().collect(),
+        ground_truth: rec.ground_truth.iter().filter(|s| s.stamp_ns < t0 + 20_000_000_000).copied().collect(),
+        ..rec.clone()
+    };
+    for (name, r, allowed) in [("coarse", coarse, &[][..]), ("short", short, &["time_offset"][..])] {
+        let path = dir.path().join(format!("{name}.mcap"));
+        write_recording(&path, &r).unwrap();
+        let report = diagnose(dir.path(), &path, name);
+        let terms: Vec<String> = fitted(&report).iter().map(|f| f["term"].as_str().unwrap().to_string()).collect();
+        eprintln!("{name}: {}", report["findings"]);
+        assert!(terms.iter().all(|t| allowed.contains(&t.as_str())), "{name}: {terms:?}");
+        assert!(report["implausible"].as_array().unwrap().is_empty(), "{name}: {}", report["implausible"]);
+    }
+}

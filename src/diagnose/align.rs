@@ -305,7 +305,7 @@ pub fn regular_grid(t: &[f64], interval: f64) -> Vec<f64> {
 
 /// The lag (in sim samples, real = sim shifted later by the lag) that best lines up the gyro
 /// norms, searched within ±`max_lag` samples.
-fn coarse_lag(sim_t: &[f64], sim_norm: &[f64], real_t: &[f64], real_norm: &[f64], dt: f64, max_lag: i64) -> i64 {
+pub(crate) fn coarse_lag(sim_t: &[f64], sim_norm: &[f64], real_t: &[f64], real_norm: &[f64], dt: f64, max_lag: i64) -> i64 {
     // Real norm on the sim grid extended by the lag range.
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let (ms, mr) = (mean(sim_norm), mean(real_norm));

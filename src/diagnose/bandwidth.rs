@@ -46,15 +46,11 @@ pub type WindowDerivatives = (Vec<Vector3<f64>>, Vec<Vector3<f64>>);
 /// rate.
 pub fn window_mean_derivatives(a: &Aligned, gt_smoothing: Option<f64>) -> Option<WindowDerivatives> {
     let n = a.len();
-    let rate = a.sim_recording.nominal_imu_rate_hz();
-    let window_ns = (a.samples_per_point as f64 / rate * 1e9).round() as i64;
-    if n < 2 || a.samples_per_point < 2 || window_ns <= 0 || a.sim_recording.ground_truth.len() < 4 {
+    let (edges, t) = window_edges(a)?;
+    if a.sim_recording.ground_truth.len() < 4 {
         return None;
     }
-    let edges: Vec<i64> =
-        (0..=n).map(|b| if b < n { a.stamps_ns[b] - window_ns / 2 } else { a.stamps_ns[n - 1] + window_ns / 2 }).collect();
     let s = super::kinematics::ideal_from_poses_with(&a.sim_recording.ground_truth, &edges, gt_smoothing).ok()?;
-    let t = window_ns as f64 * 1e-9;
     let d = |x: &[Vector3<f64>]| (0..n).map(|b| (x[b + 1] - x[b]) / t).collect();
     Some((d(&s.gyro), d(&s.accel)))
 }
@@ -70,6 +66,19 @@ pub fn equivalent_low_pass_hz(delay_s: f64, dt: f64) -> Option<f64> {
 pub fn low_pass_delay_s(cutoff_hz: f64, dt: f64) -> f64 {
     let a = (-std::f64::consts::TAU * cutoff_hz * dt).exp();
     a / (1.0 - a) * dt
+}
+
+/// The windows' edges, ns: each window's centre ∓ half its length (n + 1 stamps), and the
+/// window's length, s.
+fn window_edges(a: &Aligned) -> Option<(Vec<i64>, f64)> {
+    let n = a.len();
+    let rate = a.sim_recording.nominal_imu_rate_hz();
+    let window_ns = (a.samples_per_point as f64 / rate * 1e9).round() as i64;
+    if n < 2 || a.samples_per_point < 2 || window_ns <= 0 {
+        return None;
+    }
+    let edges = (0..=n).map(|b| if b < n { a.stamps_ns[b] - window_ns / 2 } else { a.stamps_ns[n - 1] + window_ns / 2 }).collect();
+    Some((edges, window_ns as f64 * 1e-9))
 }
 
 impl Aligned {

@@ -218,6 +218,32 @@ pub fn near_dropouts(stamps_ns: &[i64], dropouts: &[(i64, i64)], margin_s: f64) 
     out
 }
 
+/// How far a ground truth's clock lags the IMU's, s (> 0: a pose is stamped later than the
+/// IMU samples of the same motion), to whole IMU samples within ±`max_s`: the lag that best
+/// lines up the gyro's norm with that of the rate differentiated from the poses. A stamp
+/// offset of a separate tracking system is common (motion capture on its own clock); a
+/// remainder below one sample is `time_offset`'s. 0 for a lag of at most one sample.
+pub fn reference_lag_s(real: &Recording, smoothing: Option<f64>, max_s: f64) -> Result<f64, DiagnoseError> {
+    let (Some(first), Some(last)) = (real.ground_truth.first(), real.ground_truth.last()) else { return Ok(0.0) };
+    let imu: Vec<&crate::core::ImuSample> =
+        real.imu.iter().filter(|s| s.stamp_ns >= first.stamp_ns && s.stamp_ns <= last.stamp_ns).collect();
+    if imu.len() < 200 || real.imu.len() < 2 {
+        return Ok(0.0);
+    }
+    let stamps: Vec<i64> = imu.iter().map(|s| s.stamp_ns).collect();
+    let from_poses = ideal_from_poses_with(&real.ground_truth, &stamps, smoothing)?;
+    let t0 = stamps[0];
+    let t: Vec<f64> = stamps.iter().map(|s| (s - t0) as f64 * 1e-9).collect();
+    let dt = 1.0 / real.nominal_imu_rate_hz();
+    let pose_norm: Vec<f64> = from_poses.gyro.iter().map(|w| w.norm()).collect();
+    let imu_norm: Vec<f64> = imu.iter().map(|s| s.gyro.norm()).collect();
+    // coarse_lag: the IMU ("real") later than the poses ("sim") by `lag` samples.
+    let lag = super::align::coarse_lag(&t, &pose_norm, &t, &imu_norm, dt, (max_s / dt).round() as i64);
+    // One sample either way is time_offset's (its plausible range) and the norm's
+    // correlation peak is that broad on smooth motion: only a clock offset beyond it moves.
+    Ok(if lag.abs() >= 2 { -(lag as f64) * dt } else { 0.0 })
+}
+
 /// Drop the IMU samples outside the ground truth's span shrunk by `margin_s` at both ends
 /// (where a simulation from it would be extrapolated, and where a smoother's window is
 /// one-sided); returns how many were dropped at the start and at the end.

@@ -126,6 +126,7 @@ struct Prepared {
 
 fn prepare(path: &Path, set: &InjectedSet) -> anyhow::Result<Prepared> {
     let (mut real, _) = read_recording(path, &set.topics)?;
+    super::align_reference_clock(&mut real, set.smoothing)?;
     kinematics::crop_to_ground_truth(&mut real, set.smoothing.unwrap_or(0.0));
     let (sim, sim_variance) = kinematics::simulate_from_ground_truth(&real, &set.noise, set.seed, set.smoothing)?;
     let stamps: Vec<i64> = real.imu.iter().map(|s| s.stamp_ns).collect();
@@ -142,9 +143,7 @@ fn diagnose_case(p: &Prepared, real: Recording, set: &InjectedSet, opts: &Diagno
     let mut a = align::align(p.sim.clone(), real, Some(p.sim_variance), vec![])?;
     super::leave_out_reference_dropouts(&mut a, set.smoothing);
     let window = super::compare_window(set.compare_window, true, &p.sim.ground_truth);
-    if window > 0.0 {
-        a = a.block_means(window);
-    }
+    a = super::over_windows(a, window);
     if set.real_noise_from_data || a.samples_per_point > 1 {
         a.estimate_real_white_noise();
     }

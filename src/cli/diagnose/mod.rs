@@ -53,8 +53,9 @@ pub struct DiagnoseArgs {
     pub sensors: Sensors,
     /// Half-width (s) of the local cubic fitted to the ground-truth poses before they are
     /// differentiated (a measured ground truth's noise would otherwise be amplified by 1/dt
-    /// and 1/dt²). Default: 0.05 with --noise-model, none with --sim (a simulator's ground
-    /// truth is noise-free); 0 turns it off.
+    /// and 1/dt²). Default: 0.05 with --noise-model (or 3 of the reference's intervals if
+    /// longer: 0.15 s at 20 Hz), none with --sim (a simulator's ground truth is noise-free);
+    /// 0 turns it off.
     #[arg(long, value_parser = super::non_negative)]
     pub gt_smoothing: Option<f64>,
     /// Compare the recordings as means over windows of this many seconds (the bandwidth where
@@ -151,6 +152,23 @@ fn gt_smoothing(args: &DiagnoseArgs) -> Option<f64> {
     }
 }
 
+/// Poses the local cubic needs on each side of the pose it smooths: with fewer in its
+/// window it falls back to differences (`kinematics::by_local_cubic`, 6 in all), which round a
+/// coarse reference's motion (a 20 Hz one read as gyro scales of +0.2 to +1.6 %).
+const SMOOTHER_POSES_PER_SIDE: f64 = 3.0;
+
+/// The default smoother widened to hold [`SMOOTHER_POSES_PER_SIDE`] of this reference's
+/// intervals (0.15 s for a 20 Hz one; 120–200 Hz references keep 0.05 s). An explicit
+/// `--gt-smoothing` is kept.
+fn smoothing_for(args: &DiagnoseArgs, gt: &[imu_fsda::core::PoseSample]) -> Option<f64> {
+    let h = gt_smoothing(args)?;
+    Some(if args.gt_smoothing.is_some() {
+        h
+    } else {
+        h.max(SMOOTHER_POSES_PER_SIDE * imu_fsda::diagnose::kinematics::median_interval_s(gt))
+    })
+}
+
 fn read_noise_model(path: &std::path::Path) -> anyhow::Result<imu_fsda::sim::NoiseModel> {
     let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::InvalidData => anyhow::anyhow!(
@@ -195,9 +213,7 @@ pub(super) fn compare_window(option: Option<f64>, measured_reference: bool, gt: 
 
 fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &DiagnoseOptions) -> anyhow::Result<()> {
     let mut opts = *opts;
-    let smoothing = gt_smoothing(args);
-    opts.gt_smoothing_s = smoothing;
-    let opts = &opts;
+    let mut smoothing = gt_smoothing(args);
     let topics = RecordingTopics {
         imu: args.imu_topic.clone(),
         ground_truth: Some(args.ground_truth_topic.clone()),
@@ -213,6 +229,8 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
         (None, Some(model)) => {
             let noise = read_noise_model(model)?;
             let (mut real, _) = read_recording(real_path, &topics)?;
+            smoothing = smoothing_for(args, &real.ground_truth);
+            let clock = align_reference_clock(&mut real, smoothing)?;
             // Outside the ground truth's span there is nothing to simulate (and its first
             // samples fix the bias walk's start, W₀ = 0, which the bias estimate rests on).
             let (cut0, cut1) = imu_fsda::diagnose::kinematics::crop_to_ground_truth(&mut real, smoothing.unwrap_or(0.0));
@@ -226,15 +244,16 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
                 format!("real IMU samples outside the ground truth's span (less the smoother's half-width) left out: {cut0} at the start, {cut1} at the end"),
             ];
             let mut a = align::align(sim, real, Some(var), notes)?;
+            a.artefacts.extend(clock);
             leave_out_reference_dropouts(&mut a, smoothing);
             a
         }
         (None, None) => anyhow::bail!("give --sim SIM.mcap or --noise-model FILE.yaml"),
     };
+    opts.gt_smoothing_s = smoothing;
+    let opts = &opts;
     let window = compare_window(args.compare_window, args.noise_model.is_some(), &aligned.sim_recording.ground_truth);
-    if window > 0.0 {
-        aligned = aligned.block_means(window);
-    }
+    aligned = over_windows(aligned, window);
     if args.real_noise_from_data || aligned.samples_per_point > 1 {
         aligned.estimate_real_white_noise();
     }
@@ -255,6 +274,33 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
     }
     out!("report: {} ({:.2} s)", args.out.join("report.md").display(), d.seconds)?;
     Ok(())
+}
+
+/// The recordings as window means of `window` s (none: as they are).
+pub(super) fn over_windows(a: align::Aligned, window: f64) -> align::Aligned {
+    if window <= 0.0 {
+        return a;
+    }
+    a.block_means(window)
+}
+
+/// The largest clock offset between a reference and the IMU searched for, s.
+const MAX_REFERENCE_LAG_S: f64 = 2.0;
+
+/// A ground truth stamped on another clock than the IMU's (a motion-capture system's own):
+/// its lag in whole IMU samples is found from the gyro's norm and taken out of its stamps,
+/// and said as an artefact of the recording; what is left below a sample is `time_offset`'s.
+pub(super) fn align_reference_clock(real: &mut imu_fsda::core::Recording, smoothing: Option<f64>) -> anyhow::Result<Option<String>> {
+    let lag = imu_fsda::diagnose::kinematics::reference_lag_s(real, smoothing, MAX_REFERENCE_LAG_S)?;
+    if lag == 0.0 {
+        return Ok(None);
+    }
+    let shift = (lag * 1e9).round() as i64;
+    real.ground_truth.iter_mut().for_each(|p| p.stamp_ns -= shift);
+    Ok(Some(format!(
+        "the ground truth's stamps lag the IMU's by {:.1} ms (whole IMU samples, from the gyro's norm against the rate differentiated from the poses; searched within ±{MAX_REFERENCE_LAG_S} s): taken out of its stamps before the comparison; a remainder below one sample is left to time_offset",
+        lag * 1e3
+    )))
 }
 
 /// Where the ground truth lost tracking, the sim made from it is interpolated across the hole
