@@ -54,6 +54,12 @@ pub struct Aligned {
 }
 
 impl Aligned {
+    /// Per common stamp: left out of the fit (a gap of the real stream or of the reference).
+    pub fn left_out(&self) -> Vec<bool> {
+        let flag = |v: &[bool], i: usize| v.get(i).copied().unwrap_or(false);
+        (0..self.len()).map(|i| flag(&self.in_real_gap, i) || flag(&self.in_reference_gap, i)).collect()
+    }
+
     /// Number of common samples.
     pub fn len(&self) -> usize {
         self.stamps_ns.len()
@@ -118,8 +124,7 @@ impl Aligned {
     /// sensor whose in-use noise is not the stated one (e.g. rotor vibration above the
     /// motion band on a MAV); the estimate is written to the notes.
     pub fn estimate_real_white_noise(&mut self) {
-        let flag = |v: &[bool], i: usize| v.get(i).copied().unwrap_or(false);
-        let left_out: Vec<bool> = (0..self.len()).map(|i| flag(&self.in_real_gap, i) || flag(&self.in_reference_gap, i)).collect();
+        let left_out = self.left_out();
         let est = |s: usize, sim_var: f64| {
             let v = (3 * s..3 * s + 3)
                 .map(|c| {

@@ -93,14 +93,14 @@ impl Aligned {
         }
         let blocks = self.len() / m;
         let mean = |x: &[f64], b: usize| x[b * m..(b + 1) * m].iter().sum::<f64>() / m as f64;
-        let flag = |v: &[bool], b: usize| !v.is_empty() && v[b * m..(b + 1) * m].iter().any(|f| *f);
         let centre = |b: usize| b * m + m / 2;
         let mut notes = self.notes.clone();
         notes.push(format!(
             "compared at the reference's bandwidth: means over windows of {m} samples ({:.3} s), {blocks} windows; low_pass, vibration, gyro_noise_density, quantization and saturation live above it and are not judged",
             m as f64 * self.dt()
         ));
-        let left_out: Vec<bool> = (0..blocks).map(|b| flag(&self.in_real_gap, b) || flag(&self.in_reference_gap, b)).collect();
+        let sample_left_out = self.left_out();
+        let left_out: Vec<bool> = (0..blocks).map(|b| sample_left_out[b * m..(b + 1) * m].iter().any(|f| *f)).collect();
         Aligned {
             stamps_ns: (0..blocks).map(|b| (self.stamps_ns[b * m] + self.stamps_ns[(b + 1) * m - 1]) / 2).collect(),
             sim: std::array::from_fn(|c| (0..blocks).map(|b| mean(&self.sim[c], b)).collect()),

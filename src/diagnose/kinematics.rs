@@ -202,6 +202,13 @@ pub fn reference_dropouts(poses: &[PoseSample]) -> Vec<(i64, i64)> {
         .collect()
 }
 
+/// How far from a dropout a simulation from these poses is still made up: the smoother's
+/// half-width (its window reaches across) plus two pose intervals (the interpolant's
+/// derivative at the dropout's edge poses).
+pub fn dropout_margin_s(poses: &[PoseSample], smoothing: Option<f64>) -> f64 {
+    smoothing.unwrap_or(0.0) + 2.0 * median_interval_s(poses)
+}
+
 /// Per stamp: true where a simulation from this ground truth is not a simulation: inside a
 /// dropout, or within `margin_s` of one (where the smoother's window, or the interpolant's
 /// derivative, reaches across it). Sorted stamps and dropouts; O(n + gaps).

@@ -312,7 +312,7 @@ fn diagnose_in_frame(
     let mut direct: Vec<(Term, serde_json::Value)> = Vec::new();
     // Stamps inside a gap of the real stream hold an interpolation across it, not a sample.
     let flag = |v: &[bool], i: usize| v.get(i).copied().unwrap_or(false);
-    let mut mask: Vec<bool> = (0..n).map(|i| !flag(&a.in_real_gap, i) && !flag(&a.in_reference_gap, i)).collect();
+    let mut mask: Vec<bool> = a.left_out().iter().map(|l| !l).collect();
     let in_gaps = (0..n).filter(|&i| flag(&a.in_real_gap, i)).count();
     if in_gaps > 0 {
         notes.push(format!("{in_gaps} sim stamps inside gaps of the real stream left out of the fit"));

@@ -55,6 +55,10 @@ fn signed(rng: &mut impl Rng, lo: f64, hi: f64) -> f64 {
     }
 }
 
+fn axes(rng: &mut impl Rng, lo: f64, hi: f64) -> [f64; 3] {
+    std::array::from_fn(|_| signed(rng, lo, hi))
+}
+
 fn off_diagonal(rng: &mut impl Rng, lo: f64, hi: f64) -> [[f64; 3]; 3] {
     std::array::from_fn(|r| std::array::from_fn(|c| if r == c { 0.0 } else { signed(rng, lo, hi) }))
 }
@@ -63,27 +67,17 @@ fn off_diagonal(rng: &mut impl Rng, lo: f64, hi: f64) -> [[f64; 3]; 3] {
 /// class, before calibration).
 fn draw(name: &str, rng: &mut impl Rng, rate_hz: f64) -> Term {
     use physics::*;
-    let axes = |rng: &mut dyn rand::RngCore, lo: f64, hi: f64| -> [f64; 3] {
-        std::array::from_fn(|_| {
-            let v = rng.gen_range(lo..hi);
-            if rng.gen_bool(0.5) {
-                v
-            } else {
-                -v
-            }
-        })
-    };
     match name {
-        "gyro_bias" => Term::GyroBias(GyroBias { bias: axes(rng, 0.005, 0.05) }),
-        "gyro_scale" => Term::GyroScale(GyroScale { scale: axes(rng, 0.005, 0.04) }),
+        "gyro_bias" => Term::GyroBias(GyroBias { bias: axes(&mut *rng, 0.005, 0.05) }),
+        "gyro_scale" => Term::GyroScale(GyroScale { scale: axes(&mut *rng, 0.005, 0.04) }),
         "gyro_misalignment" => Term::GyroMisalignment(GyroMisalignment { matrix: off_diagonal(rng, 0.002, 0.01) }),
-        "gyro_g_sensitivity" => Term::GyroGSensitivity(GyroGSensitivity { matrix: std::array::from_fn(|_| axes(rng, 1e-4, 5e-4)) }),
+        "gyro_g_sensitivity" => Term::GyroGSensitivity(GyroGSensitivity { matrix: std::array::from_fn(|_| axes(&mut *rng, 1e-4, 5e-4)) }),
         // Within one sample: a larger offset is a stamping fault, said as implausible.
         "time_offset" => Term::TimeOffset(TimeOffset { seconds: signed(rng, 0.1, 0.8) / rate_hz }),
         // Where real parts' digital low-pass filters sit: 0.1–0.4 of the sample rate.
         "low_pass" => Term::LowPass(LowPass { cutoff_hz: rng.gen_range(0.1..0.4) * rate_hz, sensor: LowPassSensor::Both }),
-        "accel_bias" => Term::AccelBias(AccelBias { bias: axes(rng, 0.05, 0.5) }),
-        "accel_scale" => Term::AccelScale(AccelScale { scale: axes(rng, 0.005, 0.03) }),
+        "accel_bias" => Term::AccelBias(AccelBias { bias: axes(&mut *rng, 0.05, 0.5) }),
+        "accel_scale" => Term::AccelScale(AccelScale { scale: axes(&mut *rng, 0.005, 0.03) }),
         "accel_misalignment" => Term::AccelMisalignment(AccelMisalignment { matrix: off_diagonal(rng, 0.002, 0.01) }),
         "mount_rotation" => {
             let u = Vector3::from_fn(|_, _| rng.gen_range(-1.0..1.0)).normalize() * rng.gen_range(0.5f64..3.0).to_radians();
@@ -133,7 +127,7 @@ fn prepare(path: &Path, set: &InjectedSet) -> anyhow::Result<Prepared> {
     let ideal = kinematics::ideal_from_poses_with(&real.ground_truth, &stamps, set.smoothing)?;
     let measured =
         ImuSignals { gyro: real.imu.iter().map(|s| s.gyro).collect(), accel: real.imu.iter().map(|s| s.accel).collect(), ..ideal.clone() };
-    let margin = set.smoothing.unwrap_or(0.0) + 2.0 * kinematics::median_interval_s(&real.ground_truth);
+    let margin = kinematics::dropout_margin_s(&real.ground_truth, set.smoothing);
     let judged =
         kinematics::near_dropouts(&stamps, &kinematics::reference_dropouts(&real.ground_truth), margin).iter().map(|d| !d).collect();
     Ok(Prepared { real, sim, sim_variance, ideal, measured, judged })

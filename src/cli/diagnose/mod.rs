@@ -317,8 +317,7 @@ pub(super) fn leave_out_reference_dropouts(a: &mut align::Aligned, smoothing: Op
     let span = |(a, b): &(i64, i64)| (b - a) as f64 * 1e-9;
     let longest = dropouts.iter().map(span).fold(0.0, f64::max);
     let total: f64 = dropouts.iter().map(span).sum();
-    let interval = imu_fsda::diagnose::kinematics::median_interval_s(gt);
-    let margin = smoothing.unwrap_or(0.0) + 2.0 * interval;
+    let margin = imu_fsda::diagnose::kinematics::dropout_margin_s(gt, smoothing);
     a.in_reference_gap = near_dropouts(&a.stamps_ns, &dropouts, margin);
     a.artefacts.push(format!(
         "the ground truth has {} dropouts (intervals over {} times its median; longest {longest:.3} s, {total:.1} s in all): the stamps within {margin:.3} s of one are left out of the fit",
