@@ -6,8 +6,9 @@ use serde::{Deserialize, Serialize};
 
 use super::{to_task, AdaptConfig, AdaptError};
 use crate::core::Recording;
-use crate::eval::{EvalOptions, OrientationErrors};
+use crate::eval::{evaluate, EvalOptions, OrientationErrors};
 use crate::model::export::LoadedNet;
+use crate::model::predict::correct_with_net;
 use crate::standstill::BiasTrack;
 use crate::train::fit::{evaluate_net, evaluate_net_with_gain, evaluate_raw};
 
@@ -16,12 +17,13 @@ use crate::train::fit::{evaluate_net, evaluate_net_with_gain, evaluate_raw};
 pub struct Judged {
     pub recording: String,
     pub raw: OrientationErrors,
-    /// The gyro minus this recording's own power-on bias: what the node runs on a new IMU
-    /// (`None`: no standstill in it).
+    /// The gyro minus this recording's own power-on bias, the attitude held over its still
+    /// windows: what the node runs on a new IMU (`None`: no standstill in it).
     pub power_on_bias: Option<OrientationErrors>,
     /// The starting model as deployed on the IMU named (its correction gain).
     pub before: OrientationErrors,
-    /// The adapted model, after this recording's power-on bias where it was adapted so.
+    /// The adapted model, after this recording's power-on bias where it was adapted so, as
+    /// the node runs it.
     pub after: OrientationErrors,
 }
 
@@ -44,14 +46,105 @@ pub fn judge(start: &LoadedNet, adapted: &LoadedNet, rec: &Recording, cfg: &Adap
     let task = to_task(&rec, "judge", cfg)?;
     let raw = evaluate_raw(&task, &eopts)?;
     let before = evaluate_net_with_gain(&start.net, &task, &eopts, start.correction_gain())?;
+    // As deployed: this recording's power-on bias removed as the pipeline finds it, the
+    // attitude held over its still windows (what `eval`'s rows score).
     let track = BiasTrack::over(&rec.imu, &cfg.standstill);
-    let debiased = Recording { imu: track.debiased(&rec.imu), ..rec.clone() };
-    let debiased_task = to_task(&debiased, "judge", cfg)?;
     let power_on_bias = match track.last {
-        Some(_) => Some(evaluate_raw(&debiased_task, &eopts)?),
+        Some(_) => Some(evaluate(&rec, &track.corrected_gyro(&rec.imu), &eopts)?),
         None => None,
     };
-    let after_task = if adapted.metadata.power_on_bias_removed { &debiased_task } else { &task };
-    let after = evaluate_net(&adapted.net, after_task, &eopts)?;
+    let after = if adapted.metadata.power_on_bias_removed {
+        let mut gyro = correct_with_net(&adapted.net.inference(), &track.debiased(&rec.imu))?;
+        track.hold_still_windows(&rec.imu, &mut gyro);
+        evaluate(&rec, &gyro, &eopts)?
+    } else {
+        evaluate_net(&adapted.net, &task, &eopts)?
+    };
     Ok(Judged { recording: rec.name.clone(), raw, power_on_bias, before, after })
+}
+
+/// How an adaptation carries over to the judged recordings: the geometric mean over them of
+/// AOE adapted / without adapting (an arithmetic mean would be decided by the largest AOE),
+/// and its one-sided 95 % upper bound (Student's t on the log-ratios; with one recording, the
+/// ratio itself).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CarryOver {
+    pub ratio: f64,
+    pub upper_95: f64,
+    pub recordings: usize,
+    /// Only the recordings with a standstill were used.
+    #[serde(default)]
+    pub with_standstill_only: bool,
+}
+
+impl CarryOver {
+    /// Over the judged recordings with a standstill (where the power-on bias is known, so the
+    /// AOE shows the lasting errors rather than an unremoved bias's 100°), or all of them where
+    /// none has one.
+    pub fn of(judged: &[Judged]) -> Self {
+        let rested: Vec<&Judged> = judged.iter().filter(|j| j.power_on_bias.is_some()).collect();
+        let with_standstill_only = !rested.is_empty();
+        let used = if with_standstill_only { rested } else { judged.iter().collect() };
+        let logs: Vec<f64> = used.iter().map(|j| (j.after.aoe_deg / j.without_adaptation_deg()).ln()).collect();
+        CarryOver { with_standstill_only, ..Self::of_log_ratios(&logs) }
+    }
+
+    fn of_log_ratios(logs: &[f64]) -> Self {
+        let n = logs.len();
+        let mean = logs.iter().sum::<f64>() / n as f64;
+        let upper = if n >= 2 {
+            let var = logs.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+            mean + student_t_95(n - 1) * (var / n as f64).sqrt()
+        } else {
+            mean
+        };
+        CarryOver { ratio: mean.exp(), upper_95: upper.exp(), recordings: n, with_standstill_only: false }
+    }
+
+    /// Better than not adapting with 95 % confidence over the judged recordings.
+    pub fn carries_over(&self) -> bool {
+        self.upper_95 < 1.0
+    }
+
+    /// "over N recordings[ with a standstill]", for messages.
+    pub fn over(&self) -> String {
+        format!(
+            "over {} recording{}{}",
+            self.recordings,
+            if self.recordings == 1 { "" } else { "s" },
+            if self.with_standstill_only { " with a standstill" } else { "" }
+        )
+    }
+}
+
+/// One-sided 95 % quantile of Student's t with `df` degrees of freedom.
+fn student_t_95(df: usize) -> f64 {
+    const TABLE: [f64; 10] = [6.314, 2.920, 2.353, 2.132, 2.015, 1.943, 1.895, 1.860, 1.833, 1.812];
+    match df {
+        0 => f64::INFINITY,
+        1..=10 => TABLE[df - 1],
+        11..=15 => 1.753,
+        16..=20 => 1.725,
+        21..=30 => 1.697,
+        _ => 1.645,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_mixed_carry_over_is_not_confident_and_a_consistent_one_is() {
+        // Better on four, worse on six (the networks adapted on one EuRoC recording): the
+        // geometric mean is below 1, its bound is not.
+        let mixed = [0.33, 0.52, 0.61, 0.48, 3.1, 1.6, 1.8, 1.02, 1.02, 1.09].map(f64::ln);
+        let c = CarryOver::of_log_ratios(&mixed);
+        assert!(c.ratio < 1.0 && !c.carries_over(), "{c:?}");
+        let consistent = [0.36, 0.39, 0.21, 0.89, 0.58, 0.47, 0.77].map(f64::ln);
+        let c = CarryOver::of_log_ratios(&consistent);
+        assert!(c.carries_over() && (c.ratio - 0.5).abs() < 0.05, "{c:?}");
+        let one = CarryOver::of_log_ratios(&[0.9f64.ln()]);
+        assert!(one.carries_over() && (one.upper_95 - 0.9).abs() < 1e-12);
+    }
 }

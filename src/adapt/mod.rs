@@ -9,6 +9,7 @@
 //! Files: [`frame`] (is the ground truth in the IMU's frame?), [`swap`] (the node's
 //! between-two-samples model swap). See docs/adaptation.md.
 
+pub mod calibration;
 pub mod frame;
 pub mod judge;
 pub mod swap;
@@ -32,7 +33,7 @@ use crate::train::data::{self, DataError, Task};
 use crate::train::fit::{embedding_and_extra_grads, embedding_inner_step, evaluate_net, evaluate_net_with_gain, evaluate_raw};
 
 pub use frame::{check_frame, FrameCheck};
-pub use judge::{judge, Judged};
+pub use judge::{judge, CarryOver, Judged};
 
 /// What to do when the ground truth's body frame differs from the IMU's by a constant rotation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
@@ -103,6 +104,25 @@ pub struct AdaptConfig {
     pub power_on_bias: bool,
     /// How a standstill is recognised (the node's `pipeline.standstill`).
     pub standstill: crate::standstill::StandstillConfig,
+    /// Which candidates may be kept: the adapted networks, the gyro calibration alone
+    /// (Ĉ_ω fitted in closed form, with `power_on_bias` only), or either (`auto`).
+    pub keep: Keep,
+}
+
+/// Which adaptation candidates may be kept.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Keep {
+    /// Either: with other power-ons to judge on (`adapt --judge`), the one that carries over
+    /// better; without, the gyro calibration where it passes the query (measured to carry
+    /// over on 7 of 8 simulated units where the networks' query gain did not: docs/poweron.md),
+    /// else the networks.
+    #[default]
+    Auto,
+    /// The adapted networks only (the inner loop on θ_e and the calibration head).
+    Networks,
+    /// The gyro calibration alone.
+    GyroCalibration,
 }
 
 impl Default for AdaptConfig {
@@ -125,6 +145,7 @@ impl Default for AdaptConfig {
             calibration: true,
             power_on_bias: true,
             standstill: crate::standstill::StandstillConfig::default(),
+            keep: Keep::Auto,
         }
     }
 }
@@ -168,6 +189,11 @@ impl AdaptConfig {
         }
         if !(self.frame_tolerance_deg.is_finite() && self.frame_tolerance_deg >= 0.0) {
             return Err(format!("adapt.frame_tolerance_deg = {}: must be finite and ≥ 0", self.frame_tolerance_deg));
+        }
+        if self.keep == Keep::GyroCalibration && !self.power_on_bias {
+            return Err(
+                "adapt.keep = gyro_calibration needs power_on_bias: the calibration is fitted on the gyro minus its power-on bias".into()
+            );
         }
         Ok(())
     }
@@ -253,7 +279,55 @@ pub struct AdaptReport {
     /// Other recordings of the IMU it was judged on (`adapt --judge`).
     #[serde(default)]
     pub judged: Vec<Judged>,
+    /// The candidate not kept, on the same recordings (where both passed the query).
+    #[serde(default)]
+    pub judged_runner_up: Vec<Judged>,
+    /// How the one kept (or refused) carries over to them.
+    #[serde(default)]
+    pub carry_over: Option<CarryOver>,
+    /// The lasting linear gyro error fitted on the support (with `power_on_bias`).
+    #[serde(default)]
+    pub calibration: Option<calibration::GyroCalibrationFit>,
+    /// Query AOE of that calibration alone, the networks' correction off.
+    #[serde(default)]
+    pub query_calibrated: Option<OrientationErrors>,
+    /// Why no calibration was fitted (too few increments, a departure no gyro has, nothing
+    /// the support determines).
+    #[serde(default)]
+    pub calibration_refused: Option<String>,
+    /// Which candidate was kept (`None`: rejected).
+    #[serde(default)]
+    pub kind: Option<AdaptedKind>,
     pub config: AdaptConfig,
+}
+
+/// What an adaptation changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AdaptedKind {
+    /// The Embedding (and the calibration head) adapted by the inner loop.
+    Network,
+    /// Ĉ_ω fitted in closed form, the networks' correction off ([`calibration`]).
+    Calibration,
+}
+
+impl AdaptReport {
+    /// The query figures of the candidate kept (`None`: rejected).
+    pub fn kept_query(&self) -> Option<&OrientationErrors> {
+        match self.kind? {
+            AdaptedKind::Network => Some(&self.query_after),
+            AdaptedKind::Calibration => self.query_calibrated.as_ref(),
+        }
+    }
+}
+
+impl AdaptedKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            AdaptedKind::Network => "the adapted networks",
+            AdaptedKind::Calibration => "the gyro calibration alone",
+        }
+    }
 }
 
 fn one() -> f64 {
@@ -265,6 +339,73 @@ pub struct AdaptOutcome {
     pub report: AdaptReport,
     /// The adapted model (a fresh VarStore; the input model is untouched). `None` when rejected.
     pub adapted: Option<LoadedNet>,
+    /// The other candidate, where it passed the query too, with its kind.
+    pub runner_up: Option<(AdaptedKind, LoadedNet)>,
+}
+
+/// Ĉ_ω's prior per entry: MEMS datasheets give ±3 % sensitivity and ±2 % cross-axis.
+const CALIBRATION_PRIOR_STDDEV: f64 = 0.05;
+/// The calibration's increments, s (as the calibration head's).
+const CALIBRATION_INCREMENT_S: f64 = 0.25;
+
+/// The calibration candidate: the model with Ĉ_ω fitted on the support, its networks'
+/// correction off (the Generator's last layer zero), scored on the query; or why there is none.
+struct Calibrated {
+    fit: calibration::GyroCalibrationFit,
+    net: LoadedNet,
+    query: OrientationErrors,
+}
+
+fn calibration_candidate(
+    loaded: &LoadedNet,
+    support: &Task,
+    query: &Task,
+    eopts: &EvalOptions,
+    cfg: &AdaptConfig,
+) -> Result<Result<Calibrated, String>, AdaptError> {
+    let rec = &support.rec;
+    let (gt, valid) = data::ground_truth_at_imu(rec, &dataset_cfg(cfg));
+    let span = (CALIBRATION_INCREMENT_S * rec.nominal_imu_rate_hz()).round().max(1.0) as usize;
+    let fit = match calibration::fit_gyro_calibration(&rec.imu, &gt, &valid, span, CALIBRATION_PRIOR_STDDEV) {
+        Ok(fit) => fit,
+        Err(e) => return Ok(Err(e.to_string())),
+    };
+    let (vs, net) = copy_net(loaded)?;
+    {
+        let vars = vs.variables();
+        // The Generator's last layer zeroed: its output g, so σ ⊙ g, is exactly 0.
+        let head = calibration_head_names(&vs).into_iter().find(|n| n.starts_with("generator."));
+        let weight = head.as_ref().and_then(|b| vars.get(&b.replace(".bias", ".weight")));
+        let (Some(delta), Some(bias), Some(weight)) = (vars.get("gyro_calib.delta"), head.as_ref().and_then(|b| vars.get(b)), weight)
+        else {
+            return Ok(Err("the model has no Ĉ_ω or Generator output layer to hold a calibration".into()));
+        };
+        let m = fit.matrix;
+        let flat: Vec<f64> = (0..9).map(|k| m[k / 3][k % 3] - if k / 3 == k % 3 { 1.0 } else { 0.0 }).collect();
+        tch::no_grad(|| -> Result<(), ModelError> {
+            delta.shallow_clone().f_copy_(&Tensor::from_slice(&flat).reshape([3, 3]).to_kind(delta.kind()))?;
+            let _ = bias.shallow_clone().f_zero_()?;
+            let _ = weight.shallow_clone().f_zero_()?;
+            Ok(())
+        })?;
+    }
+    let query = evaluate_net(&net, query, eopts)?;
+    tracing::info!(
+        "gyro calibration on {} increments: diagonal [{:.4}, {:.4}, {:.4}], residual {:.3} → {:.3} °/s; query AOE {:.3}°",
+        fit.increments,
+        m_diag(&fit.matrix)[0],
+        m_diag(&fit.matrix)[1],
+        m_diag(&fit.matrix)[2],
+        fit.residual_before_deg_s,
+        fit.residual_after_deg_s,
+        query.aoe_deg
+    );
+    let metadata = ModelMetadata { imu_correction_gains: BTreeMap::new(), power_on_bias_removed: true, ..loaded.metadata.clone() };
+    Ok(Ok(Calibrated { fit, net: LoadedNet::new(vs, net, metadata), query }))
+}
+
+fn m_diag(m: &[[f64; 3]; 3]) -> [f64; 3] {
+    [m[0][0], m[1][1], m[2][2]]
 }
 
 fn dataset_cfg(cfg: &AdaptConfig) -> DatasetConfig {
@@ -560,23 +701,38 @@ pub fn adapt_knowing(
     }
     vs.unfreeze();
     let query_after = evaluate_net(&net, &q_task, &eopts)?;
+    // The second candidate: the lasting linear gyro error alone, the networks off.
+    let (calibrated, calibration_refused) = if cfg.power_on_bias && cfg.keep != Keep::Networks {
+        match calibration_candidate(loaded, &s_task, &q_task, &eopts, cfg)? {
+            Ok(c) => (Some(c), None),
+            Err(why) => (None, Some(why)),
+        }
+    } else {
+        (None, None)
+    };
     // Better than the starting model, and than what the node runs without it on a new IMU.
     let floor = query_power_on_bias.as_ref().map_or(f64::INFINITY, |e| e.aoe_deg);
-    let accepted = query_after.aoe_deg < query_before.aoe_deg && query_after.aoe_deg < floor;
+    let passes = |e: &OrientationErrors| e.aoe_deg < query_before.aoe_deg && e.aoe_deg < floor;
+    let network_passes = cfg.keep != Keep::GyroCalibration && passes(&query_after);
+    let calibration_passes = calibrated.as_ref().is_some_and(|c| passes(&c.query));
+    let accepted = network_passes || calibration_passes;
     let verdict = if accepted {
         String::new()
     } else if query_after.aoe_deg >= query_before.aoe_deg {
         format!(
-            "rejected: the adapted model is not better on the query data (AOE {:.3}° → {:.3}°); the previous model is kept",
-            query_before.aoe_deg, query_after.aoe_deg
+            "rejected: the adapted model is not better on the query data (AOE {:.3}° → {:.3}°{}); the previous model is kept",
+            query_before.aoe_deg,
+            query_after.aoe_deg,
+            calibrated.as_ref().map_or(String::new(), |c| format!(", the gyro calibration alone {:.3}°", c.query.aoe_deg))
         )
     } else {
         format!(
-            "rejected: the adapted model ({:.3}°) is not better on the query data than the gyro minus its power-on bias ({floor:.3}°), what the node runs on a new IMU; the previous model is kept",
-            query_after.aoe_deg
+            "rejected: the adapted model ({:.3}°{}) is not better on the query data than the gyro minus its power-on bias ({floor:.3}°), what the node runs on a new IMU; the previous model is kept",
+            query_after.aoe_deg,
+            calibrated.as_ref().map_or(String::new(), |c| format!(", the gyro calibration alone {:.3}°", c.query.aoe_deg))
         )
     };
-    let report = AdaptReport {
+    let mut report = AdaptReport {
         model: loaded.metadata.name.clone(),
         support: s_task.source.clone(),
         query: q_task.source.clone(),
@@ -601,15 +757,29 @@ pub fn adapt_knowing(
         support_power_on_bias,
         query_power_on_bias,
         judged: Vec::new(),
+        judged_runner_up: Vec::new(),
+        carry_over: None,
+        calibration: calibrated.as_ref().map(|c| c.fit.clone()),
+        query_calibrated: calibrated.as_ref().map(|c| c.query.clone()),
+        calibration_refused,
+        kind: None,
         config: cfg.clone(),
     };
-    let adapted = accepted.then(|| {
+    let network = network_passes.then(|| {
         // Its own weights, all of its correction: the starting model's gains do not apply.
         let metadata =
             ModelMetadata { imu_correction_gains: BTreeMap::new(), power_on_bias_removed: cfg.power_on_bias, ..loaded.metadata.clone() };
-        LoadedNet::new(vs, net, metadata)
+        (AdaptedKind::Network, LoadedNet::new(vs, net, metadata))
     });
-    Ok(AdaptOutcome { report, adapted })
+    let calibration = calibrated.filter(|_| calibration_passes).map(|c| (AdaptedKind::Calibration, c.net));
+    // Both passed: the calibration first (the query is this power-on's, where the networks'
+    // gain has not carried over); `adapt --judge` keeps whichever carries over better.
+    let (adapted, runner_up) = match (calibration, network) {
+        (Some(c), Some(n)) => (Some(c), Some(n)),
+        (c, n) => (c.or(n), None),
+    };
+    report.kind = adapted.as_ref().map(|(k, _)| *k);
+    Ok(AdaptOutcome { report, adapted: adapted.map(|(_, m)| m), runner_up })
 }
 
 /// Writes an accepted adapted model as `<dir>/<name>.{pt,ot,json}` (metadata: the original's
@@ -617,16 +787,23 @@ pub fn adapt_knowing(
 /// full report as `<dir>/<name>.adapt.json`.
 pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name: &str) -> Result<ExportPaths, AdaptError> {
     let mut training_data = adapted.metadata.training_data.clone();
+    let what = match report.kind {
+        Some(AdaptedKind::Calibration) => {
+            let c = report.calibration.as_ref().map_or(0, |c| c.increments);
+            format!("gyro calibration (Ĉ_ω, the networks off) fitted on {c} increments")
+        }
+        _ => format!("{} steps", report.steps),
+    };
     training_data.push(format!(
-        "few-shot adapted from {} on {} ({:.1} s support, {} steps); judged on {} ({:.1} s)",
-        report.model, report.support, report.support_seconds, report.steps, report.query, report.query_seconds
+        "few-shot adapted from {} on {} ({:.1} s support, {what}); judged on {} ({:.1} s)",
+        report.model, report.support, report.support_seconds, report.query, report.query_seconds
     ));
     // The starting model's figures (its test scores, its per-IMU gains) do not describe the
     // adapted one: only what the adaptation measured is kept.
     let mut metrics: BTreeMap<String, f64> = BTreeMap::new();
     metrics.insert("adapt.query_raw_aoe_deg".into(), report.query_raw.aoe_deg);
     metrics.insert("adapt.query_aoe_before_deg".into(), report.query_before.aoe_deg);
-    metrics.insert("adapt.query_aoe_after_deg".into(), report.query_after.aoe_deg);
+    metrics.insert("adapt.query_aoe_after_deg".into(), report.kept_query().unwrap_or(&report.query_after).aoe_deg);
     metrics.insert("adapt.support_seconds".into(), report.support_seconds);
     metrics.insert("adapt.query_seconds".into(), report.query_seconds);
     metrics.insert("adapt.steps".into(), report.steps as f64);

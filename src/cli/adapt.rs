@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use imu_fsda::adapt::{adapt, save_adapted, split_recording, AdaptConfig, FramePolicy};
+use imu_fsda::adapt::{adapt, save_adapted, split_recording, AdaptConfig, CarryOver, FramePolicy};
 use imu_fsda::bag::{read_recording, RecordingTopics, GROUND_TRUTH_TOPIC, IMU_TOPIC};
 use imu_fsda::model::export::{load_metadata, load_net};
 use imu_fsda::model::predict::metadata_path;
@@ -65,6 +65,11 @@ pub struct AdaptArgs {
     /// power-on only (it carries its turn-on constant; docs/poweron.md).
     #[arg(long)]
     pub keep_power_on_bias: bool,
+    /// Which candidate may be kept: `auto` (with --judge the one that carries over better to
+    /// the other power-ons, without it the gyro calibration where it passes the query),
+    /// `networks` (the inner loop only), `gyro-calibration` (Ĉ_ω alone, the networks off).
+    #[arg(long, value_enum)]
+    pub keep: Option<imu_fsda::adapt::Keep>,
     /// Adaptation settings as YAML (AdaptConfig); flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -160,6 +165,9 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     }
     if args.keep_power_on_bias {
         cfg.power_on_bias = false;
+    }
+    if let Some(k) = args.keep {
+        cfg.keep = k;
     }
     // Before the model and the bag are read.
     cfg.validate().map_err(|e| anyhow::anyhow!("{e}{}", args.config.as_ref().map_or(String::new(), |p| format!(" ({})", p.display()))))?;
@@ -270,6 +278,23 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
         r.query_before.aoe_deg,
         r.query_after.aoe_deg
     );
+    if let (Some(c), Some(q)) = (&r.calibration, &r.query_calibrated) {
+        let d = |k: usize| (c.matrix[k][k] - 1.0) * 100.0;
+        eprintln!(
+            "gyro calibration alone (Ĉ_ω on {} increments, diagonal {:+.2} / {:+.2} / {:+.2} %, the networks off): query AOE {:.3}°",
+            c.increments,
+            d(0),
+            d(1),
+            d(2),
+            q.aoe_deg
+        );
+    }
+    if let Some(why) = &r.calibration_refused {
+        eprintln!("gyro calibration alone: not a candidate: {why}");
+    }
+    if let Some(k) = r.kind {
+        eprintln!("kept: {}", k.name());
+    }
     if r.accepted && r.query_after.aoe_deg > r.query_raw.aoe_deg {
         tracing::warn!(
             "the adapted model is better than the starting one but still worse than the raw gyro on the query data ({:.3}° against {:.3}°): on this IMU, running without a model is better",
@@ -285,8 +310,9 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `--judge`: scores the adapted model on each other recording, and rejects it (nothing
-/// written) when its mean AOE there is not below what the node runs without it.
+/// `--judge`: scores each candidate that passed the query on each other recording, keeps the
+/// one that carries over best, and rejects both (nothing written) when neither's AOE there is
+/// below what the node runs without it.
 fn judge_on_other_recordings(
     args: &AdaptArgs,
     topics: &RecordingTopics,
@@ -294,31 +320,63 @@ fn judge_on_other_recordings(
     outcome: &mut imu_fsda::adapt::AdaptOutcome,
     cfg: &AdaptConfig,
 ) -> anyhow::Result<()> {
-    let Some(adapted) = &outcome.adapted else {
-        return Ok(());
-    };
-    if args.judges.is_empty() {
+    if outcome.adapted.is_none() || args.judges.is_empty() {
         return Ok(());
     }
-    let mut judged = Vec::new();
+    let mut recordings = Vec::new();
     for bag in &args.judges {
         let (rec, _) = read_recording(bag, topics).with_context(|| format!("reading --judge {}", bag.display()))?;
-        judged.push(imu_fsda::adapt::judge(start, adapted, &rec, cfg).with_context(|| format!("judging on {}", bag.display()))?);
+        recordings.push((bag, rec));
     }
-    // The geometric mean of the ratios: a recording without a rest (raw, 100°) would decide an
-    // arithmetic mean by a hundredth of a degree.
-    let n = judged.len() as f64;
-    let ratio = (judged.iter().map(|j| (j.after.aoe_deg / j.without_adaptation_deg()).ln()).sum::<f64>() / n).exp();
+    let judge_all = |model: &imu_fsda::model::export::LoadedNet| -> anyhow::Result<Vec<imu_fsda::adapt::Judged>> {
+        recordings
+            .iter()
+            .map(|(bag, rec)| imu_fsda::adapt::judge(start, model, rec, cfg).with_context(|| format!("judging on {}", bag.display())))
+            .collect()
+    };
+    let chosen = judge_all(outcome.adapted.as_ref().expect("checked above"))?;
+    let runner_up = outcome.runner_up.as_ref().map(|(_, m)| judge_all(m)).transpose()?;
+    let first = CarryOver::of(&chosen);
     let r = &mut outcome.report;
+    let kind = r.kind.map_or("the adapted model", |k| k.name());
+    let say = |what: &str, c: &CarryOver| {
+        eprintln!(
+            "on the other recordings: AOE with {what} / without adapting {:.3} (geometric mean {}, 95 % upper bound {:.3})",
+            c.ratio,
+            c.over(),
+            c.upper_95
+        )
+    };
+    say(kind, &first);
+    let second = runner_up.as_ref().map(|j| CarryOver::of(j));
+    if let (Some((k, _)), Some(c)) = (&outcome.runner_up, &second) {
+        say(k.name(), c);
+    }
+    // The runner-up carries over better (and confidently): it is the one kept.
+    let swap = second.is_some_and(|c| c.carries_over() && (c.ratio < first.ratio || !first.carries_over()));
+    let (carry, judged, judged_other) = if swap {
+        let (k, m) = outcome.runner_up.take().expect("judged above");
+        let previous = outcome.adapted.replace(m).expect("checked above");
+        outcome.runner_up = Some((r.kind.unwrap_or(imu_fsda::adapt::AdaptedKind::Network), previous));
+        r.kind = Some(k);
+        (second.expect("judged above"), runner_up.unwrap_or_default(), chosen)
+    } else {
+        (first, chosen, runner_up.unwrap_or_default())
+    };
     r.judged = judged;
-    if ratio.is_nan() || ratio >= 1.0 {
+    r.judged_runner_up = judged_other;
+    r.carry_over = Some(carry);
+    if !carry.carries_over() {
         r.accepted = false;
+        r.kind = None;
         r.verdict = format!(
-            "rejected on the other recordings: AOE adapted / without adapting (the power-on bias where the recording has a standstill) is {ratio:.3} (geometric mean over {n}); the adaptation does not carry over to another power-on"
+            "rejected on the other recordings: AOE adapted / without adapting (the power-on bias) is {:.3} (geometric mean {}), its 95 % upper bound {:.3} is not below 1; the adaptation does not carry over to another power-on",
+            carry.ratio,
+            carry.over(),
+            carry.upper_95
         );
         outcome.adapted = None;
-    } else {
-        eprintln!("on the other recordings: AOE adapted / without adapting {ratio:.3} (geometric mean over {n})");
+        outcome.runner_up = None;
     }
     Ok(())
 }

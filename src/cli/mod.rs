@@ -18,6 +18,7 @@ mod diagnose;
 mod embed;
 mod eval;
 mod import;
+mod inject;
 mod node;
 mod play;
 mod replay;
@@ -50,6 +51,8 @@ pub enum Command {
     Attitude(attitude::AttitudeArgs),
     /// Simulate an IMU on a trajectory and write a bag with ground truth.
     Simulate(simulate::SimulateArgs),
+    /// Apply known error terms to a recorded bag (a real recording with a known answer).
+    Inject(inject::InjectArgs),
     /// Train a denoising model (FSDA-F, FSDA or DIGDL) and export it to TorchScript.
     Train(train::TrainArgs),
     /// Few-shot adaptation of a model to a new robot/IMU from a recording with ground truth.
@@ -292,6 +295,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => eval::run(a),
         Command::Attitude(a) => attitude::run(a),
         Command::Simulate(a) => simulate::run(a),
+        Command::Inject(a) => inject::run(a),
         Command::Train(a) => train::run(a),
         Command::Adapt(a) => adapt::run(a),
         Command::Diagnose(a) => diagnose::run(a),

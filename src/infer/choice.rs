@@ -19,6 +19,8 @@ pub enum ModelDomain {
     Trained,
     /// Adapted on this IMU after the support's power-on bias was removed.
     AdaptedAfterPowerOnBias,
+    /// The same, with the gyro calibration alone kept (Ĉ_ω, the networks' correction off).
+    CalibratedAfterPowerOnBias,
     /// Adapted on this IMU with the support's power-on constant inside (an adaptation made
     /// before the power-on rule): run as it was made.
     AdaptedWithBias,
@@ -30,6 +32,7 @@ impl ModelDomain {
     /// A loaded model's domain from its metadata and the IMU it is run as (`imu_calibration`).
     pub fn of(meta: &crate::model::ModelMetadata, imu: Option<&str>) -> Self {
         match (&meta.adapted_from, imu) {
+            (Some(_), _) if meta.power_on_bias_removed && meta.correction_networks_off => ModelDomain::CalibratedAfterPowerOnBias,
             (Some(_), _) if meta.power_on_bias_removed => ModelDomain::AdaptedAfterPowerOnBias,
             (Some(_), _) => ModelDomain::AdaptedWithBias,
             (None, Some(name)) if meta.imu_names().contains(&name) => ModelDomain::Trained,
@@ -90,6 +93,13 @@ pub fn choose(domain: ModelDomain, power_on_bias: bool, model_on_new_imu: bool) 
         ModelDomain::AdaptedAfterPowerOnBias => {
             (Correction::Model, "power_on_bias off: the adapted model runs on the raw gyro (it was adapted without its support's bias)")
         }
+        ModelDomain::CalibratedAfterPowerOnBias if power_on_bias => (
+            Correction::PowerOnBiasThenModel,
+            "the gyro calibration adapted on this IMU (its Ĉ_ω, the networks off) after its power-on bias was removed",
+        ),
+        ModelDomain::CalibratedAfterPowerOnBias => {
+            (Correction::Model, "power_on_bias off: the gyro calibration adapted on this IMU runs on the raw gyro (it was fitted without its support's bias)")
+        }
         ModelDomain::NewImu if model_on_new_imu => (Correction::Model, "model_on_new_imu: the model on an IMU it was neither trained nor adapted on"),
         ModelDomain::NewImu if power_on_bias => (
             Correction::PowerOnBias,
@@ -110,6 +120,8 @@ mod tests {
         assert_eq!(choose(ModelDomain::NewImu, false, false).0, Correction::Raw);
         assert_eq!(choose(ModelDomain::Trained, true, false).0, Correction::Model);
         assert_eq!(choose(ModelDomain::AdaptedAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
+        assert_eq!(choose(ModelDomain::CalibratedAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
+        assert!(choose(ModelDomain::CalibratedAfterPowerOnBias, true, false).1.contains("gyro calibration"));
         assert_eq!(choose(ModelDomain::NoModel, true, false).0, Correction::PowerOnBias);
     }
 }

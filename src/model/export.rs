@@ -84,6 +84,10 @@ pub struct ModelMetadata {
     /// [`crate::standstill`]) was removed: the node removes this power-on's before it.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub power_on_bias_removed: bool,
+    /// The networks' correction is exactly 0 ([`crate::model::Net::correction_networks_off`]):
+    /// the model is its Ĉ_ω alone, a gyro calibration (read from the weights at export).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub correction_networks_off: bool,
     /// Sequences / bags the model was trained on (filled by the trainer).
     pub training_data: Vec<String>,
     /// Evaluation figures (filled by the trainer), e.g. `"MH_04_difficult/aoe_deg"`. A figure
@@ -273,6 +277,7 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         imu_correction_gains: info.imu_correction_gains.clone(),
         adapted_from: info.adapted_from.clone(),
         power_on_bias_removed: info.power_on_bias_removed,
+        correction_networks_off: net.correction_networks_off(),
         training_data: info.training_data.clone(),
         metrics: info.metrics.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), *v)).collect(),
         code_revision: info.code_revision.clone().or_else(code_revision),

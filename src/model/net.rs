@@ -219,6 +219,16 @@ impl Net {
         &self.output_scale
     }
 
+    /// The Generator's last layer is all zeros (an adaptation that kept the gyro calibration
+    /// alone): the networks' correction is exactly 0, the model is `Ĉ_ω ω`.
+    pub fn correction_networks_off(&self) -> bool {
+        let zero = |t: &Tensor| t.abs().max().double_value(&[]) == 0.0;
+        match &self.body {
+            Body::Fsda { generator, .. } => generator.folded().last().is_some_and(|l| zero(&l.weight) && zero(&l.bias)),
+            Body::Digdl(_) => false,
+        }
+    }
+
     /// The Embedding (FSDA modes).
     pub fn embedding(&self) -> Option<&Embedding> {
         match &self.body {

@@ -150,6 +150,9 @@ pub struct StreamingDenoiser {
     /// The share g of the model's correction applied: `ω + g (ω̂ − ω)` (1: the model as
     /// trained; see [`crate::model::export::ModelMetadata::imu_correction_gains`]).
     correction_gain: f64,
+    /// The last layer is all zeros (an adaptation that kept the gyro calibration alone): the
+    /// networks' output is exactly 0, so they are not run (`Ĉ_ω ω`, bit for bit the same).
+    networks_off: bool,
 }
 
 /// `ω + g (ω̂ − ω)`: the share `g` of a model's correction `ω̂ − ω` (exactly `ω̂` for g = 1).
@@ -259,6 +262,7 @@ impl StreamingDenoiser {
         if width != 3 || convs.is_empty() {
             return Err(ModelError::InvalidConfig(format!("the network ends with {width} channels, expected 3")));
         }
+        let networks_off = convs.last().is_some_and(|c| c.weight.iter().chain(&c.bias).all(|v| *v == 0.0));
         let max_width = embedding.iter().map(|d| d.n_out.max(d.n_in)).max().unwrap_or(0).max(6);
         let receptive_field = 1 + convs.iter().map(|c| c.rows - 1).sum::<usize>();
         Ok(Self {
@@ -275,6 +279,7 @@ impl StreamingDenoiser {
             max_width,
             out: [0.0; 3],
             correction_gain: 1.0,
+            networks_off,
         })
     }
 
@@ -329,6 +334,10 @@ impl StreamingDenoiser {
     /// non-finite input poisons the state for N samples: reject those first (see
     /// [`StreamingDenoiser::try_step`]).
     pub fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64> {
+        if self.networks_off {
+            self.samples_seen += 1;
+            return apply_correction_gain(gyro, &(self.calib * gyro), self.correction_gain);
+        }
         let first = self.samples_seen == 0;
         let Self { mean, inv_std, embedding, generator_sees_imu, convs, scratch, max_width, out, .. } = self;
         let (buf0, buf1) = scratch.split_at_mut(*max_width);
@@ -578,6 +587,33 @@ mod tests {
             let again = stream(&mut d, &samples[..600]);
             assert_eq!(max_abs_diff(&again, &streamed[..1800]), 0.0);
         }
+    }
+
+    /// An adaptation that kept the gyro calibration alone zeroes the last layer: the step
+    /// skips the networks and still equals the batch forward.
+    #[test]
+    fn a_zero_last_layer_skips_the_networks_and_equals_the_batch_forward() {
+        tch::set_num_threads(1);
+        let samples = random_imu(1000, 3);
+        let (vs, net) = random_net(Mode::FsdaF, 5);
+        let last =
+            vs.variables().keys().filter_map(|n| n.strip_prefix("generator.conv")?.strip_suffix(".bias")?.parse::<usize>().ok()).max();
+        let vars = vs.variables();
+        tch::no_grad(|| {
+            for part in ["weight", "bias"] {
+                let _ = vars[&format!("generator.conv{}.{part}", last.unwrap())].shallow_clone().zero_();
+            }
+            vars["gyro_calib.delta"].shallow_clone().copy_(&(Tensor::randn([3, 3], (Kind::Float, Device::Cpu)) * 0.02));
+        });
+        let mut d = StreamingDenoiser::from_net(&net).unwrap();
+        assert!(d.networks_off);
+        let streamed = stream(&mut d, &samples);
+        let inference64 = net.inference().to_kind(Kind::Double);
+        let exact = batch(|u| inference64.forward(u), &samples, Kind::Double);
+        assert!(max_abs_diff(&streamed, &exact) < 1e-12, "{:e}", max_abs_diff(&streamed, &exact));
+        assert_eq!(d.samples_seen(), samples.len() as u64);
+        // A trained last layer is run.
+        assert!(!StreamingDenoiser::from_net(&random_net(Mode::FsdaF, 6).1).unwrap().networks_off);
     }
 
     #[test]

@@ -1278,8 +1278,18 @@ impl Job {
         let r = outcome.report;
         let figures = format!(
             "query AOE {:.3}° → {:.3}° (raw gyro {:.3}°), support {:.1} s, query {:.1} s, {} steps in {:.1} s",
-            r.query_before.aoe_deg, r.query_after.aoe_deg, r.query_raw.aoe_deg, r.support_seconds, r.query_seconds, r.steps, r.step_seconds
+            r.query_before.aoe_deg,
+            r.kept_query().unwrap_or(&r.query_after).aoe_deg,
+            r.query_raw.aoe_deg,
+            r.support_seconds,
+            r.query_seconds,
+            r.steps,
+            r.step_seconds
         );
+        let figures = match r.kind {
+            Some(k) => format!("{}: {figures}", k.name()),
+            None => figures,
+        };
         let Some(adapted) = outcome.adapted else {
             return Ok(JobResult { success: false, message: format!("{}; {figures}", r.verdict), report: Some(r), model_name: None });
         };

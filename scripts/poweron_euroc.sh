@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# The power-on protocol on real recordings: EuRoC's eleven recordings are eleven power-ons of
+# one ADIS16448. Each in turn is the support (`adapt` on its first 60 s, the bundled model run
+# as on a new IMU); the other ten are judged (`--judge`). Twice: as recorded, and with a
+# consumer part's lasting scale and cross-axis errors injected into every recording
+# (`imu-fsda inject`, the same terms as scripts/poweron.sh's MPU-9250 unit). Writes
+# docs/poweron-euroc.json and the tables in docs/poweron.md between their markers.
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+source "$here/scripts/env.sh"
+IMU_FSDA_NO_BUILD=${IMU_FSDA_NO_BUILD:-} bash "$here/scripts/setup.sh"
+bin="${IMU_FSDA_BIN:-$here/target/release/imu-fsda}"
+model="${MODEL:-$here/models/fsda-f.pt}"
+require_models "$model"
+data="${DATA:-$here/../shared/data}"
+work="$IMU_FSDA_CACHE/poweron-euroc"
+rm -rf "$work"; mkdir -p "$work/recorded" "$work/injected" "$IMU_FSDA_CACHE/bags"
+for dir in "$data"/euroc/*/; do
+  s="$(basename "$dir")"
+  [ -f "$IMU_FSDA_CACHE/bags/$s.mcap" ] || "$bin" import "$dir" -o "$IMU_FSDA_CACHE/bags/$s.mcap" >&2
+  cp "$IMU_FSDA_CACHE/bags/$s.mcap" "$work/recorded/$s.mcap"
+  "$bin" inject "$work/recorded/$s.mcap" \
+    --term "{term: gyro_scale, scale: [0.021, -0.027, 0.014]}" \
+    --term "{term: gyro_misalignment, matrix: [[0, 0.012, -0.008], [-0.015, 0, 0.010], [0.006, -0.011, 0]]}" \
+    -o "$work/injected/$s.mcap" 2>/dev/null
+done
+for set in recorded injected; do
+  bags=("$work/$set"/*.mcap)
+  "$bin" eval "${bags[@]}" --method raw --method static-bias --method power-on-bias --json "$work/$set.eval.json" >/dev/null
+  for support in "${bags[@]}"; do
+    s="$(basename "$support" .mcap)"
+    judges=(); for b in "${bags[@]}"; do [ "$b" = "$support" ] || judges+=(--judge "$b"); done
+    "$bin" adapt --model "$model" --bag "$support" "${judges[@]}" -o "$work/$set/$s-adapted.pt" --json \
+      > "$work/$set/$s.adapt.json" 2> "$work/$set/$s.adapt.log" || true
+    echo "[poweron-euroc] $set $s: $(tail -1 "$work/$set/$s.adapt.log")" >&2
+  done
+done
+"$PYTHON" "$here/scripts/poweron_euroc_table.py" "$work" "$here/docs/poweron-euroc.json" "$here/docs/poweron.md"
