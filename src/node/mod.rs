@@ -1165,7 +1165,8 @@ async fn service_loop(
                     s.adapt_seconds = Some(started.elapsed().as_secs_f64());
                     if let Some(r) = &res.report {
                         s.adapt_query_aoe_before_deg = Some(r.query_before.aoe_deg);
-                        s.adapt_query_aoe_after_deg = Some(r.query_after.aoe_deg);
+                        // The candidate kept (the adapted networks where none was).
+                        s.adapt_query_aoe_after_deg = Some(r.kept_query().unwrap_or(&r.query_after).aoe_deg);
                     }
                     if let Some(n) = &res.model_name {
                         s.model.clone_from(n);
