@@ -600,31 +600,7 @@ pub fn adapt_knowing(
     crate::train::data::check_plausible(&query)?;
     crate::train::data::check_accel_units(&support)?;
     crate::train::data::check_ground_truth_follows_gyro(&support, false)?;
-    let mut frame = None;
-    let mut frame_applied = false;
-    if cfg.frame_policy != FramePolicy::Ignore {
-        frame = frame_check(&s_task0.rec, cfg);
-        if let Some(f) = frame.filter(|f| f.angle_deg > cfg.frame_tolerance_deg && !f.is_other_frame(cfg.frame_tolerance_deg)) {
-            tracing::warn!(
-                "a rotation of {:.1}° between the IMU and ground-truth frames fits, but explains little (residual {:.2}° with it, {:.2}° without): the gyro's own errors, not another frame",
-                f.angle_deg,
-                f.residual_deg,
-                f.residual_identity_deg
-            );
-        }
-        if let Some(f) = frame.filter(|f| f.is_other_frame(cfg.frame_tolerance_deg)) {
-            match cfg.frame_policy {
-                FramePolicy::Error => return Err(AdaptError::OtherFrame(Box::new(f))),
-                FramePolicy::Apply => {
-                    tracing::warn!("ground truth re-expressed in the IMU frame: rotation of {:.1}°", f.angle_deg);
-                    apply_frame(&mut support, &f.rotation());
-                    apply_frame(&mut query, &f.rotation());
-                    frame_applied = true;
-                }
-                FramePolicy::Ignore => {}
-            }
-        }
-    }
+    let (frame, frame_applied) = check_ground_truth_frame(&s_task0, &mut support, &mut query, cfg)?;
     let s_task = if frame_applied { to_task(&support, "support", cfg)? } else { s_task0 };
     let q_task = if frame_applied { to_task(&query, "query", cfg)? } else { q_task0 };
     let eopts = EvalOptions { max_gap_ns: (cfg.max_interpolation_gap_ms * 1e6) as i64 };
@@ -642,64 +618,7 @@ pub fn adapt_knowing(
     let start_correction_gain = loaded.correction_gain();
     let query_before = evaluate_net_with_gain(&loaded.net, &q_task, &eopts, start_correction_gain)?;
 
-    // The inner loop, first order, eval mode, on the fast weights only.
-    let (mut vs, net) = copy_net(loaded)?;
-    let mut fast: Vec<Tensor> = net.embedding_parameters().iter().map(|p| p.detach().copy().set_requires_grad(true)).collect();
-    let head_names = if cfg.calibration { calibration_head_names(&vs) } else { Vec::new() };
-    let head: Vec<Tensor> = {
-        let vars = vs.variables();
-        head_names.iter().map(|n| vars[n].shallow_clone().set_requires_grad(true)).collect()
-    };
-    let initial_bias = if cfg.calibration { Some(init_output_bias(&vs, &head_names, &net, &s_task, cfg)?) } else { None };
-    let mut head_adam = TensorAdam::new(&head);
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-    let win = cfg.window_samples.min(s_task.len());
-    let refs = [&s_task];
-    let mut losses = Vec::with_capacity(cfg.steps);
-    let mut adam = TensorAdam::new(&fast);
-    let t_steps = Instant::now();
-    for step in 0..cfg.steps {
-        if t_steps.elapsed().as_secs_f64() > cfg.max_seconds {
-            tracing::warn!("adaptation stopped after {step} steps: time budget of {} s reached", cfg.max_seconds);
-            break;
-        }
-        let count = if win == s_task.len() { 1 } else { cfg.windows.max(1) };
-        let batch = data::sample_windows(&refs, |t| (0, t.len()), count, win, &mut rng);
-        let (l, next) = match cfg.optimizer {
-            Optimizer::Sgd => {
-                let (terms, next) = embedding_inner_step(&net, &cfg.loss, &batch, &fast, cfg.inner_lr, false, false);
-                (terms.total.double_value(&[]), next)
-            }
-            Optimizer::Adam => {
-                let (terms, grads) = embedding_and_extra_grads(&net, &cfg.loss, &batch, &fast, &head, false, false);
-                let (g_fast, g_head) = grads.split_at(fast.len());
-                let new_head = head_adam.step(&head, g_head, cfg.inner_lr);
-                tch::no_grad(|| {
-                    for (h, n) in head.iter().zip(&new_head) {
-                        h.shallow_clone().copy_(n);
-                    }
-                });
-                (terms.total.double_value(&[]), adam.step(&fast, g_fast, cfg.inner_lr))
-            }
-        };
-        if !l.is_finite() {
-            return Err(AdaptError::Other(format!("step {step}: the support loss is {l}: lower the inner learning rate")));
-        }
-        losses.push(l);
-        fast = next.iter().map(|t| t.detach().set_requires_grad(true)).collect();
-        tracing::debug!("adapt step {step}: support loss {l:.4}");
-    }
-    let step_seconds = t_steps.elapsed().as_secs_f64();
-    {
-        let vars = vs.variables();
-        tch::no_grad(|| -> Result<(), ModelError> {
-            for (name, f) in net.embedding_parameter_names().iter().zip(&fast) {
-                vars[name].shallow_clone().f_copy_(f)?;
-            }
-            Ok(())
-        })?;
-    }
-    vs.unfreeze();
+    let AdaptedNetworks { vs, net, losses, step_seconds, initial_bias } = adapt_networks(loaded, &s_task, cfg)?;
     let query_after = evaluate_net(&net, &q_task, &eopts)?;
     // The second candidate: the lasting linear gyro error alone, the networks off.
     let (calibrated, calibration_refused) = if cfg.power_on_bias && cfg.keep != Keep::Networks {
@@ -716,22 +635,8 @@ pub fn adapt_knowing(
     let network_passes = cfg.keep != Keep::GyroCalibration && passes(&query_after);
     let calibration_passes = calibrated.as_ref().is_some_and(|c| passes(&c.query));
     let accepted = network_passes || calibration_passes;
-    let verdict = if accepted {
-        String::new()
-    } else if query_after.aoe_deg >= query_before.aoe_deg {
-        format!(
-            "rejected: the adapted model is not better on the query data (AOE {:.3}° → {:.3}°{}); the previous model is kept",
-            query_before.aoe_deg,
-            query_after.aoe_deg,
-            calibrated.as_ref().map_or(String::new(), |c| format!(", the gyro calibration alone {:.3}°", c.query.aoe_deg))
-        )
-    } else {
-        format!(
-            "rejected: the adapted model ({:.3}°{}) is not better on the query data than the gyro minus its power-on bias ({floor:.3}°), what the node runs on a new IMU; the previous model is kept",
-            query_after.aoe_deg,
-            calibrated.as_ref().map_or(String::new(), |c| format!(", the gyro calibration alone {:.3}°", c.query.aoe_deg))
-        )
-    };
+    let calibrated_aoe = calibrated.as_ref().map(|c| c.query.aoe_deg);
+    let verdict = if accepted { String::new() } else { query_verdict(query_before.aoe_deg, query_after.aoe_deg, calibrated_aoe, floor) };
     let mut report = AdaptReport {
         model: loaded.metadata.name.clone(),
         support: s_task.source.clone(),
@@ -780,6 +685,126 @@ pub fn adapt_knowing(
     };
     report.kind = adapted.as_ref().map(|(k, _)| *k);
     Ok(AdaptOutcome { report, adapted: adapted.map(|(_, m)| m), runner_up })
+}
+
+/// The frame check on the support (docs/adaptation.md, step 2): a rotation between the IMU
+/// and ground-truth frames is an error, or re-expressed in both sets (`frame_policy`).
+fn check_ground_truth_frame(
+    s_task: &Task,
+    support: &mut Recording,
+    query: &mut Recording,
+    cfg: &AdaptConfig,
+) -> Result<(Option<FrameCheck>, bool), AdaptError> {
+    let mut frame = None;
+    let mut frame_applied = false;
+    if cfg.frame_policy != FramePolicy::Ignore {
+        frame = frame_check(&s_task.rec, cfg);
+        if let Some(f) = frame.filter(|f| f.angle_deg > cfg.frame_tolerance_deg && !f.is_other_frame(cfg.frame_tolerance_deg)) {
+            tracing::warn!(
+                "a rotation of {:.1}° between the IMU and ground-truth frames fits, but explains little (residual {:.2}° with it, {:.2}° without): the gyro's own errors, not another frame",
+                f.angle_deg,
+                f.residual_deg,
+                f.residual_identity_deg
+            );
+        }
+        if let Some(f) = frame.filter(|f| f.is_other_frame(cfg.frame_tolerance_deg)) {
+            match cfg.frame_policy {
+                FramePolicy::Error => return Err(AdaptError::OtherFrame(Box::new(f))),
+                FramePolicy::Apply => {
+                    tracing::warn!("ground truth re-expressed in the IMU frame: rotation of {:.1}°", f.angle_deg);
+                    apply_frame(support, &f.rotation());
+                    apply_frame(query, &f.rotation());
+                    frame_applied = true;
+                }
+                FramePolicy::Ignore => {}
+            }
+        }
+    }
+    Ok((frame, frame_applied))
+}
+
+/// The networks adapted by the inner loop, with what it did.
+struct AdaptedNetworks {
+    vs: VarStore,
+    net: Net,
+    losses: Vec<f64>,
+    step_seconds: f64,
+    initial_bias: Option<[f64; 3]>,
+}
+
+/// The inner loop (docs/adaptation.md, step 4): first order, eval mode, on a copy's fast
+/// weights only (θ_e, and the calibration head with `calibration`).
+fn adapt_networks(loaded: &LoadedNet, s_task: &Task, cfg: &AdaptConfig) -> Result<AdaptedNetworks, AdaptError> {
+    let (mut vs, net) = copy_net(loaded)?;
+    let mut fast: Vec<Tensor> = net.embedding_parameters().iter().map(|p| p.detach().copy().set_requires_grad(true)).collect();
+    let head_names = if cfg.calibration { calibration_head_names(&vs) } else { Vec::new() };
+    let head: Vec<Tensor> = {
+        let vars = vs.variables();
+        head_names.iter().map(|n| vars[n].shallow_clone().set_requires_grad(true)).collect()
+    };
+    let initial_bias = if cfg.calibration { Some(init_output_bias(&vs, &head_names, &net, s_task, cfg)?) } else { None };
+    let mut head_adam = TensorAdam::new(&head);
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+    let win = cfg.window_samples.min(s_task.len());
+    let refs = [s_task];
+    let mut losses = Vec::with_capacity(cfg.steps);
+    let mut adam = TensorAdam::new(&fast);
+    let t_steps = Instant::now();
+    for step in 0..cfg.steps {
+        if t_steps.elapsed().as_secs_f64() > cfg.max_seconds {
+            tracing::warn!("adaptation stopped after {step} steps: time budget of {} s reached", cfg.max_seconds);
+            break;
+        }
+        let count = if win == s_task.len() { 1 } else { cfg.windows.max(1) };
+        let batch = data::sample_windows(&refs, |t| (0, t.len()), count, win, &mut rng);
+        let (l, next) = match cfg.optimizer {
+            Optimizer::Sgd => {
+                let (terms, next) = embedding_inner_step(&net, &cfg.loss, &batch, &fast, cfg.inner_lr, false, false);
+                (terms.total.double_value(&[]), next)
+            }
+            Optimizer::Adam => {
+                let (terms, grads) = embedding_and_extra_grads(&net, &cfg.loss, &batch, &fast, &head, false, false);
+                let (g_fast, g_head) = grads.split_at(fast.len());
+                let new_head = head_adam.step(&head, g_head, cfg.inner_lr);
+                tch::no_grad(|| {
+                    for (h, n) in head.iter().zip(&new_head) {
+                        h.shallow_clone().copy_(n);
+                    }
+                });
+                (terms.total.double_value(&[]), adam.step(&fast, g_fast, cfg.inner_lr))
+            }
+        };
+        if !l.is_finite() {
+            return Err(AdaptError::Other(format!("step {step}: the support loss is {l}: lower the inner learning rate")));
+        }
+        losses.push(l);
+        fast = next.iter().map(|t| t.detach().set_requires_grad(true)).collect();
+        tracing::debug!("adapt step {step}: support loss {l:.4}");
+    }
+    let step_seconds = t_steps.elapsed().as_secs_f64();
+    {
+        let vars = vs.variables();
+        tch::no_grad(|| -> Result<(), ModelError> {
+            for (name, f) in net.embedding_parameter_names().iter().zip(&fast) {
+                vars[name].shallow_clone().f_copy_(f)?;
+            }
+            Ok(())
+        })?;
+    }
+    vs.unfreeze();
+    Ok(AdaptedNetworks { vs, net, losses, step_seconds, initial_bias })
+}
+
+/// Why neither candidate passed the query.
+fn query_verdict(before: f64, after: f64, calibrated: Option<f64>, floor: f64) -> String {
+    let calibration = calibrated.map_or(String::new(), |c| format!(", the gyro calibration alone {c:.3}°"));
+    if after >= before {
+        format!("rejected: the adapted model is not better on the query data (AOE {before:.3}° → {after:.3}°{calibration}); the previous model is kept")
+    } else {
+        format!(
+            "rejected: the adapted model ({after:.3}°{calibration}) is not better on the query data than the gyro minus its power-on bias ({floor:.3}°), what the node runs on a new IMU; the previous model is kept"
+        )
+    }
 }
 
 /// Writes an accepted adapted model as `<dir>/<name>.{pt,ot,json}` (metadata: the original's
