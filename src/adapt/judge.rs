@@ -37,6 +37,12 @@ impl Judged {
 
 /// Scores `start` and `adapted` on `rec` (the whole recording, covered by ground truth).
 pub fn judge(start: &LoadedNet, adapted: &LoadedNet, rec: &Recording, cfg: &AdaptConfig) -> Result<Judged, AdaptError> {
+    Ok(judge_each(start, &[adapted], rec, cfg)?.remove(0))
+}
+
+/// [`judge`] for several adapted models on one recording: what they share (raw, the starting
+/// model, the power-on bias) is computed once.
+pub fn judge_each(start: &LoadedNet, adapted: &[&LoadedNet], rec: &Recording, cfg: &AdaptConfig) -> Result<Vec<Judged>, AdaptError> {
     let mut rec = rec.clone();
     let rate = rec.nominal_imu_rate_hz();
     if rec.imu.len() >= 2 && crate::model::rate_is_off(start.metadata.rate_hz, rate) {
@@ -53,14 +59,26 @@ pub fn judge(start: &LoadedNet, adapted: &LoadedNet, rec: &Recording, cfg: &Adap
         Some(_) => Some(evaluate(&rec, &track.corrected_gyro(&rec.imu), &eopts)?),
         None => None,
     };
-    let after = if adapted.metadata.power_on_bias_removed {
-        let mut gyro = correct_with_net(&adapted.net.inference(), &track.debiased(&rec.imu))?;
-        track.hold_still_windows(&rec.imu, &mut gyro);
-        evaluate(&rec, &gyro, &eopts)?
-    } else {
-        evaluate_net(&adapted.net, &task, &eopts)?
-    };
-    Ok(Judged { recording: rec.name.clone(), raw, power_on_bias, before, after })
+    let debiased = track.debiased(&rec.imu);
+    adapted
+        .iter()
+        .map(|model| {
+            let after = if model.metadata.power_on_bias_removed {
+                let mut gyro = correct_with_net(&model.net.inference(), &debiased)?;
+                track.hold_still_windows(&rec.imu, &mut gyro);
+                evaluate(&rec, &gyro, &eopts)?
+            } else {
+                evaluate_net(&model.net, &task, &eopts)?
+            };
+            Ok(Judged {
+                recording: rec.name.clone(),
+                raw: raw.clone(),
+                power_on_bias: power_on_bias.clone(),
+                before: before.clone(),
+                after,
+            })
+        })
+        .collect()
 }
 
 /// How an adaptation carries over to the judged recordings: the geometric mean over them of

@@ -33,7 +33,7 @@ use crate::train::data::{self, DataError, Task};
 use crate::train::fit::{embedding_and_extra_grads, embedding_inner_step, evaluate_net, evaluate_net_with_gain, evaluate_raw};
 
 pub use frame::{check_frame, FrameCheck};
-pub use judge::{judge, CarryOver, Judged};
+pub use judge::{judge, judge_each, CarryOver, Judged};
 
 /// What to do when the ground truth's body frame differs from the IMU's by a constant rotation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
@@ -391,21 +391,15 @@ fn calibration_candidate(
     }
     let query = evaluate_net(&net, query, eopts)?;
     tracing::info!(
-        "gyro calibration on {} increments: diagonal [{:.4}, {:.4}, {:.4}], residual {:.3} → {:.3} °/s; query AOE {:.3}°",
+        "gyro calibration on {} increments: Ĉ_ω {:?}, residual {:.3} → {:.3} °/s; query AOE {:.3}°",
         fit.increments,
-        m_diag(&fit.matrix)[0],
-        m_diag(&fit.matrix)[1],
-        m_diag(&fit.matrix)[2],
+        fit.matrix,
         fit.residual_before_deg_s,
         fit.residual_after_deg_s,
         query.aoe_deg
     );
     let metadata = ModelMetadata { imu_correction_gains: BTreeMap::new(), power_on_bias_removed: true, ..loaded.metadata.clone() };
     Ok(Ok(Calibrated { fit, net: LoadedNet::new(vs, net, metadata), query }))
-}
-
-fn m_diag(m: &[[f64; 3]; 3]) -> [f64; 3] {
-    [m[0][0], m[1][1], m[2][2]]
 }
 
 fn dataset_cfg(cfg: &AdaptConfig) -> DatasetConfig {

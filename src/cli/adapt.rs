@@ -328,14 +328,18 @@ fn judge_on_other_recordings(
         let (rec, _) = read_recording(bag, topics).with_context(|| format!("reading --judge {}", bag.display()))?;
         recordings.push((bag, rec));
     }
-    let judge_all = |model: &imu_fsda::model::export::LoadedNet| -> anyhow::Result<Vec<imu_fsda::adapt::Judged>> {
-        recordings
-            .iter()
-            .map(|(bag, rec)| imu_fsda::adapt::judge(start, model, rec, cfg).with_context(|| format!("judging on {}", bag.display())))
-            .collect()
-    };
-    let chosen = judge_all(outcome.adapted.as_ref().expect("checked above"))?;
-    let runner_up = outcome.runner_up.as_ref().map(|(_, m)| judge_all(m)).transpose()?;
+    // Both candidates on each recording (what they share computed once), split per candidate.
+    let mut models = vec![outcome.adapted.as_ref().expect("checked above")];
+    models.extend(outcome.runner_up.as_ref().map(|(_, m)| m));
+    let mut per_model: Vec<Vec<imu_fsda::adapt::Judged>> = vec![Vec::new(); models.len()];
+    for (bag, rec) in &recordings {
+        let judged = imu_fsda::adapt::judge_each(start, &models, rec, cfg).with_context(|| format!("judging on {}", bag.display()))?;
+        for (k, j) in judged.into_iter().enumerate() {
+            per_model[k].push(j);
+        }
+    }
+    let runner_up = (per_model.len() > 1).then(|| per_model.pop().expect("two models"));
+    let chosen = per_model.pop().expect("one model");
     let first = CarryOver::of(&chosen);
     let r = &mut outcome.report;
     let kind = r.kind.map_or("the adapted model", |k| k.name());
