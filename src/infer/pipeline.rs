@@ -19,10 +19,14 @@ pub struct CorrectedImu {
     pub correction: Vector3<f64>,
     /// Specific force, passed through, m/s².
     pub accel: Vector3<f64>,
-    /// Variance of each corrected gyro axis, (rad/s)².
+    /// Variance of each corrected gyro axis's white noise, (rad/s)².
     pub gyro_variance: f64,
-    /// The gyro is the input's unchanged (no model): the input's own covariance, where it
-    /// gives one, is the output's.
+    /// Variance of the bias left in each corrected gyro axis, (rad/s)²: the power-on bias
+    /// estimate's where it is removed (before one, the uncorrected gyro's), the model's residual
+    /// where it runs, 0 for the gyro as measured. Added to the published covariance.
+    pub gyro_bias_variance: f64,
+    /// No model ran on the gyro: the input's own covariance, where it gives one, stands for
+    /// its noise.
     pub passed_through: bool,
     /// Integrated `world_from_body` and its covariance (rad², about world x, y, z); `None`
     /// until the initial attitude is known.
@@ -320,6 +324,7 @@ impl Pipeline {
             correction: gyro - raw.gyro,
             accel: s.accel,
             gyro_variance: self.cfg.angular_velocity_stddev * self.cfg.angular_velocity_stddev,
+            gyro_bias_variance: if correction == Correction::Raw { 0.0 } else { self.bias_stddev().powi(2) },
             passed_through: !correction.runs_model(),
             orientation,
             warming_up,
@@ -515,6 +520,14 @@ mod tests {
             imu.iter().map(|s| p.push(s).unwrap()).last().unwrap().orientation.unwrap().1[(0, 0)].sqrt()
         };
         assert!(measured < without / 5.0, "{measured} {without}");
+        // The rate's stated bias: the uncorrected gyro's before the rest ends, the estimate's
+        // after; none for the gyro as measured (power_on_bias off).
+        let mut p = Pipeline::new(Box::new(PassThrough), cfg.clone());
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert_eq!(out[10].gyro_bias_variance, cfg.uncorrected_bias_stddev.powi(2));
+        assert_eq!(out[1000].gyro_bias_variance, cfg.bias_stddev.powi(2));
+        let mut p = Pipeline::new(Box::new(PassThrough), PipelineConfig { power_on_bias: false, ..cfg.clone() });
+        assert_eq!(imu.iter().map(|s| p.push(s).unwrap()).last().unwrap().gyro_bias_variance, 0.0);
     }
 
     /// No rest at all, a consumer gyro's bias, a body that turns about every axis: the bias

@@ -309,6 +309,10 @@ pub fn fill_denoised(msg: &mut Imu, c: &CorrectedImu) {
     if !(c.passed_through && input_known) {
         msg.angular_velocity_covariance.0 = [c.gyro_variance, 0.0, 0.0, 0.0, c.gyro_variance, 0.0, 0.0, 0.0, c.gyro_variance];
     }
+    // The bias left in the gyro is an error of every sample: on the diagonal, beside the noise.
+    for k in [0, 4, 8] {
+        msg.angular_velocity_covariance.0[k] += c.gyro_bias_variance;
+    }
     msg.linear_acceleration = c.accel.into();
     match &c.orientation {
         Some((q, cov)) => {
@@ -1373,6 +1377,7 @@ mod tests {
             correction: nalgebra::Vector3::zeros(),
             accel: s.accel,
             gyro_variance: 2.5e-5,
+            gyro_bias_variance: 0.0,
             passed_through: true,
             orientation: None,
             warming_up: false,
@@ -1390,6 +1395,9 @@ mod tests {
         assert_eq!(published([0.0; 9], &c), configured);
         assert_eq!(published([-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], &c), configured);
         assert_eq!(published(own, &CorrectedImu { passed_through: false, ..c }), configured);
+        // The power-on bias removed: its estimate's variance on the input's diagonal.
+        let debiased = published(own, &CorrectedImu { gyro_bias_variance: 1e-6, ..c });
+        assert_eq!(debiased, [1e-4 + 1e-6, 2e-6, 0.0, 2e-6, 1e-4 + 1e-6, 0.0, 0.0, 0.0, 3e-4 + 1e-6]);
     }
 
     #[test]
