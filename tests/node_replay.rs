@@ -14,6 +14,11 @@ use imu_fsda::so3::integrate_gyro;
 use tch::nn::VarStore;
 use tch::{Device, Kind, Tensor};
 
+/// How far the node's f32 networks may be from the same weights run in f64: f32's rounding
+/// over ~80 k multiply-adds (measured 3e-9 rad/s), far inside the 1e-5 rad/s bound against
+/// the TorchScript file.
+const F32_ROUNDING_RAD_S: f64 = 1e-7;
+
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_imu-fsda")
 }
@@ -127,7 +132,9 @@ fn replay_equals_offline_full_sequence_evaluation() {
             "{mode:?} {imu:?}: online vs offline TorchScript (f32) max |Δω| = {max_f32:.2e} rad/s; vs f64 weights {max_f64:.2e} rad/s"
         );
         assert!(max_f32 < 1e-5, "{max_f32}");
-        assert!(max_f64 < 1e-9, "{max_f64}");
+        // The networks run in f32 (the f64 reference equals the f64 forward to 1e-16:
+        // model::streaming's tests): within f32's rounding of the f64 weights' output.
+        assert!(max_f64 < F32_ROUNDING_RAD_S, "{max_f64}");
         let max_corr = corrections.iter().zip(&online).zip(&rec.imu).map(|((c, (_, w)), s)| (c - (w - s.gyro)).amax()).fold(0.0, f64::max);
         assert!(max_corr < 1e-12);
 
@@ -636,7 +643,7 @@ fn bench_times_the_samples_it_says() {
     assert!(text.contains("(72 samples)"), "{text}");
     // A streaming step costs microseconds, never the tenths of one that a dropped sample does.
     let per_sample: f64 = text
-        .split("incremental (streaming)")
+        .split("incremental, f32 (node)")
         .nth(1)
         .and_then(|r| r.split('(').nth(1))
         .and_then(|r| r.split(' ').next())
@@ -828,7 +835,7 @@ fn a_faster_imu_runs_the_model_in_its_periods_online_as_offline() {
         }
     }
     eprintln!("1 kHz online vs the 200-Hz offline correction a period before: max |Δ| = {worst:.2e} rad/s");
-    assert!(worst < 1e-9, "{worst}");
+    assert!(worst < F32_ROUNDING_RAD_S, "{worst}");
     // Offline, as `eval --model` runs it: the same, from the start of the recording.
     let run = imu_fsda::model::predict::correct_with_torchscript_at_model_rate(&model, &fast.imu, None).unwrap();
     assert!(run.resampled_from_hz.is_some_and(|r| (r - 1000.0).abs() < 1.0), "{:?}", run.resampled_from_hz);

@@ -67,7 +67,7 @@ pub enum Command {
     Replay(replay::ReplayArgs),
     /// Publish a bag onto DDS at its recorded rate, like `ros2 bag play`.
     Play(play::PlayArgs),
-    /// Measure the node's per-sample cost (incremental vs naive) and memory.
+    /// Measure the node's per-sample cost (the f32 path, its f64 reference, the naive forward) and memory.
     Bench(bench::BenchArgs),
 }
 

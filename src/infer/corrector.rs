@@ -76,7 +76,7 @@ impl GyroCorrector for PassThrough {
     }
 }
 
-/// A trained model in its streaming form (pure Rust, f64, constant cost per sample).
+/// A trained model in its streaming form (pure Rust, f32 networks, constant cost per sample).
 pub struct ModelCorrector {
     pub denoiser: crate::model::StreamingDenoiser,
     pub name: String,

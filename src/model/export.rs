@@ -487,7 +487,7 @@ impl LoadedNet {
     }
 }
 
-/// Loads the streaming form (f64, no tch at run time) from `<name>.json` + `<name>.ot`,
+/// Loads the streaming form (f32 networks, no tch at run time) from `<name>.json` + `<name>.ot`,
 /// with IMU `imu`'s Ĉ_ω ([`LoadedNet::select_imu`]).
 pub fn load_streaming(metadata_path: &Path, imu: Option<&str>) -> Result<(StreamingDenoiser, ModelMetadata), ModelError> {
     let loaded = load_net(metadata_path, Device::Cpu)?;

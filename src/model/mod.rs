@@ -38,7 +38,9 @@ pub mod cnn;
 pub mod digdl;
 pub mod embedding;
 pub mod export;
+pub mod gelu;
 pub mod generator;
+pub mod kernels;
 pub mod loss;
 pub mod net;
 pub mod predict;
@@ -53,7 +55,7 @@ use serde::{Deserialize, Serialize};
 pub use export::{ExportInfo, ExportPaths, LoadedNet, ModelMetadata, TorchScriptModel};
 pub use loss::{LossConfig, LossTerms};
 pub use net::{ForwardOptions, InferenceNet, Net, NetOutput, ParameterCounts};
-pub use streaming::StreamingDenoiser;
+pub use streaming::{Precision, StreamingDenoiser};
 
 /// Number of input channels: gyro x, y, z (rad/s), then accel x, y, z (m/s²).
 pub const INPUT_CHANNELS: i64 = 6;
