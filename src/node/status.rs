@@ -1,0 +1,290 @@
+//! What /diagnostics says: the node's statistics, its liveness (input stale, events) and the
+//! DiagnosticArray built from them.
+
+use super::latency::{LatencyHistogram, SplitLatency};
+use crate::infer::Counters;
+use crate::msg::{DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time};
+
+/// Longest `diagnostics_period`, s.
+pub const MAX_DIAGNOSTICS_PERIOD_S: f64 = 86_400.0;
+
+/// What the diagnostics report (shared between the processing and diagnostics tasks).
+#[derive(Debug, Default)]
+pub struct NodeStats {
+    pub counters: Counters,
+    pub latency: LatencyHistogram,
+    pub frame_changes: u64,
+    pub decode_errors: u64,
+    pub frame_id: String,
+    pub last_stamp_ns: i64,
+    /// When the last input arrived, on the status clock's time line ([`StatusClock`]).
+    pub last_input_ns: Option<i64>,
+    pub warming_up: bool,
+    pub rate_off_nominal: bool,
+    /// The input is fed to the model in the model's periods ([`crate::resample`]).
+    pub resampling: bool,
+    /// Which correction runs on this IMU and why ([`crate::infer::choose`]).
+    pub correction: &'static str,
+    pub correction_reason: &'static str,
+    /// This power-on's gyro bias in force (from the standstills, or before one the bias seen in
+    /// motion), where it comes from, and whether the platform stands now.
+    pub power_on_bias: Option<crate::standstill::BiasEstimate>,
+    pub power_on_bias_from: &'static str,
+    /// What the standstills alone measured: what `~/adapt` removes from a buffer that no
+    /// longer holds one.
+    pub standstill_bias: Option<crate::standstill::BiasEstimate>,
+    pub standstills: crate::standstill::StandstillCounters,
+    pub standing: bool,
+    /// Times `~/retake_power_on_bias` made the node forget the power-on bias.
+    pub power_on_bias_retakes: u64,
+    pub model: String,
+    pub window: usize,
+    pub model_status: String,
+    /// Adaptation (empty when the service is off): idle / running / the last result.
+    pub adapt_status: String,
+    pub adaptations: u64,
+    pub adapt_query_aoe_before_deg: Option<f64>,
+    pub adapt_query_aoe_after_deg: Option<f64>,
+    pub adapt_seconds: Option<f64>,
+    /// Latencies split by adaptation state (recorded only when the service is on).
+    pub split_latency: SplitLatency,
+    /// The node stopped while an adaptation ran on its thread: abandoned, the running model
+    /// unchanged. The process must then end without running libtorch's exit-time destructors
+    /// under that thread (it crashed with SIGSEGV): see `imu-fsda node`.
+    pub adaptation_abandoned: bool,
+}
+
+/// No input for this long after the first, s: the status says the input stopped.
+pub const INPUT_STALE_AFTER_S: f64 = 1.0;
+/// How long a drop, gap, clock jump, missed sample or frame_id change keeps the status at
+/// WARN, s. The counters stay cumulative; the level says what is happening now.
+pub const EVENT_WARN_S: f64 = 10.0;
+
+/// The status over time, on the node's clock or a replayed bag's: the input rate over the
+/// last second or more (0 once the input stops), how long since the last input and since the
+/// last counted event. A dead driver must show, and one restart must not mark the sensor
+/// degraded for the rest of the run.
+#[derive(Debug, Default)]
+pub struct StatusClock {
+    rate_from: Option<(i64, u64)>,
+    rate_hz: f64,
+    events: u64,
+    last_event_ns: Option<i64>,
+}
+
+/// What [`StatusClock::tick`] measured, for [`diagnostics_message`].
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Liveness {
+    pub input_rate_hz: f64,
+    /// Seconds since the last input, once one arrived.
+    pub since_input_s: Option<f64>,
+    /// Seconds since a counted event was first seen, if any was.
+    pub since_event_s: Option<f64>,
+}
+
+/// Events that put the status at WARN while recent.
+fn events(stats: &NodeStats) -> u64 {
+    let c = &stats.counters;
+    c.dropped() + c.gaps + c.clock_jumps + c.missed_samples + c.saturated_samples + stats.frame_changes
+}
+
+impl StatusClock {
+    /// Measure the rate from `now_ns`, when `received` inputs had arrived (the first input of
+    /// a replay, not its first tick). Without it the first tick starts the clock.
+    pub fn start(&mut self, now_ns: i64, received: u64) {
+        self.rate_from.get_or_insert((now_ns, received));
+    }
+
+    /// At a diagnostics tick `now_ns`, on the clock of `stats.last_input_ns`.
+    pub fn tick(&mut self, stats: &NodeStats, now_ns: i64) -> Liveness {
+        let received = stats.counters.received;
+        let (t0, n0) = *self.rate_from.get_or_insert((now_ns, received));
+        if now_ns - t0 >= 1_000_000_000 {
+            self.rate_hz = received.saturating_sub(n0) as f64 / ((now_ns - t0) as f64 * 1e-9);
+            self.rate_from = Some((now_ns, received));
+        }
+        let e = events(stats);
+        if e > self.events {
+            self.events = e;
+            self.last_event_ns = Some(now_ns);
+        }
+        let since = |t: i64| (now_ns - t).max(0) as f64 * 1e-9;
+        Liveness {
+            input_rate_hz: self.rate_hz,
+            since_input_s: stats.last_input_ns.map(since),
+            since_event_s: self.last_event_ns.map(since),
+        }
+    }
+}
+
+/// The counted events, for the status message ("19 inputs dropped, 1 clock jump back followed").
+fn event_list(stats: &NodeStats) -> String {
+    let c = &stats.counters;
+    let mut parts = vec![format!("{} inputs dropped", c.dropped()), format!("{} gaps", c.gaps)];
+    if c.clock_jumps > 0 {
+        parts.push(format!("{} clock jumps back followed", c.clock_jumps));
+    }
+    if c.missed_samples > 0 {
+        parts.push(format!("{} samples missed in holes of the stamps", c.missed_samples));
+    }
+    if stats.frame_changes > 0 {
+        parts.push(format!("{} input frame_id changes (two IMUs on one topic?)", stats.frame_changes));
+    }
+    if c.saturated_samples > 0 {
+        parts.push(format!("{} samples clipped at the sensor's range", c.saturated_samples));
+    }
+    parts.join(", ")
+}
+
+/// Build the /diagnostics message from the stats and what the status clock measured.
+pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, stamp: Time) -> DiagnosticArray {
+    let c = &stats.counters;
+    let recent = live.since_event_s.is_some_and(|s| s < EVENT_WARN_S);
+    // A driver gone silent is the worst news, whatever the model's state.
+    let (level, message) = if let Some(s) = live.since_input_s.filter(|s| *s > INPUT_STALE_AFTER_S && c.received > 0) {
+        let model = if stats.model_status != "ok" { format!("; {}", stats.model_status) } else { String::new() };
+        (DiagnosticStatus::ERROR, format!("no input for {s:.1} s{model}"))
+    } else if stats.model_status != "ok" {
+        (DiagnosticStatus::WARN, stats.model_status.clone())
+    } else if c.received == 0 {
+        (DiagnosticStatus::STALE, "no input yet".to_string())
+    } else if stats.rate_off_nominal && !stats.resampling {
+        (DiagnosticStatus::WARN, "input rate off nominal".to_string())
+    } else if recent {
+        // Before "warming up": a stream whose every sample is a gap warms up for ever.
+        let warming = if stats.warming_up { " (warming up)" } else { "" };
+        (DiagnosticStatus::WARN, format!("running{warming}; {}", event_list(stats)))
+    } else if stats.warming_up {
+        (DiagnosticStatus::OK, "warming up".to_string())
+    } else if live.since_event_s.is_some() {
+        (DiagnosticStatus::OK, format!("running; earlier: {}", event_list(stats)))
+    } else {
+        (DiagnosticStatus::OK, "running".to_string())
+    };
+    let kv = |k: &str, v: String| KeyValue { key: k.into(), value: v };
+    let values = vec![
+        kv("model", stats.model.clone()),
+        kv("window_samples", stats.window.to_string()),
+        kv("input_rate_hz", format!("{:.2}", live.input_rate_hz)),
+        kv("resampled_to_model_rate", stats.resampling.to_string()),
+        kv("correction", stats.correction.to_string()),
+        kv("correction_reason", stats.correction_reason.to_string()),
+        kv(
+            "power_on_bias_rad_s",
+            stats.power_on_bias.map_or(String::new(), |e| format!("{:.6} {:.6} {:.6}", e.bias.x, e.bias.y, e.bias.z)),
+        ),
+        kv("power_on_bias_stddev_rad_s", stats.power_on_bias.map_or(String::new(), |e| format!("{:.2e}", e.variance.max().sqrt()))),
+        kv("power_on_bias_from", stats.power_on_bias_from.to_string()),
+        kv("power_on_bias_standstill_s", stats.power_on_bias.map_or(String::new(), |e| format!("{:.1}", e.still_s))),
+        kv("standing", stats.standing.to_string()),
+        kv("standstill_windows", stats.standstills.still_windows.to_string()),
+        kv("power_on_bias_retakes", stats.power_on_bias_retakes.to_string()),
+        kv("latency_p50_us", format!("{:.0}", stats.latency.quantile_us(0.5))),
+        kv("latency_p99_us", format!("{:.0}", stats.latency.quantile_us(0.99))),
+        kv("received", c.received.to_string()),
+        kv("published", c.processed.to_string()),
+        kv("dropped_non_finite", c.dropped_non_finite.to_string()),
+        kv("dropped_implausible", c.dropped_implausible.to_string()),
+        kv("dropped_duplicate_stamp", c.dropped_duplicate_stamp.to_string()),
+        kv("dropped_backwards_stamp", c.dropped_backwards_stamp.to_string()),
+        kv("decode_errors", stats.decode_errors.to_string()),
+        kv("gaps_reset", c.gaps.to_string()),
+        kv("clock_jumps", c.clock_jumps.to_string()),
+        kv("rate_changes", c.rate_changes.to_string()),
+        kv("frame_id_changes", stats.frame_changes.to_string()),
+        kv("warmup_samples", c.warmup_samples.to_string()),
+        kv("missed_samples", c.missed_samples.to_string()),
+        kv("saturated_samples", c.saturated_samples.to_string()),
+    ];
+    let mut values = values;
+    if !stats.adapt_status.is_empty() {
+        let f = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x:.3}"));
+        values.push(kv("adaptation", stats.adapt_status.clone()));
+        values.push(kv("adaptations", stats.adaptations.to_string()));
+        values.push(kv("adapt_query_aoe_before_deg", f(stats.adapt_query_aoe_before_deg)));
+        values.push(kv("adapt_query_aoe_after_deg", f(stats.adapt_query_aoe_after_deg)));
+        values.push(kv("adapt_seconds", f(stats.adapt_seconds)));
+        for (i, state) in ["idle", "adapting"].iter().enumerate() {
+            let h = &stats.split_latency.in_node[i];
+            values.push(kv(&format!("latency_{state}_p99_us"), format!("{:.0}", h.quantile_us(0.99))));
+            values.push(kv(&format!("latency_{state}_max_us"), format!("{:.0}", h.max_us())));
+        }
+    }
+    DiagnosticArray {
+        header: Header { stamp, frame_id: String::new() },
+        status: vec![DiagnosticStatus {
+            level,
+            name: format!("{node_name}: gyro denoiser"),
+            message,
+            hardware_id: stats.frame_id.clone(),
+            values,
+        }],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The level follows what happens now: a stopped input is an error, an event is a warning
+    /// for [`EVENT_WARN_S`], and the input rate falls to 0 when the input stops.
+    #[test]
+    fn the_status_follows_the_input_over_time() {
+        let s = 1_000_000_000i64;
+        let mut stats = NodeStats { model_status: "ok".into(), ..Default::default() };
+        let mut clock = StatusClock::default();
+        let status = |stats: &NodeStats, clock: &mut StatusClock, now: i64| {
+            let live = clock.tick(stats, now);
+            let d = diagnostics_message(stats, &live, "n", Time::from_ns(now));
+            let rate = d.status[0].values.iter().find(|kv| kv.key == "input_rate_hz").unwrap().value.clone();
+            (d.status[0].level, d.status[0].message.clone(), rate)
+        };
+        assert_eq!(status(&stats, &mut clock, 0).0, DiagnosticStatus::STALE);
+        // 200 Hz for 3 s, one clock jump back followed at 1 s.
+        for t in 1..=3 {
+            stats.counters.received = 200 * t as u64;
+            stats.last_input_ns = Some(t * s);
+            stats.counters.clock_jumps = u64::from(t >= 1);
+            stats.counters.dropped_backwards_stamp = if t >= 1 { 19 } else { 0 };
+            let (level, message, rate) = status(&stats, &mut clock, t * s);
+            assert_eq!(level, DiagnosticStatus::WARN, "{message}");
+            assert!(message.contains("19 inputs dropped") && message.contains("1 clock jumps back followed"), "{message}");
+            if t >= 2 {
+                assert_eq!(rate, "200.00");
+            }
+        }
+        // Still receiving 11 s after the event: OK, the counts kept as earlier events.
+        stats.counters.received = 200 * 12;
+        stats.last_input_ns = Some(12 * s);
+        let (level, message, _) = status(&stats, &mut clock, 12 * s);
+        assert_eq!(level, DiagnosticStatus::OK, "{message}");
+        assert!(message.starts_with("running; earlier: 19 inputs dropped"), "{message}");
+        // The input stops: an error after a second, and the rate falls to 0.
+        let (level, message, _) = status(&stats, &mut clock, 12 * s + s / 2);
+        assert_eq!(level, DiagnosticStatus::OK, "{message}");
+        let (level, message, _) = status(&stats, &mut clock, 15 * s);
+        assert_eq!((level, message.as_str()), (DiagnosticStatus::ERROR, "no input for 3.0 s"));
+        assert_eq!(status(&stats, &mut clock, 17 * s).2, "0.00");
+        // A pass-through node's silent driver is still an error, not its model's warning.
+        stats.model_status = "no model: pass-through".into();
+        let (level, message, _) = status(&stats, &mut StatusClock::default(), 15 * s);
+        assert_eq!((level, message.as_str()), (DiagnosticStatus::ERROR, "no input for 3.0 s; no model: pass-through"));
+        stats.model_status = "ok".into();
+        // An input off the model's rate fed to it in its periods is running, not a warning.
+        let mut fast = NodeStats { model_status: "ok".into(), rate_off_nominal: true, last_input_ns: Some(s), ..Default::default() };
+        fast.counters.received = 1000;
+        let live = StatusClock::default().tick(&fast, s);
+        assert_eq!(diagnostics_message(&fast, &live, "n", Time::from_ns(s)).status[0].level, DiagnosticStatus::WARN);
+        fast.resampling = true;
+        let d = diagnostics_message(&fast, &live, "n", Time::from_ns(s));
+        assert_eq!(d.status[0].level, DiagnosticStatus::OK, "{}", d.status[0].message);
+        assert!(d.status[0].values.iter().any(|kv| kv.key == "resampled_to_model_rate" && kv.value == "true"));
+        // A new event while running warns again, and names a frame_id change.
+        stats.counters.received += 1;
+        stats.last_input_ns = Some(17 * s + 1);
+        stats.frame_changes = 1;
+        let (level, message, _) = status(&stats, &mut clock, 17 * s + 2);
+        assert_eq!(level, DiagnosticStatus::WARN, "{message}");
+        assert!(message.contains("1 input frame_id changes"), "{message}");
+    }
+}
