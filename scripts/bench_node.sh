@@ -40,6 +40,15 @@ for mode in incremental naive; do
     cpu=$(echo "$out" | awk '/^cpu_share/ {printf "%.1f%%", 100*$2}')
     node_lat=$(python3 -c "import json;d=json.load(open('$work/stats.json'));c=d['counters'];print(f\"in-node p50 {d['latency_p50_us']:.0f} µs p99 {d['latency_p99_us']:.0f} µs; received {c['received']}, published {c['processed']}, gaps {c['gaps']}\")")
     printf '%-12s %5d Hz | %s | node CPU %s (includes DDS) | %s\n' "$mode" "$hz" "${lat#latency publish → /imu/denoised: }" "$cpu" "$node_lat"
+    python3 -c "
+import json
+d = json.load(open('$work/stats.json'))
+st = d.get('latency_by_stage', {})
+f = lambda k: f\"{k} p50 {st[k]['p50_us']:.0f} / p99 {st[k]['p99_us']:.0f} µs\" if k in st else ''
+w = d.get('latency_by_adaptation_state', {}).get('idle', {}).get('write_to_publish')
+back = f'; peer write → node publish p50 {w[\"p50_us\"]:.0f} / p99 {w[\"p99_us\"]:.0f} µs' if w and w['count'] else ''
+print('    by stage: ' + ', '.join(f(k) for k in ['dds_receive', 'correct', 'publish_denoised', 'publish_correction']) + back)
+"
   done
 done
 echo

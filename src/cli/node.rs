@@ -148,6 +148,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
                 "latency_max_us": stats.latency.max_us(), "latency_samples": stats.latency.count(), "frame_changes": stats.frame_changes, "decode_errors": stats.decode_errors,
                 "model": stats.model, "adaptation": stats.adapt_status, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
                 "latency_by_adaptation_state": stats.split_latency.summary_json(),
+                "latency_by_stage": stats.stage_latency.summary_json(),
                 "correction": stats.correction, "power_on_bias": stats.power_on_bias, "power_on_bias_from": stats.power_on_bias_from, "power_on_bias_retakes": stats.power_on_bias_retakes,
             })
         )?;

@@ -2,25 +2,30 @@
 
 use std::time::Duration;
 
-/// Latency histogram in fixed 10 µs bins up to 100 ms (no allocation per sample).
+/// Latency histogram in fixed bins, 10 µs up to 100 ms by default (no allocation per sample).
 #[derive(Debug, Clone)]
 pub struct LatencyHistogram {
     bins: Vec<u64>,
+    bin_us: f64,
     count: u64,
     max_us: f64,
 }
 
 impl Default for LatencyHistogram {
     fn default() -> Self {
-        LatencyHistogram { bins: vec![0; 10_001], count: 0, max_us: 0.0 }
+        LatencyHistogram { bins: vec![0; 10_001], bin_us: 10.0, count: 0, max_us: 0.0 }
     }
 }
 
 impl LatencyHistogram {
-    const BIN_US: f64 = 10.0;
+    /// 1 µs bins up to 10 ms: for the stages of a sample's path, which take microseconds.
+    pub fn fine() -> Self {
+        LatencyHistogram { bins: vec![0; 10_001], bin_us: 1.0, count: 0, max_us: 0.0 }
+    }
+
     pub fn record(&mut self, d: Duration) {
         let us = d.as_secs_f64() * 1e6;
-        let i = ((us / Self::BIN_US) as usize).min(self.bins.len() - 1);
+        let i = ((us / self.bin_us) as usize).min(self.bins.len() - 1);
         self.bins[i] += 1;
         self.count += 1;
         self.max_us = self.max_us.max(us);
@@ -35,7 +40,7 @@ impl LatencyHistogram {
         for (i, b) in self.bins.iter().enumerate() {
             seen += b;
             if seen >= target {
-                return ((i + 1) as f64 * Self::BIN_US).min(self.max_us.max(Self::BIN_US));
+                return ((i + 1) as f64 * self.bin_us).min(self.max_us.max(self.bin_us));
             }
         }
         self.max_us
@@ -50,6 +55,41 @@ impl LatencyHistogram {
     /// p50 / p99 / max / count as JSON (the node's `--stats-json`, benchmarks).
     pub fn summary_json(&self) -> serde_json::Value {
         serde_json::json!({"p50_us": self.quantile_us(0.5), "p99_us": self.quantile_us(0.99), "max_us": self.max_us, "count": self.count})
+    }
+}
+
+/// A sample's time in the node taken apart by stage (each a fine histogram): where the
+/// in-node latency goes. DDS receive is the input's DDS source timestamp (the writer's clock,
+/// the same host) to the node taking it from the subscription: the peer's write, delivery on
+/// loopback, RustDDS's receive thread, the CDR decode and the wake of the node's task.
+#[derive(Debug, Clone)]
+pub struct StageLatency {
+    pub dds_receive: LatencyHistogram,
+    /// `Pipeline::push`: checks, power-on bias, the model, the attitude.
+    pub correct: LatencyHistogram,
+    /// `fill_denoised`, CDR encode and the send of `/imu/denoised`.
+    pub publish_denoised: LatencyHistogram,
+    /// The same for `/imu/gyro_correction`.
+    pub publish_correction: LatencyHistogram,
+}
+
+impl Default for StageLatency {
+    fn default() -> Self {
+        StageLatency {
+            dds_receive: LatencyHistogram::fine(),
+            correct: LatencyHistogram::fine(),
+            publish_denoised: LatencyHistogram::fine(),
+            publish_correction: LatencyHistogram::fine(),
+        }
+    }
+}
+
+impl StageLatency {
+    pub fn summary_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "dds_receive": self.dds_receive.summary_json(), "correct": self.correct.summary_json(),
+            "publish_denoised": self.publish_denoised.summary_json(), "publish_correction": self.publish_correction.summary_json(),
+        })
     }
 }
 
@@ -84,5 +124,12 @@ mod tests {
         }
         assert!((h.quantile_us(0.5) - 500.0).abs() <= 10.0, "{}", h.quantile_us(0.5));
         assert!((h.quantile_us(0.99) - 990.0).abs() <= 10.0);
+        let mut fine = LatencyHistogram::fine();
+        for us in 1..=100 {
+            fine.record(Duration::from_nanos(us * 1000 + 300));
+        }
+        assert_eq!((fine.quantile_us(0.5), fine.quantile_us(0.99)), (51.0, 100.0));
+        fine.record(Duration::from_millis(50));
+        assert_eq!(fine.max_us(), 50_000.0);
     }
 }

@@ -12,7 +12,7 @@ mod power_on;
 mod status;
 
 pub use environment::{sensor_data_qos, RosEnvironment};
-pub use latency::{LatencyHistogram, SplitLatency};
+pub use latency::{LatencyHistogram, SplitLatency, StageLatency};
 pub use messages::{ros_type_name, TriggerRequest, TriggerResponse};
 use messages::{topic_name, type_name};
 pub use params::NodeParams;
@@ -373,6 +373,7 @@ async fn process_loop(
             power_on::retake(&mut pipeline, &stats);
         }
         let result = pipeline.push(&sample);
+        let corrected = Instant::now();
         let mut frame_changed = false;
         if last_frame.as_deref() != Some(msg.header.frame_id.as_str()) {
             frame_changed = last_frame.is_some();
@@ -387,15 +388,19 @@ async fn process_loop(
             b.push_imu(SeqSample { seq, sample, reset_before: c.after_gap });
             b.model_fed_periods = pipeline.resampling();
         }
+        let mut publish_times = None;
         if let Ok(c) = &result {
+            let start = Instant::now();
             let correction = Vector3Stamped { header: msg.header.clone(), vector: c.correction.into() };
             fill_denoised(&mut msg, c);
             if let Err(e) = out_pub.async_publish(msg).await {
                 tracing::warn!("publish: {e:?}");
             }
+            let denoised_sent = Instant::now();
             if let Err(e) = corr_pub.async_publish(correction).await {
                 tracing::warn!("publish correction: {e:?}");
             }
+            publish_times = Some((denoised_sent - start, denoised_sent.elapsed()));
             published += 1;
         } else if let Err(why) = result {
             tracing::debug!("input at {} ns dropped: {why:?}", sample.stamp_ns);
@@ -404,12 +409,19 @@ async fn process_loop(
             let mut s = stats.lock().expect("stats lock");
             let in_node = arrived.elapsed();
             s.latency.record(in_node);
+            s.stage_latency.correct.record(corrected - arrived);
+            if let Some((denoised, correction)) = publish_times {
+                s.stage_latency.publish_denoised.record(denoised);
+                s.stage_latency.publish_correction.record(correction);
+            }
+            if let Some(src) = source_ns {
+                s.stage_latency.dds_receive.record(Duration::from_nanos((wall_ns(arrived) - src).max(0) as u64));
+            }
             if let Some(i) = state {
                 s.split_latency.in_node[i].record(in_node);
                 if let Some(src) = source_ns {
-                    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64);
                     // Clamped at 0: the sender's clock is the same host's, but not monotonic.
-                    s.split_latency.write_to_publish[i].record(Duration::from_nanos((now - src).max(0) as u64));
+                    s.split_latency.write_to_publish[i].record(Duration::from_nanos((wall_ns(Instant::now()) - src).max(0) as u64));
                 }
             }
             s.counters = pipeline.counters().clone();
@@ -455,6 +467,13 @@ async fn process_loop(
             return;
         }
     }
+}
+
+/// The wall clock at `at` (an instant just taken), ns since the Unix epoch: what a DDS source
+/// timestamp is compared with.
+fn wall_ns(at: Instant) -> i64 {
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64);
+    now - i64::try_from(at.elapsed().as_nanos()).unwrap_or(0)
 }
 
 /// The node's status clock: monotonic ns since the first reading (the wall clock may step).

@@ -1,7 +1,7 @@
 //! What /diagnostics says: the node's statistics, its liveness (input stale, events) and the
 //! DiagnosticArray built from them.
 
-use super::latency::{LatencyHistogram, SplitLatency};
+use super::latency::{LatencyHistogram, SplitLatency, StageLatency};
 use crate::infer::Counters;
 use crate::msg::{DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time};
 
@@ -48,6 +48,8 @@ pub struct NodeStats {
     pub adapt_seconds: Option<f64>,
     /// Latencies split by adaptation state (recorded only when the service is on).
     pub split_latency: SplitLatency,
+    /// The in-node latency by stage, and DDS receive before it.
+    pub stage_latency: StageLatency,
     /// The node stopped while an adaptation ran on its thread: abandoned, the running model
     /// unchanged. The process must then end without running libtorch's exit-time destructors
     /// under that thread (it crashed with SIGSEGV): see `imu-fsda node`.
