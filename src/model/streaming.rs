@@ -195,11 +195,11 @@ impl StreamingDenoiser {
 
     /// Steps the networks in `precision` from now on (their state carried over).
     pub fn set_precision(&mut self, precision: Precision) {
-        self.networks = match (&self.networks, precision) {
-            (SteppedNetworks::F32(n), Precision::F64) => SteppedNetworks::F64(n.convert()),
-            (SteppedNetworks::F64(n), Precision::F32) => SteppedNetworks::F32(n.convert()),
-            (n, _) => n.clone(),
-        };
+        match (&self.networks, precision) {
+            (SteppedNetworks::F32(n), Precision::F64) => self.networks = SteppedNetworks::F64(n.convert()),
+            (SteppedNetworks::F64(n), Precision::F32) => self.networks = SteppedNetworks::F32(n.convert()),
+            _ => {}
+        }
     }
 
     /// The arithmetic the networks are stepped in.
