@@ -4,7 +4,8 @@
 # cross-axis, g-sensitivity; a new turn-on bias, noise and motion each; a rest at start of
 # varying length, none on one). Scored per power-on: raw, static-bias, the pipeline's
 # power-on bias, the bundled model on this new IMU (alone, and as the node deploys it), and
-# the model adapted on power-on 1 (`adapt --judge` on the others). Writes docs/poweron.json and
+# the model adapted on power-on 1 (`adapt --judge` on the others, and alone as the node's
+# ~/adapt, no other power-on to judge on). Writes docs/poweron.json and
 # the table in docs/poweron.md between its markers.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -42,8 +43,12 @@ for profile in aerial handheld car quadruped; do
     if "$bin" adapt --model "$model" --bag "${bags[0]}" "${judges[@]}" -o "$work/$imu-adapted.pt" --json > "$work/$imu.adapt.json" 2> "$work/$imu.adapt.log"; then
       adapted=(--model "$work/$imu-adapted.pt")
     fi
+    # Adapted on power-on 1 alone (no --judge, as the node's ~/adapt): only what lasts is kept.
+    if "$bin" adapt --model "$model" --bag "${bags[0]}" -o "$work/$imu-alone.pt" --json > "$work/$imu.alone.adapt.json" 2> "$work/$imu.alone.adapt.log"; then
+      adapted+=(--model "$work/$imu-alone.pt")
+    fi
     "$bin" eval "${bags[@]}" --method raw --method static-bias --method power-on-bias --model "$model" "${adapted[@]}" --json "$work/$imu.eval.json" >/dev/null
-    echo "[poweron] $imu: $(tail -1 "$work/$imu.adapt.log")" >&2
+    echo "[poweron] $imu: $(tail -1 "$work/$imu.adapt.log"); without --judge: $(tail -1 "$work/$imu.alone.adapt.log")" >&2
   done
 done
 "$PYTHON" "$here/scripts/poweron_table.py" "$work" "$here/docs/poweron.json" "$here/docs/poweron.md"

@@ -3,7 +3,9 @@
 # one ADIS16448. Each in turn is the support (`adapt` on its first 60 s, the bundled model run
 # as on a new IMU); the other ten are judged (`--judge`). Twice: as recorded, and with a
 # consumer part's lasting scale and cross-axis errors injected into every recording
-# (`imu-fsda inject`, the same terms as scripts/poweron.sh's MPU-9250 unit). Writes
+# (`imu-fsda inject`, the same terms as scripts/poweron.sh's MPU-9250 unit). Each support is
+# also adapted on alone (no `--judge`, as the node's ~/adapt) and what that wrote is run on
+# the others. Writes
 # docs/poweron-euroc.json and the tables in docs/poweron.md between their markers.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -33,6 +35,14 @@ for set in recorded injected; do
     "$bin" adapt --model "$model" --bag "$support" "${judges[@]}" -o "$work/$set/$s-adapted.pt" --json \
       > "$work/$set/$s.adapt.json" 2> "$work/$set/$s.adapt.log" || true
     echo "[poweron-euroc] $set $s: $(tail -1 "$work/$set/$s.adapt.log")" >&2
+    # The user's protocol with no other power-on at hand (as the node's ~/adapt): adapt on
+    # the support alone, then run what was written on the others as deployed.
+    others=(); for b in "${bags[@]}"; do [ "$b" = "$support" ] || others+=("$b"); done
+    if "$bin" adapt --model "$model" --bag "$support" -o "$work/$set/$s-alone.pt" --json \
+      > "$work/$set/$s.alone.adapt.json" 2> "$work/$set/$s.alone.adapt.log"; then
+      "$bin" eval "${others[@]}" --model "$work/$set/$s-alone.pt" --json "$work/$set/$s.alone.eval.json" >/dev/null
+    fi
+    echo "[poweron-euroc] $set $s without --judge: $(tail -1 "$work/$set/$s.alone.adapt.log")" >&2
   done
 done
 "$PYTHON" "$here/scripts/poweron_euroc_table.py" "$work" "$here/docs/poweron-euroc.json" "$here/docs/poweron.md"

@@ -56,6 +56,16 @@ def set_rows(work, name):
         else:
             row['kept'] = None
         row['deployed'] = row.get(row['kept'] if row['kept'] != 'network' else 'networks') if row['kept'] else row['power_on_bias']
+        # Adapted on the support alone (no --judge): what it kept, run on the others as deployed.
+        alone = load_report(os.path.join(work, name, s + '.alone.adapt.json'))
+        row['alone_kept'] = alone.get('kind') if alone and alone.get('accepted') else None
+        row['alone_pieces'] = alone.get('query_calibrated_pieces') if alone else None
+        alone_eval = os.path.join(work, name, s + '.alone.eval.json')
+        if row['alone_kept'] and os.path.exists(alone_eval):
+            model_rows = {r['bag']: r['aoe_deg'] for r in json.load(open(alone_eval))['rows'] if r.get('aoe_deg') is not None}
+            row['alone_deployed'] = mean(model_rows)
+        else:
+            row['alone_deployed'] = row['power_on_bias']
         rows.append(row)
     return rows
 
@@ -70,8 +80,8 @@ def short(why):
 
 def table(rows):
     f = lambda v: '–' if v is None else f'{v:.2f}'
-    out = ['| support (adapted on its first 60 s) | kept | Ĉ_ω diagonal − 1 (%) | carried over: ratio (95 % bound) over the 10 others | static-bias | power-on bias | gyro calibration alone | adapted networks | as deployed after `adapt` |',
-           '|---|---|---|---|---|---|---|---|---|']
+    out = ['| support (adapted on its first 60 s) | kept | Ĉ_ω diagonal − 1 (%) | carried over: ratio (95 % bound) over the 10 others | static-bias | power-on bias | gyro calibration alone | adapted networks | as deployed after `adapt` | without `--judge`: kept (query pieces: ratio, bound) | as deployed after `adapt` without `--judge` |',
+           '|---|---|---|---|---|---|---|---|---|---|---|']
     for r in rows:
         kept = {'calibration': 'gyro calibration', 'network': 'networks'}.get(r['kept'], 'refused')
         if r['kept'] is None:
@@ -81,7 +91,10 @@ def table(rows):
         diag = ' / '.join(f'{d:+.2f}' for d in diag) if diag else ('none: ' + short(r['calibration_refused']) if r.get('calibration_refused') else '–')
         c = r.get('carry_over')
         ratio = f"{c['ratio']:.3f} (≤ {c['upper_95']:.3f})" if c else '–'
-        out.append(f"| {r['support']} | {kept} | {diag} | {ratio} | {f(r['static_bias'])} | {f(r['power_on_bias'])} | {f(r.get('calibration'))} | {f(r.get('networks'))} | {f(r['deployed'])} |")
+        alone = {'calibration': 'gyro calibration', 'network': 'networks'}.get(r.get('alone_kept'), 'refused')
+        p = r.get('alone_pieces')
+        alone += f" ({p['ratio']:.2f}, ≤ {p['upper_95']:.2f})" if p else ''
+        out.append(f"| {r['support']} | {kept} | {diag} | {ratio} | {f(r['static_bias'])} | {f(r['power_on_bias'])} | {f(r.get('calibration'))} | {f(r.get('networks'))} | {f(r['deployed'])} | {alone} | {f(r.get('alone_deployed'))} |")
     return '\n'.join(out)
 
 

@@ -24,15 +24,19 @@ def main():
                 continue
             k = int(r['bag'].rsplit('-', 1)[1])
             m = r['method']
-            m = 'adapted' if m.endswith('-adapted') else m
+            m = 'adapted' if m.endswith('-adapted') else 'alone' if m.endswith('-alone') else m
             by.setdefault(m, {})[k] = r['aoe_deg']
         adapt_log = open(os.path.join(work, imu + '.adapt.log')).read().strip().splitlines()
         verdict = adapt_log[-1] if adapt_log else ''
+        alone_log = os.path.join(work, imu + '.alone.adapt.log')
+        alone_log = open(alone_log).read().strip().splitlines() if os.path.exists(alone_log) else []
+        alone_verdict = alone_log[-1] if alone_log else ''
         others = sorted(k for k in by.get('raw', {}) if k > 1)
         rested = [k for k in others if k in by.get('static-bias', {})]
         unrested = [k for k in others if k not in rested]
         mean = lambda m, ks: statistics.mean(by[m][k] for k in ks) if ks and m in by and all(k in by[m] for k in ks) else None
-        row = {'imu': imu, 'power_ons': len(by.get('raw', {})), 'with_rest': rested, 'without_rest': unrested, 'adapt_verdict': verdict}
+        row = {'imu': imu, 'power_ons': len(by.get('raw', {})), 'with_rest': rested, 'without_rest': unrested, 'adapt_verdict': verdict,
+               'alone_verdict': alone_verdict}
         for name, ks in (('rest', rested), ('no_rest', unrested)):
             row[name] = {
                 'raw': mean('raw', ks),
@@ -41,21 +45,27 @@ def main():
                 'model_alone': mean('fsda-f', ks),
                 'model_deployed': mean('fsda-f as deployed', ks),
                 'adapted': mean('adapted', ks),
+                'alone': mean('alone', ks),
             }
         rows.append(row)
     json.dump(rows, open(out_json, 'w'), indent=1)
     f = lambda v: '–' if v is None else f'{v:.2f}'
-    lines = ['| IMU (profile-grade) | power-ons 2–N with a rest | raw | static-bias | power-on bias | bundled alone | bundled as deployed | adapted on power-on 1 | without a rest: raw / as deployed / adapted |',
-             '|---|---|---|---|---|---|---|---|---|']
+    lines = ['| IMU (profile-grade) | power-ons 2–N with a rest | raw | static-bias | power-on bias | bundled alone | bundled as deployed | adapted on power-on 1 (`--judge`) | adapted on power-on 1 alone (no judge) | without a rest: raw / as deployed / adapted / alone |',
+             '|---|---|---|---|---|---|---|---|---|---|']
     for r in rows:
         a, b = r['rest'], r['no_rest']
-        ad = lambda d: f(d['adapted']) if d['adapted'] is not None else 'refused'
-        lines.append(f"| {r['imu']} | {len(r['with_rest'])} | {f(a['raw'])} | {f(a['static_bias'])} | {f(a['power_on_bias'])} | {f(a['model_alone'])} | {f(a['model_deployed'])} | {ad(a)} | {f(b['raw'])} / {f(b['model_deployed'])} / {ad(b)} |")
+        ad = lambda d, k='adapted': f(d[k]) if d[k] is not None else 'refused'
+        lines.append(f"| {r['imu']} | {len(r['with_rest'])} | {f(a['raw'])} | {f(a['static_bias'])} | {f(a['power_on_bias'])} | {f(a['model_alone'])} | {f(a['model_deployed'])} | {ad(a)} | {ad(a, 'alone')} | {f(b['raw'])} / {f(b['model_deployed'])} / {ad(b)} / {ad(b, 'alone')} |")
     lines.append('')
     lines.append('Adaptation verdicts (`adapt --judge` on power-ons 2–N):')
     lines.append('')
     for r in rows:
         lines.append(f"- {r['imu']}: {r['adapt_verdict'].replace('error: ', '')}")
+    lines.append('')
+    lines.append('Without `--judge` (power-on 1 alone, as the node\'s `~/adapt`):')
+    lines.append('')
+    for r in rows:
+        lines.append(f"- {r['imu']}: {r['alone_verdict'].replace('error: ', '')}")
     table = '\n'.join(lines)
     text = open(out_md).read()
     a, b = '<!-- poweron:begin -->', '<!-- poweron:end -->'

@@ -45,20 +45,19 @@ fn inject(bag: &Path, dir: &Path) -> PathBuf {
     out
 }
 
-/// `adapt --json` on `support`, judged on `other`: the report (written also when rejected).
-fn adapt(support: &Path, other: &Path, out: &Path) -> (serde_json::Value, String) {
-    let model = manifest_dir().join("models/fsda-f.pt");
-    let o = output(
-        Command::new(bin())
-            .args(["adapt", "--json", "--model"])
-            .arg(model)
-            .arg("--bag")
-            .arg(support)
-            .arg("--judge")
-            .arg(other)
-            .arg("-o")
-            .arg(out),
-    );
+fn bundled_model() -> PathBuf {
+    manifest_dir().join("models/fsda-f.pt")
+}
+
+/// `adapt --json` on `support`, judged on `other` (none: as the node's `~/adapt`, on the
+/// query alone): the report (written also when rejected).
+fn adapt(support: &Path, other: Option<&Path>, out: &Path) -> (serde_json::Value, String) {
+    let mut cmd = Command::new(bin());
+    cmd.args(["adapt", "--json", "--model"]).arg(bundled_model()).arg("--bag").arg(support).arg("-o").arg(out);
+    if let Some(other) = other {
+        cmd.arg("--judge").arg(other);
+    }
+    let o = output(&mut cmd);
     let err = String::from_utf8_lossy(&o.stderr).into_owned();
     (serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("no report ({e}):\n{err}")), err)
 }
@@ -76,7 +75,7 @@ fn a_gyro_calibration_learned_on_one_real_power_on_carries_to_another() {
     let (v101, v103) = (import(&data, "V1_01_easy", d), import(&data, "V1_03_difficult", d));
     let (i101, i103) = (inject(&v101, d), inject(&v103, d));
     let out = d.join("injected.pt");
-    let (injected, err) = adapt(&i101, &i103, &out);
+    let (injected, err) = adapt(&i101, Some(&i103), &out);
 
     // Every diagonal entry is determined on V1_01 and reads the injected scale (the inverse
     // of I + E, E = diag(scale) + misalignment) to within the unit's own few tenths of a per
@@ -107,4 +106,46 @@ fn a_gyro_calibration_learned_on_one_real_power_on_carries_to_another() {
     let calibration = if injected["kind"] == "calibration" { kept } else { other };
     let pob = injected["judged"][0]["power_on_bias"]["aoe_deg"].as_f64().unwrap();
     assert!(calibration < 0.7 * pob, "V1_03: the calibration alone {calibration}° against the power-on bias {pob}°\n{err}");
+}
+
+/// `eval --json` of `model` as deployed (`--model`) and of the power-on bias on `bag`: AOE °.
+fn deployed_and_power_on_bias(model: &Path, bag: &Path, dir: &Path) -> (f64, f64) {
+    let json = dir.join("eval.json");
+    ok(Command::new(bin()).arg("eval").arg(bag).args(["--method", "power-on-bias", "--model"]).arg(model).arg("--json").arg(&json));
+    let rows: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let rows = rows["rows"].as_array().unwrap_or_else(|| panic!("no rows in {rows}"));
+    let aoe = |pick: &dyn Fn(&serde_json::Value) -> bool| {
+        rows.iter().find(|r| pick(r)).and_then(|r| r["aoe_deg"].as_f64()).unwrap_or_else(|| panic!("row not found in {rows:?}"))
+    };
+    (aoe(&|r| r["method"] != "power-on-bias"), aoe(&|r| r["method"] == "power-on-bias"))
+}
+
+/// The user's protocol with nothing to judge on but the support's own power-on (`adapt`
+/// without `--judge`, as the node's `~/adapt`): the adapted networks are never what is kept,
+/// as recorded nothing is kept unless its gain held piece by piece, and with the injected
+/// errors the calibration is kept and carries to the other power-on.
+#[test]
+fn without_another_power_on_only_what_lasts_is_kept() {
+    let Some(data) = shared_data() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let (v101, v103) = (import(&data, "V1_01_easy", d), import(&data, "V1_03_difficult", d));
+    let (i101, i103) = (inject(&v101, d), inject(&v103, d));
+
+    let out = d.join("recorded.pt");
+    let (recorded, err) = adapt(&v101, None, &out);
+    assert_ne!(recorded["kind"], "network", "{err}");
+    if recorded["kind"] == "calibration" {
+        assert!(recorded["query_calibrated_pieces"]["upper_95"].as_f64().unwrap() < 1.0, "{recorded}");
+    }
+    assert_eq!(out.exists(), !recorded["kind"].is_null(), "{err}");
+
+    let out = d.join("injected.pt");
+    let (injected, err) = adapt(&i101, None, &out);
+    assert_eq!(injected["kind"], "calibration", "{err}");
+    let pieces = &injected["query_calibrated_pieces"];
+    assert!(pieces["pieces"].as_u64().unwrap() >= 2 && pieces["upper_95"].as_f64().unwrap() < 1.0, "{pieces}");
+    let (adapted, pob) = deployed_and_power_on_bias(&out, &i103, d);
+    eprintln!("V1_03 with the injected errors: adapted on V1_01 without a judge {adapted:.3}°, power-on bias {pob:.3}°");
+    assert!(adapted < 0.7 * pob, "V1_03: adapted on V1_01 {adapted}° against the power-on bias {pob}°\n{err}");
 }

@@ -107,7 +107,8 @@ impl CarryOver {
         CarryOver { with_standstill_only, ..Self::of_log_ratios(&logs) }
     }
 
-    fn of_log_ratios(logs: &[f64]) -> Self {
+    /// The geometric mean of `exp(logs)` and its one-sided 95 % upper bound.
+    pub(crate) fn of_log_ratios(logs: &[f64]) -> Self {
         let n = logs.len();
         let mean = logs.iter().sum::<f64>() / n as f64;
         let upper = if n >= 2 {

@@ -6,12 +6,15 @@
 //! open-loop orientation error (AOE, [`crate::eval::evaluate`]) on a held-back query
 //! recording is lower than the starting model's; otherwise it is rejected with the figures.
 //!
-//! Files: [`frame`] (is the ground truth in the IMU's frame?), [`swap`] (the node's
-//! between-two-samples model swap). See docs/adaptation.md.
+//! Files: [`frame`] (is the ground truth in the IMU's frame?), [`calibration`] (Ĉ_ω in closed
+//! form), [`judge`] (other power-ons), [`pieces`] and [`keep`] (what is kept without them),
+//! [`swap`] (the node's between-two-samples model swap). See docs/adaptation.md.
 
 pub mod calibration;
 pub mod frame;
 pub mod judge;
+pub mod keep;
+pub mod pieces;
 pub mod swap;
 
 use std::collections::BTreeMap;
@@ -34,6 +37,8 @@ use crate::train::fit::{embedding_and_extra_grads, embedding_inner_step, evaluat
 
 pub use frame::{check_frame, FrameCheck};
 pub use judge::{judge, judge_each, CarryOver, Judged};
+pub use keep::keep_without_judge;
+pub use pieces::PieceConfidence;
 
 /// What to do when the ground truth's body frame differs from the IMU's by a constant rotation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
@@ -114,9 +119,9 @@ pub struct AdaptConfig {
 #[serde(rename_all = "snake_case")]
 pub enum Keep {
     /// Either: with other power-ons to judge on (`adapt --judge`), the one that carries over
-    /// better; without, the gyro calibration where it passes the query (measured to carry
-    /// over on 7 of 8 simulated units where the networks' query gain did not: docs/poweron.md),
-    /// else the networks.
+    /// better; without, the gyro calibration where its query gain holds piece by piece, and
+    /// never the networks (their query gain did not carry over to another power-on in any
+    /// measured case: docs/poweron.md; [`keep_without_judge`]).
     #[default]
     Auto,
     /// The adapted networks only (the inner loop on θ_e and the calibration head).
@@ -291,6 +296,10 @@ pub struct AdaptReport {
     /// Query AOE of that calibration alone, the networks' correction off.
     #[serde(default)]
     pub query_calibrated: Option<OrientationErrors>,
+    /// The same piece by piece against the gyro minus its power-on bias: without `--judge`,
+    /// the calibration is kept only where its gain holds ([`pieces`]).
+    #[serde(default)]
+    pub query_calibrated_pieces: Option<PieceConfidence>,
     /// Why no calibration was fitted (too few increments, a departure no gyro has, nothing
     /// the support determines).
     #[serde(default)]
@@ -354,6 +363,7 @@ struct Calibrated {
     fit: calibration::GyroCalibrationFit,
     net: LoadedNet,
     query: OrientationErrors,
+    pieces: Option<PieceConfidence>,
 }
 
 fn calibration_candidate(
@@ -389,7 +399,11 @@ fn calibration_candidate(
             Ok(())
         })?;
     }
-    let query = evaluate_net(&net, query, eopts)?;
+    let gyro = crate::train::fit::corrected_gyro(&net, query)?;
+    let without: Vec<_> = query.rec.imu.iter().map(|s| s.gyro).collect();
+    let pieces = pieces::piece_confidence(&query.rec, &gyro, &without, eopts);
+    let query_task = query;
+    let query = crate::eval::evaluate(&query_task.rec, &gyro, eopts)?;
     tracing::info!(
         "gyro calibration on {} increments: Ĉ_ω {:?}, residual {:.3} → {:.3} °/s; query AOE {:.3}°",
         fit.increments,
@@ -399,7 +413,7 @@ fn calibration_candidate(
         query.aoe_deg
     );
     let metadata = ModelMetadata { imu_correction_gains: BTreeMap::new(), power_on_bias_removed: true, ..loaded.metadata.clone() };
-    Ok(Ok(Calibrated { fit, net: LoadedNet::new(vs, net, metadata), query }))
+    Ok(Ok(Calibrated { fit, net: LoadedNet::new(vs, net, metadata), query, pieces }))
 }
 
 fn dataset_cfg(cfg: &AdaptConfig) -> DatasetConfig {
@@ -660,6 +674,7 @@ pub fn adapt_knowing(
         carry_over: None,
         calibration: calibrated.as_ref().map(|c| c.fit.clone()),
         query_calibrated: calibrated.as_ref().map(|c| c.query.clone()),
+        query_calibrated_pieces: calibrated.as_ref().and_then(|c| c.pieces),
         calibration_refused,
         kind: None,
         config: cfg.clone(),
@@ -672,7 +687,8 @@ pub fn adapt_knowing(
     });
     let calibration = calibrated.filter(|_| calibration_passes).map(|c| (AdaptedKind::Calibration, c.net));
     // Both passed: the calibration first (the query is this power-on's, where the networks'
-    // gain has not carried over); `adapt --judge` keeps whichever carries over better.
+    // gain has not carried over); `adapt --judge` keeps whichever carries over better,
+    // [`keep_without_judge`] what lasts.
     let (adapted, runner_up) = match (calibration, network) {
         (Some(c), Some(n)) => (Some(c), Some(n)),
         (c, n) => (c.or(n), None),

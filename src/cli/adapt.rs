@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use imu_fsda::adapt::{adapt, save_adapted, split_recording, AdaptConfig, CarryOver, FramePolicy};
+use imu_fsda::adapt::{adapt, keep_without_judge, save_adapted, split_recording, AdaptConfig, CarryOver, FramePolicy};
 use imu_fsda::bag::{read_recording, RecordingTopics, GROUND_TRUTH_TOPIC, IMU_TOPIC};
 use imu_fsda::model::export::{load_metadata, load_net};
 use imu_fsda::model::predict::metadata_path;
@@ -66,8 +66,9 @@ pub struct AdaptArgs {
     #[arg(long)]
     pub keep_power_on_bias: bool,
     /// Which candidate may be kept: `auto` (with --judge the one that carries over better to
-    /// the other power-ons, without it the gyro calibration where it passes the query),
-    /// `networks` (the inner loop only), `gyro-calibration` (Ĉ_ω alone, the networks off).
+    /// the other power-ons; without it the gyro calibration where its query gain holds piece
+    /// by piece, never the networks), `networks` (the inner loop only, kept on the query's
+    /// evidence), `gyro-calibration` (Ĉ_ω alone, the networks off).
     #[arg(long, value_enum)]
     pub keep: Option<imu_fsda::adapt::Keep>,
     /// Adaptation settings as YAML (AdaptConfig); flags override it.
@@ -225,7 +226,11 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     if super::interrupts::requested() {
         return Err(super::interrupts::Interrupted("nothing written".into()).into());
     }
-    judge_on_other_recordings(&args, &topics, &loaded, &mut outcome, &cfg)?;
+    if args.judges.is_empty() {
+        outcome = keep_without_judge(outcome, &cfg);
+    } else {
+        judge_on_other_recordings(&args, &topics, &loaded, &mut outcome, &cfg)?;
+    }
     let r = &outcome.report;
     if args.json {
         out!("{}", serde_json::to_string_pretty(r)?)?;
@@ -281,12 +286,16 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     if let (Some(c), Some(q)) = (&r.calibration, &r.query_calibrated) {
         let d = |k: usize| (c.matrix[k][k] - 1.0) * 100.0;
         eprintln!(
-            "gyro calibration alone (Ĉ_ω on {} increments, diagonal {:+.2} / {:+.2} / {:+.2} %, the networks off): query AOE {:.3}°",
+            "gyro calibration alone (Ĉ_ω on {} increments, diagonal {:+.2} / {:+.2} / {:+.2} %, the networks off): query AOE {:.3}°{}",
             c.increments,
             d(0),
             d(1),
             d(2),
-            q.aoe_deg
+            q.aoe_deg,
+            r.query_calibrated_pieces.map_or(String::new(), |p| format!(
+                "; piece by piece against the power-on bias {:.3} over {} pieces of {:.0} s (95 % upper bound {:.3})",
+                p.ratio, p.pieces, p.piece_seconds, p.upper_95
+            ))
         );
     }
     if let Some(why) = &r.calibration_refused {

@@ -747,6 +747,8 @@ impl Job {
             self.support_seconds
         );
         let outcome = crate::adapt::adapt_knowing(&loaded, &support, &query, &self.cfg, self.known_power_on_bias.as_ref())?;
+        // No other power-on to judge on here: what lasts is kept (docs/adaptation.md, step 7).
+        let outcome = crate::adapt::keep_without_judge(outcome, &self.cfg);
         let r = outcome.report;
         let figures = format!(
             "query AOE {:.3}° → {:.3}° (raw gyro {:.3}°), support {:.1} s, query {:.1} s, {} steps in {:.1} s",

@@ -195,7 +195,8 @@ pub fn evaluate_net_with_gain(net: &Net, task: &Task, opts: &EvalOptions, gain: 
     Ok(evaluate(&task.rec, &with_correction_gain(&task.rec.imu, gyro, gain), opts)?)
 }
 
-fn corrected_gyro(net: &Net, task: &Task) -> anyhow::Result<Vec<nalgebra::Vector3<f64>>> {
+/// The model's corrected gyro over `task` (its IMU's Ĉ_ω row where it names one).
+pub fn corrected_gyro(net: &Net, task: &Task) -> anyhow::Result<Vec<nalgebra::Vector3<f64>>> {
     let inf = match task.calibration_row {
         Some(row) => net.inference_for_row(row),
         None => net.inference(),

@@ -1,0 +1,65 @@
+//! Which adaptation candidate is kept where no other power-on judges them (`adapt` without
+//! `--judge`, the node's `~/adapt`). With `--judge`, `imu-fsda adapt` keeps the one that
+//! carries over better ([`super::judge`]).
+
+use super::{AdaptConfig, AdaptOutcome, AdaptedKind, Keep};
+use crate::model::export::LoadedNet;
+
+/// What is kept where no other power-on judges the candidates (`adapt` without `--judge`, the
+/// node's `~/adapt`): the query is this power-on's, so it is evidence only for what lasts.
+/// The gyro calibration where its gain holds piece by piece ([`super::pieces`]); the adapted
+/// networks only where the user asked for them (`keep: networks`) or for this power-on alone
+/// (`power_on_bias: false`): their query gain did not carry over to another power-on in
+/// any measured case (docs/poweron.md). A candidate asked for by `keep` is kept on the
+/// query's evidence alone. Otherwise nothing, with the reason.
+pub fn keep_without_judge(mut outcome: AdaptOutcome, cfg: &AdaptConfig) -> AdaptOutcome {
+    let mut candidates: Vec<(AdaptedKind, LoadedNet)> = Vec::new();
+    if let (Some(kind), Some(model)) = (outcome.report.kind, outcome.adapted.take()) {
+        candidates.push((kind, model));
+    }
+    candidates.extend(outcome.runner_up.take());
+    let r = &mut outcome.report;
+    let networks_asked = cfg.keep == Keep::Networks || !cfg.power_on_bias;
+    let mut why_not = Vec::new();
+    let mut kept = Vec::new();
+    for (kind, model) in candidates {
+        let reason = match kind {
+            AdaptedKind::Calibration if cfg.keep == Keep::GyroCalibration => None,
+            AdaptedKind::Calibration => match r.query_calibrated_pieces {
+                Some(p) if p.holds() => None,
+                Some(p) => Some(format!(
+                    "the gyro calibration's query gain does not hold piece by piece (AOE ratio {:.3} over {} pieces of {:.0} s, 95 % upper bound {:.3}, not below 1)",
+                    p.ratio, p.pieces, p.piece_seconds, p.upper_95
+                )),
+                None => Some("the gyro calibration could not be judged piece by piece on the query".to_string()),
+            },
+            AdaptedKind::Network if networks_asked => None,
+            AdaptedKind::Network => Some(format!(
+                "the adapted networks' query gain ({:.3}° against {:.3}° {}) is this power-on's: it has not carried over to another power-on in the measured cases, so they are kept only when judged on one (--judge OTHER.mcap) or asked for (keep: networks)",
+                r.query_after.aoe_deg,
+                r.query_power_on_bias.as_ref().map_or(r.query_before.aoe_deg, |e| e.aoe_deg),
+                if r.query_power_on_bias.is_some() { "for the gyro minus its power-on bias" } else { "for the starting model" }
+            )),
+        };
+        match reason {
+            None => kept.push((kind, model)),
+            Some(why) => why_not.push(why),
+        }
+    }
+    let mut kept = kept.into_iter();
+    match kept.next() {
+        Some((kind, model)) => {
+            r.kind = Some(kind);
+            outcome.adapted = Some(model);
+            outcome.runner_up = kept.next();
+        }
+        None => {
+            if r.accepted {
+                r.verdict = format!("rejected without other power-ons to judge on: {}; the previous model is kept", why_not.join("; "));
+            }
+            r.accepted = false;
+            r.kind = None;
+        }
+    }
+    outcome
+}
