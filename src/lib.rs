@@ -5,6 +5,7 @@
 
 pub mod adapt;
 pub mod bag;
+pub mod bias_memory;
 pub mod core;
 pub mod dataset;
 pub mod diagnose;

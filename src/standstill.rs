@@ -69,6 +69,13 @@ pub struct StandstillConfig {
     pub in_motion: InMotion,
     /// That filter's noise model.
     pub motion: MotionBiasConfig,
+    /// The least spread assumed between power-ons' biases when earlier ones predict this one
+    /// ([`crate::bias_memory`]), rad/s: two that agree closer by chance are not taken as closer.
+    pub min_power_on_spread: f64,
+    /// What earlier power-ons of this IMU predict for this one's bias (not a parameter: set
+    /// from the bias memory file, `power_on_bias_memory`); used before the first standstill.
+    #[serde(skip)]
+    pub remembered: Option<BiasPrediction>,
 }
 
 impl Default for StandstillConfig {
@@ -91,6 +98,10 @@ impl Default for StandstillConfig {
             max_sample_gap_s: 0.1,
             in_motion: InMotion::UntilStandstill,
             motion: MotionBiasConfig::default(),
+            // Of the order of an industrial MEMS part's turn-on repeatability (EuRoC's
+            // ADIS16448: 1.5–2.6 mrad/s across its recordings).
+            min_power_on_spread: 0.002,
+            remembered: None,
         }
     }
 }
@@ -107,6 +118,7 @@ impl StandstillConfig {
             ("max_tilt_change", self.max_tilt_change),
             ("max_bias_change", self.max_bias_change),
             ("max_sample_gap_s", self.max_sample_gap_s),
+            ("min_power_on_spread", self.min_power_on_spread),
         ] {
             if !(value.is_finite() && value > 0.0) {
                 return Err(format!("standstill.{key} must be finite and > 0, not {value}"));
@@ -145,6 +157,50 @@ impl BiasEstimate {
     /// The largest per-axis standard deviation at `t_ns`, rad/s.
     pub fn stddev_at(&self, t_ns: i64, random_walk: f64) -> f64 {
         self.variance_at(t_ns, random_walk).max().sqrt()
+    }
+}
+
+/// What earlier power-ons of the IMU predict for this one's bias, per axis
+/// ([`crate::bias_memory`] makes it).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct BiasPrediction {
+    /// The remembered mean on the axes it is removed from, 0 elsewhere, rad/s.
+    pub bias: Vector3<f64>,
+    /// The variance of this power-on's bias about [`Self::bias`], (rad/s)²: the prediction
+    /// interval's on an axis removed, the mean's square plus it elsewhere.
+    pub variance: Vector3<f64>,
+    /// The axes whose remembered mean is removed.
+    pub applied: [bool; 3],
+    /// Earlier power-ons it rests on.
+    pub power_ons: usize,
+}
+
+impl BiasPrediction {
+    pub fn applies_any(&self) -> bool {
+        self.applied.iter().any(|&a| a)
+    }
+
+    /// What it predicts, in words (the log, /diagnostics `power_on_bias_memory`).
+    pub fn describe(&self) -> String {
+        if !self.applies_any() {
+            return format!(
+                "{} earlier power-ons do not predict this one's bias (it changes more between them than it is large)",
+                self.power_ons
+            );
+        }
+        let axes: Vec<String> =
+            (0..3).filter(|&k| self.applied[k]).map(|k| format!("{} {:.5}", ["x", "y", "z"][k], self.bias[k])).collect();
+        format!(
+            "{} earlier power-ons predict {} rad/s (σ {:.1e}): removed until the first standstill",
+            self.power_ons,
+            axes.join(", "),
+            (0..3).filter(|&k| self.applied[k]).map(|k| self.variance[k]).fold(0.0, f64::max).sqrt()
+        )
+    }
+
+    /// As a bias estimate in force at `now_ns` (no standstill of this power-on behind it).
+    pub fn as_estimate(&self, now_ns: i64) -> BiasEstimate {
+        BiasEstimate { bias: self.bias, variance: self.variance, at_ns: now_ns, still_s: 0.0 }
     }
 }
 
@@ -307,6 +363,11 @@ impl PowerOnBias {
             at_ns: now_ns,
             still_s: self.estimate.map_or(0.0, |e| e.still_s),
         };
+        // Before the first standstill, what earlier power-ons predict comes first: it covers
+        // the axis about gravity, which motion reveals only as the body turns.
+        if let Some(r) = self.cfg.remembered.filter(|r| self.estimate.is_none() && r.applies_any()) {
+            return Some(r.as_estimate(now_ns));
+        }
         match (self.cfg.in_motion, self.motion.as_ref()) {
             (InMotion::Always | InMotion::UntilStandstill, Some(m)) if self.estimate.is_none() => m.applies_any().then(|| from_motion(m)),
             (InMotion::Always, Some(m)) if !m.misfit() => Some(from_motion(m)),
@@ -314,8 +375,12 @@ impl PowerOnBias {
         }
     }
 
-    /// Where [`Self::in_force`] comes from: `standstill`, `motion`, or "" (nothing yet).
+    /// Where [`Self::in_force`] comes from: `standstill`, `memory` (earlier power-ons),
+    /// `motion`, or "" (nothing yet).
     pub fn source(&self) -> &'static str {
+        if self.estimate.is_none() && self.cfg.remembered.is_some_and(|r| r.applies_any()) {
+            return "memory";
+        }
         let applies = self.motion.as_ref().is_some_and(MotionBias::applies_any);
         let fits = self.motion.as_ref().is_some_and(|m| !m.misfit());
         match (self.cfg.in_motion, applies, self.estimate.is_some()) {
@@ -573,6 +638,8 @@ pub struct BiasTrack {
     pub counters: StandstillCounters,
     /// A standstill was in progress at the end.
     pub standing_at_end: bool,
+    /// What earlier power-ons predicted (removed before the first standstill where it applies).
+    pub remembered: Option<BiasPrediction>,
 }
 
 impl BiasTrack {
@@ -595,6 +662,7 @@ impl BiasTrack {
         track.source = p.source();
         track.counters = *p.counters();
         track.standing_at_end = p.standing();
+        track.remembered = cfg.remembered;
         track
     }
 
@@ -647,7 +715,7 @@ impl BiasTrack {
                 self.counters.moving_windows, self.counters.turning_windows, self.counters.tilting_windows
             ),
         };
-        match &self.in_force_at_end {
+        let note = match &self.in_force_at_end {
             Some(e) => format!(
                 "power-on bias [{:.5}, {:.5}, {:.5}] rad/s at the end, σ {:.1e} (from {}), {standstills}",
                 e.bias.x,
@@ -657,6 +725,14 @@ impl BiasTrack {
                 self.source
             ),
             None => format!("{standstills}: the turn-on bias is uncorrected"),
+        };
+        match self.remembered {
+            Some(r) if r.applies_any() => format!(
+                "{note}; before the first standstill [{:.5}, {:.5}, {:.5}] rad/s from {} earlier power-ons",
+                r.bias.x, r.bias.y, r.bias.z, r.power_ons
+            ),
+            Some(r) => format!("{note}; {} earlier power-ons do not predict this one's bias", r.power_ons),
+            None => note,
         }
     }
 }
@@ -883,5 +959,47 @@ mod tests {
             let z = (e.bias - bias).component_div(&e.variance.map(f64::sqrt));
             prop_assert!(z.amax() < 5.0, "z {z}, σ {}", e.variance.map(f64::sqrt));
         }
+    }
+
+    #[test]
+    fn earlier_power_ons_hold_until_the_first_standstill() {
+        let bias = Vector3::new(0.002, -0.03, 0.08);
+        let remembered = BiasPrediction {
+            bias: Vector3::new(0.0, -0.031, 0.079),
+            variance: Vector3::new(0.08f64.powi(2), 4e-6, 4e-6),
+            applied: [false, true, true],
+            power_ons: 5,
+        };
+        let cfg = StandstillConfig { remembered: Some(remembered), ..StandstillConfig::default() };
+        // Moving for 5 s (a turn about x faster than any bias), then standing.
+        let turning = stream(5.0, bias, 0.002, |t| Vector3::new(0.6 * (t * 2.0).sin(), 0.0, 0.0), level);
+        let mut p = PowerOnBias::new(cfg);
+        for s in &turning {
+            p.push(s);
+        }
+        assert_eq!(p.source(), "memory");
+        let e = p.in_force(turning.last().unwrap().stamp_ns).unwrap();
+        assert_eq!(e.bias, remembered.bias);
+        assert_eq!(e.variance, remembered.variance, "the prediction's own variance, x's the unremoved mean's");
+        let still = stream(3.0, bias, 0.002, |_| Vector3::zeros(), level);
+        let last = turning.last().unwrap().stamp_ns;
+        for s in &still {
+            p.push(&ImuSample { stamp_ns: last + s.stamp_ns, ..*s });
+        }
+        assert_eq!(p.source(), "standstill");
+        assert!((p.bias() - bias).amax() < 2e-3, "{:?}", p.bias());
+        // A prediction that applies to no axis is not in force.
+        let none = BiasPrediction { applied: [false; 3], bias: Vector3::zeros(), ..remembered };
+        let p = run_with(&turning, StandstillConfig { remembered: Some(none), ..StandstillConfig::default() });
+        assert_eq!(p.source(), "");
+        assert!(p.in_force(0).is_none());
+    }
+
+    fn run_with(imu: &[ImuSample], cfg: StandstillConfig) -> PowerOnBias {
+        let mut p = PowerOnBias::new(cfg);
+        for s in imu {
+            p.push(s);
+        }
+        p
     }
 }

@@ -27,6 +27,7 @@ mod common;
 
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
+use std::process::Command;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -455,4 +456,78 @@ fn power_on_bias_is_retaken_on_demand_over_dds() {
     assert!(value(values[r], "power_on_bias_rad_s").is_empty(), "after the re-take: {:?}", value(values[r], "power_on_bias_rad_s"));
     assert_eq!(value(values[r], "correction"), "power-on bias");
     assert_eq!(o.node_stats["correction"], "power-on bias", "the bundled model on a new IMU: the power-on bias runs");
+}
+
+/// `power_on_bias_memory` over DDS: the node reads what three earlier power-ons of EuRoC's
+/// ADIS16448 predict (said on /diagnostics), and adds this power-on's standstill estimate to
+/// the file (a relative path, taken against the parameter file's folder).
+#[test]
+fn a_power_on_bias_is_remembered_for_the_next_power_on_over_dds() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Ok(pre) = prerequisites().map_err(|why| skip_or_fail(&why)) else { return };
+    let Ok(seq) = common::euroc_sequence("V1_03_difficult", &[]).map_err(|why| skip_or_fail(&why)) else { return };
+    let Some(data) = common::shared_data() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut earlier = Vec::new();
+    for s in ["V1_01_easy", "V1_02_medium", "V2_01_easy"] {
+        let bag = d.join(format!("{s}.mcap"));
+        let o = Command::new(common::bin()).arg("import").arg(data.join("euroc").join(s)).arg("-o").arg(&bag).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        earlier.push(bag);
+    }
+    let memory = d.join("config/memory/bias.json");
+    let o = Command::new(common::bin()).arg("bias-memory").args(&earlier).arg("-o").arg(&memory).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let params = d.join("config/params.yaml");
+    std::fs::write(&params, format!("{NODE_NAME}:\n  ros__parameters:\n    power_on_bias_memory: memory/bias.json\n")).unwrap();
+    let (imu_csv, gt_csv) = (seq.join("imu0/data.csv"), seq.join("state_groundtruth_estimate0/data.csv"));
+    let model = manifest_dir().join("models/fsda-f.pt");
+    let o = run(
+        &pre,
+        d,
+        "memory",
+        &["--params", params.to_str().unwrap(), "--model", model.to_str().unwrap()],
+        "adapt_peer.py",
+        &[
+            "--csv",
+            imu_csv.to_str().unwrap(),
+            "--gt-csv",
+            gt_csv.to_str().unwrap(),
+            "--gt-from-s",
+            "1000",
+            "--count",
+            "6000",
+            "--rate-fast",
+            "400",
+        ],
+        RESTART_RUN_TIMEOUT,
+    );
+    let (p, logs) = (&o.peer, &o.logs);
+    assert_eq!(p["matched"], true, "the peer never matched the node: {}\n{logs}", p["match_status"]);
+    assert_eq!(o.rc, vec![0, 0], "peer / node exit codes\n{logs}");
+    let values: Vec<&serde_json::Map<String, Value>> = p["diagnostics"].as_array().unwrap().iter().filter_map(diag_values).collect();
+    let first = values.first().unwrap_or_else(|| panic!("no /diagnostics\n{logs}"));
+    let said = value(first, "power_on_bias_memory");
+    assert!(said.starts_with("3 earlier power-ons predict") && said.contains("z 0.0"), "{said}");
+    let file: Value = serde_json::from_str(&std::fs::read_to_string(&memory).unwrap()).unwrap();
+    let power_ons = file["power_ons"].as_array().unwrap();
+    assert_eq!(power_ons.len(), 4, "{file}\n{logs}");
+    let this = &power_ons[3];
+    assert!(this["power_on"].as_str().unwrap().starts_with("node started"), "{this}");
+    // What the node saved is what it measured and said.
+    let said_bias: Vec<f64> = values
+        .iter()
+        .rev()
+        .map(|v| value(v, "power_on_bias_rad_s"))
+        .find(|b| !b.is_empty())
+        .unwrap_or_else(|| panic!("no power-on bias on /diagnostics\n{logs}"))
+        .split_whitespace()
+        .map(|x| x.parse().unwrap())
+        .collect();
+    for (k, b) in said_bias.iter().enumerate() {
+        let saved = this["bias_rad_s"][k].as_f64().unwrap();
+        assert!((saved - b).abs() < 1e-3, "axis {k}: saved {saved}, said {b}\n{file}");
+    }
+    assert!(o.node_stats["power_on_bias_memory"].as_str().unwrap_or_default().contains("saved (4 power-ons"), "{}", o.node_stats);
 }

@@ -67,6 +67,11 @@ pub struct EvalArgs {
     /// `as deployed` rows find this power-on's bias (default: the node's defaults).
     #[arg(long)]
     pub params: Option<PathBuf>,
+    /// Earlier power-ons' biases of this IMU (`imu-fsda bias-memory`, the node's
+    /// `power_on_bias_memory`): before a bag's first standstill the power-on bias starts from
+    /// what they predict, the bag's own entry left out.
+    #[arg(long, value_name = "FILE")]
+    pub bias_memory: Option<PathBuf>,
     /// Also write the table as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -119,6 +124,10 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         }
         None => StandstillConfig::default(),
     };
+    let memory = match &args.bias_memory {
+        Some(p) => Some(imu_fsda::bias_memory::BiasMemory::load(p)?),
+        None => None,
+    };
     // The models' metadata, read once, before any bag.
     let metas: Vec<imu_fsda::model::export::ModelMetadata> = args
         .models
@@ -146,6 +155,10 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         // One bag that cannot be read or scored is a row saying why when there are others:
         // their rows are kept (before, the first such bag ended the command with nothing).
         let evaluated = (|| -> anyhow::Result<()> {
+            let standstill = StandstillConfig {
+                remembered: memory.as_ref().and_then(|m| m.predict(Some(name.as_str()), standstill.min_power_on_spread)),
+                ..standstill
+            };
             let (mut rec, report) = read_recording(bag, &topics)?;
             // Stamps that are not the samples' times leave nothing to score: the pauses between
             // bursts stamped on arrival are holes, and every method read 0.00°.

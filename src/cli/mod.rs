@@ -13,6 +13,7 @@ mod adapt;
 mod attitude;
 mod bag;
 mod bench;
+mod bias_memory;
 mod corrector;
 mod diagnose;
 mod embed;
@@ -47,6 +48,8 @@ pub enum Command {
     Import(import::ImportArgs),
     /// Evaluate gyro methods on bags: open-loop orientation error (AOE, roll/pitch/yaw RMSE).
     Eval(eval::EvalArgs),
+    /// Record each bag's power-on bias (its standstills) in a bias memory file, as the node does.
+    BiasMemory(bias_memory::BiasMemoryArgs),
     /// Score the attitude a node published (/imu/denoised) against ground truth, and its covariance.
     Attitude(attitude::AttitudeArgs),
     /// Simulate an IMU on a trajectory and write a bag with ground truth.
@@ -293,6 +296,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bag(c) => bag::run(c),
         Command::Import(a) => import::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::BiasMemory(a) => bias_memory::run(a),
         Command::Attitude(a) => attitude::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Inject(a) => inject::run(a),

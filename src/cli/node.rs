@@ -79,7 +79,10 @@ impl NodeConfigArgs {
 }
 
 pub fn run(args: NodeArgs) -> anyhow::Result<()> {
-    let params = args.config.load()?;
+    let mut params = args.config.load()?;
+    if let Some(note) = params.take_bias_memory(true)? {
+        tracing::info!("power_on_bias_memory {}: {note}", params.power_on_bias_memory);
+    }
     let env = RosEnvironment::from_env()?;
     let (corrector, status) = if args.naive_full_window {
         anyhow::ensure!(!params.model.is_empty(), "--naive-full-window needs a model");
@@ -149,7 +152,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
                 "model": stats.model, "adaptation": stats.adapt_status, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
                 "latency_by_adaptation_state": stats.split_latency.summary_json(),
                 "latency_by_stage": stats.stage_latency.summary_json(),
-                "correction": stats.correction, "power_on_bias": stats.power_on_bias, "power_on_bias_from": stats.power_on_bias_from, "power_on_bias_retakes": stats.power_on_bias_retakes,
+                "correction": stats.correction, "power_on_bias": stats.power_on_bias, "power_on_bias_from": stats.power_on_bias_from, "power_on_bias_retakes": stats.power_on_bias_retakes, "power_on_bias_memory": stats.power_on_bias_memory,
             })
         )?;
     }

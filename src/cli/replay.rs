@@ -52,7 +52,11 @@ fn status_at(
 }
 
 pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
-    let params = args.config.load()?;
+    let mut params = args.config.load()?;
+    // Read, never written: a replay is not a power-on of the IMU.
+    if let Some(note) = params.take_bias_memory(false)? {
+        tracing::info!("power_on_bias_memory {}: {note}", params.power_on_bias_memory);
+    }
     let (corrector, status) = load_corrector(&params.model, &params.imu_calibration)?;
     let mut pipeline = Pipeline::new(corrector, params.pipeline.clone());
     let (topics, read_error) = imu_fsda::bag::bag_info(&args.input);

@@ -106,6 +106,11 @@ impl Pipeline {
         self.corrector.window()
     }
 
+    /// What earlier power-ons predicted for this one's bias ([`crate::bias_memory`]).
+    pub fn remembered_bias(&self) -> Option<crate::standstill::BiasPrediction> {
+        self.cfg.standstill.remembered
+    }
+
     /// Nominal input period, s, once known.
     pub fn nominal_rate_hz(&self) -> Option<f64> {
         self.rate.nominal_period_ns.map(|p| 1e9 / p)

@@ -212,7 +212,9 @@ pub async fn run_node_with_adaptation(
     let retake_server = if params.pipeline.power_on_bias { Some(power_on::retake_server(&mut node, node_name)?) } else { None };
     let spinner = node.spinner().map_err(dds)?;
 
+    let memory_writer = power_on::BiasMemoryWriter::new(&params.power_on_bias_memory, &pipeline);
     let stats = Arc::new(Mutex::new(NodeStats {
+        power_on_bias_memory: memory_writer.as_ref().map_or(String::new(), power_on::BiasMemoryWriter::started),
         model: pipeline.corrector_name().to_string(),
         window: pipeline.window(),
         model_status,
@@ -262,6 +264,9 @@ pub async fn run_node_with_adaptation(
         }
     };
     let diag_stats = stats.clone();
+    // Shared with the end of the run, which saves what the last tick did not.
+    let memory_writer = Arc::new(Mutex::new(memory_writer));
+    let diag_memory = memory_writer.clone();
     let node_name_owned = node_name.to_string();
     let period = Duration::from_secs_f64(params.diagnostics_period.max(0.01));
     let node_ref = &node;
@@ -278,6 +283,9 @@ pub async fn run_node_with_adaptation(
             };
             if let Err(e) = diag_pub.async_publish(msg).await {
                 tracing::warn!("diagnostics publish: {e:?}");
+            }
+            if let Some(w) = diag_memory.lock().expect("memory lock").as_mut() {
+                w.tick(&diag_stats);
             }
         }
     };
@@ -306,6 +314,9 @@ pub async fn run_node_with_adaptation(
         respond(srv, id, false, ABANDONED_REPLY.into()).await;
         // A moment for the reliable reply to leave before the writer goes.
         tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    if let Some(w) = memory_writer.lock().expect("memory lock").as_mut() {
+        w.tick(&stats);
     }
     // Stop the spinner before the node is dropped so peers hear it leave.
     node.stop_spinner();

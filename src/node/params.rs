@@ -51,6 +51,11 @@ pub struct NodeParams {
     /// Where adapted models are written (`<model name>-adapted-<unix s>.{pt,ot,json}`); empty:
     /// beside the model. Set `model` to one to start with it.
     pub adapted_model_dir: String,
+    /// The gyro's turn-on bias at earlier power-ons of this IMU (a JSON file,
+    /// [`crate::bias_memory`]): read at start, what they predict is removed before the first
+    /// standstill; this power-on's standstill estimate is added to it as it is measured.
+    /// Empty: none.
+    pub power_on_bias_memory: String,
     /// Inner-loop settings (crate::adapt::AdaptConfig).
     pub adapt: crate::adapt::AdaptConfig,
     /// Nice value of the adaptation thread (0 = the node's priority … 19 = lowest): it yields
@@ -76,6 +81,7 @@ impl Default for NodeParams {
             adapt_buffer_seconds: 120.0,
             adapt_support_seconds: 60.0,
             adapted_model_dir: String::new(),
+            power_on_bias_memory: String::new(),
             adapt: crate::adapt::AdaptConfig::default(),
             adapt_thread_nice: 10,
         }
@@ -86,7 +92,7 @@ impl NodeParams {
     /// Read the `node_name: ros__parameters:` section of a ROS 2 parameter file. `/**` (any
     /// node) is accepted too, as ROS 2 does.
     /// Reads the node's section of a parameter file. Relative paths in it (`model`,
-    /// `adapted_model_dir`) are taken against the file's own folder, as cargo and docker
+    /// `adapted_model_dir`, `power_on_bias_memory`) are taken against the file's own folder, as cargo and docker
     /// compose do: the node finds them from a launch file or a service unit started anywhere.
     pub fn from_yaml_file(path: &Path, node_name: &str) -> Result<Self, NodeError> {
         let text =
@@ -97,12 +103,25 @@ impl NodeParams {
             other => other,
         })?;
         let folder = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        for value in [&mut params.model, &mut params.adapted_model_dir] {
+        for value in [&mut params.model, &mut params.adapted_model_dir, &mut params.power_on_bias_memory] {
             if !value.is_empty() && Path::new(value.as_str()).is_relative() {
                 *value = folder.join(value.as_str()).to_string_lossy().into_owned();
             }
         }
         Ok(params)
+    }
+
+    /// Reads `power_on_bias_memory` (if set) into the pipeline's standstill settings: what
+    /// earlier power-ons predict for this one. Returns the note for the log and /diagnostics.
+    pub fn take_bias_memory(&mut self, set_aside: bool) -> Result<Option<String>, crate::bias_memory::BiasMemoryError> {
+        if self.power_on_bias_memory.is_empty() {
+            return Ok(None);
+        }
+        let standstill = &mut self.pipeline.standstill;
+        let (prediction, note) =
+            crate::bias_memory::prediction_at_start(Path::new(&self.power_on_bias_memory), standstill.min_power_on_spread, set_aside)?;
+        standstill.remembered = prediction;
+        Ok(Some(note))
     }
 
     pub fn from_yaml_str(text: &str, node_name: &str) -> Result<Self, NodeError> {

@@ -85,3 +85,62 @@ impl NodeStats {
         self.standing = pipeline.standing();
     }
 }
+
+/// Adds this power-on's standstill estimate to the bias memory file as it is measured (on the
+/// diagnostics tick, off the per-sample path). The file is read afresh before each write and
+/// never overwritten when it cannot be read: what it holds is not lost.
+pub(super) struct BiasMemoryWriter {
+    path: std::path::PathBuf,
+    started_unix_s: u64,
+    /// What the memory predicted at start, said on /diagnostics.
+    predicted: String,
+    saved_at_ns: Option<i64>,
+}
+
+impl BiasMemoryWriter {
+    pub(super) fn new(path: &str, pipeline: &Pipeline) -> Option<Self> {
+        (!path.is_empty()).then(|| BiasMemoryWriter {
+            path: path.into(),
+            started_unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()),
+            predicted: pipeline
+                .remembered_bias()
+                .map_or_else(|| "fewer than two earlier power-ons: nothing predicted".to_string(), |p| p.describe()),
+            saved_at_ns: None,
+        })
+    }
+
+    pub(super) fn tick(&mut self, stats: &Mutex<NodeStats>) {
+        let (estimate, retakes) = match stats.lock() {
+            Ok(s) => (s.standstill_bias, s.power_on_bias_retakes),
+            Err(_) => return,
+        };
+        let saved = match estimate.filter(|e| Some(e.at_ns) != self.saved_at_ns) {
+            None => None,
+            Some(e) => {
+                // A re-take follows a power cycle under the running node: a new power-on.
+                let power_on = format!("node started {} s, take {}", self.started_unix_s, retakes + 1);
+                let result = crate::bias_memory::BiasMemory::load(&self.path).and_then(|mut m| {
+                    m.remember(&power_on, &e);
+                    m.save(&self.path).map(|()| m.power_ons.len())
+                });
+                self.saved_at_ns = Some(e.at_ns);
+                Some(result)
+            }
+        };
+        let Some(saved) = saved else { return };
+        let note = match saved {
+            Ok(n) => format!("{}; this power-on's bias saved ({n} power-ons in {})", self.predicted, self.path.display()),
+            Err(e) => {
+                tracing::warn!("{e}");
+                format!("{}; not saved: {e}", self.predicted)
+            }
+        };
+        if let Ok(mut s) = stats.lock() {
+            s.power_on_bias_memory = note;
+        }
+    }
+
+    pub(super) fn started(&self) -> String {
+        self.predicted.clone()
+    }
+}

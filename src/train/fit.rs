@@ -1455,14 +1455,20 @@ mod tests {
     fn augmentation_is_sized_per_task() {
         let u = Tensor::zeros([4, 50, 6], (Kind::Float, Device::Cpu));
         let a = Augment { gyro_noise_std: 8e-4, accel_noise_std: 1e-2, gyro_offset: 1e-3, accel_offset: 0.0 };
-        tch::manual_seed(7);
-        let got = augment(&u, &[&a, &a], 2);
-        tch::manual_seed(7);
-        let std = Tensor::from_slice(&[8e-4, 8e-4, 8e-4, 1e-2, 1e-2, 1e-2]).to_kind(Kind::Float).reshape([1, 1, 6]);
-        let noise = Tensor::randn([4, 50, 6], (Kind::Float, Device::Cpu)) * std;
-        let offset = (Tensor::rand([4, 1, 3], (Kind::Float, Device::Cpu)) * 2.0 - 1.0) * 1e-3;
-        let want = &u + noise + Tensor::cat(&[offset, Tensor::zeros([4, 1, 3], (Kind::Float, Device::Cpu))], 2);
-        assert!(got.equal(&want), "the global augmentation's draw, bit for bit");
+        // torch's CPU generator is one per process and other tests draw from it in parallel:
+        // a draw of theirs between the two seeded ones changes the stream, so a mismatch is
+        // tried again (a real difference fails every time).
+        let same_draw = || {
+            tch::manual_seed(7);
+            let got = augment(&u, &[&a, &a], 2);
+            tch::manual_seed(7);
+            let std = Tensor::from_slice(&[8e-4, 8e-4, 8e-4, 1e-2, 1e-2, 1e-2]).to_kind(Kind::Float).reshape([1, 1, 6]);
+            let noise = Tensor::randn([4, 50, 6], (Kind::Float, Device::Cpu)) * std;
+            let offset = (Tensor::rand([4, 1, 3], (Kind::Float, Device::Cpu)) * 2.0 - 1.0) * 1e-3;
+            let want = &u + noise + Tensor::cat(&[offset, Tensor::zeros([4, 1, 3], (Kind::Float, Device::Cpu))], 2);
+            got.equal(&want)
+        };
+        assert!((0..5).any(|_| same_draw()), "the global augmentation's draw, bit for bit");
 
         let none = Augment { gyro_noise_std: 0.0, accel_noise_std: 0.0, gyro_offset: 0.0, accel_offset: 0.0 };
         let big = Augment { gyro_noise_std: 1.0, accel_noise_std: 10.0, gyro_offset: 0.0, accel_offset: 0.0 };
