@@ -198,6 +198,23 @@ impl BiasPrediction {
         )
     }
 
+    /// Where this power-on's standstills measured a bias outside the prediction (beyond 3 σ of
+    /// the two together on an axis it was removed from): another IMU under the same memory, or
+    /// one whose bias no longer repeats. Said, for the log and /diagnostics.
+    pub fn contradicted_by(&self, measured: &BiasEstimate) -> Option<String> {
+        let outside: Vec<String> = (0..3)
+            .filter(|&k| self.applied[k])
+            .filter(|&k| (measured.bias[k] - self.bias[k]).abs() > 3.0 * (self.variance[k] + measured.variance[k]).sqrt())
+            .map(|k| format!("{} {:.5} against {:.5} ± {:.5}", ["x", "y", "z"][k], measured.bias[k], self.bias[k], self.variance[k].sqrt()))
+            .collect();
+        (!outside.is_empty()).then(|| {
+            format!(
+                "the standstills measured a bias outside what the earlier power-ons predicted ({} rad/s): another IMU, or one whose bias no longer repeats",
+                outside.join(", ")
+            )
+        })
+    }
+
     /// As a bias estimate in force at `now_ns` (no standstill of this power-on behind it).
     pub fn as_estimate(&self, now_ns: i64) -> BiasEstimate {
         BiasEstimate { bias: self.bias, variance: self.variance, at_ns: now_ns, still_s: 0.0 }
@@ -728,8 +745,12 @@ impl BiasTrack {
         };
         match self.remembered {
             Some(r) if r.applies_any() => format!(
-                "{note}; before the first standstill [{:.5}, {:.5}, {:.5}] rad/s from {} earlier power-ons",
-                r.bias.x, r.bias.y, r.bias.z, r.power_ons
+                "{note}; before the first standstill [{:.5}, {:.5}, {:.5}] rad/s from {} earlier power-ons{}",
+                r.bias.x,
+                r.bias.y,
+                r.bias.z,
+                r.power_ons,
+                self.last.and_then(|e| r.contradicted_by(&e)).map_or(String::new(), |c| format!(" ({c})"))
             ),
             Some(r) => format!("{note}; {} earlier power-ons do not predict this one's bias", r.power_ons),
             None => note,
@@ -988,6 +1009,11 @@ mod tests {
         }
         assert_eq!(p.source(), "standstill");
         assert!((p.bias() - bias).amax() < 2e-3, "{:?}", p.bias());
+        // What the standstill measured is within the prediction; another IMU's is not.
+        assert_eq!(remembered.contradicted_by(p.estimate().unwrap()), None);
+        let other = BiasEstimate { bias: Vector3::new(0.0, -0.031, 0.02), variance: Vector3::repeat(1e-8), at_ns: 0, still_s: 1.0 };
+        let said = remembered.contradicted_by(&other).unwrap();
+        assert!(said.contains("z 0.02000 against 0.07900"), "{said}");
         // A prediction that applies to no axis is not in force.
         let none = BiasPrediction { applied: [false; 3], bias: Vector3::zeros(), ..remembered };
         let p = run_with(&turning, StandstillConfig { remembered: Some(none), ..StandstillConfig::default() });

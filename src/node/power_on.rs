@@ -95,6 +95,9 @@ pub(super) struct BiasMemoryWriter {
     /// What the memory predicted at start, said on /diagnostics.
     predicted: String,
     saved_at_ns: Option<i64>,
+    /// The prediction, and whether this power-on's standstills contradicted it.
+    prediction: Option<crate::standstill::BiasPrediction>,
+    contradiction: Option<String>,
 }
 
 impl BiasMemoryWriter {
@@ -106,6 +109,8 @@ impl BiasMemoryWriter {
                 .remembered_bias()
                 .map_or_else(|| "fewer than two earlier power-ons: nothing predicted".to_string(), |p| p.describe()),
             saved_at_ns: None,
+            prediction: pipeline.remembered_bias().filter(|p| p.applies_any()),
+            contradiction: None,
         })
     }
 
@@ -128,11 +133,18 @@ impl BiasMemoryWriter {
             }
         };
         let Some(saved) = saved else { return };
+        if let (None, Some(p), Some(e)) = (&self.contradiction, &self.prediction, &estimate) {
+            self.contradiction = p.contradicted_by(e);
+            if let Some(c) = &self.contradiction {
+                tracing::warn!("power_on_bias_memory {}: {c}", self.path.display());
+            }
+        }
+        let said = self.contradiction.as_ref().map_or(String::new(), |c| format!("; {c}"));
         let note = match saved {
-            Ok(n) => format!("{}; this power-on's bias saved ({n} power-ons in {})", self.predicted, self.path.display()),
+            Ok(n) => format!("{}{said}; this power-on's bias saved ({n} power-ons in {})", self.predicted, self.path.display()),
             Err(e) => {
                 tracing::warn!("{e}");
-                format!("{}; not saved: {e}", self.predicted)
+                format!("{}{said}; not saved: {e}", self.predicted)
             }
         };
         if let Ok(mut s) = stats.lock() {
