@@ -123,7 +123,7 @@ impl BiasMemory {
         if n < 2 {
             return None;
         }
-        let t = student_t_975(n - 1);
+        let t = crate::student_t::two_sided_95(n - 1);
         let mut prediction = BiasPrediction { bias: Vector3::zeros(), variance: Vector3::zeros(), applied: [false; 3], power_ons: n };
         for axis in 0..3 {
             let mean = used.iter().map(|p| p.bias_rad_s[axis]).sum::<f64>() / n as f64;
@@ -157,21 +157,6 @@ pub fn prediction_at_start(path: &Path, floor_stddev: f64, set_aside: bool) -> R
         ),
     };
     Ok((prediction, aside.map_or(said.clone(), |a| format!("{a}; {said}"))))
-}
-
-/// Two-sided 95 % (0.975 quantile) of Student's t with `df` degrees of freedom, rounded up
-/// between the tabulated ones.
-fn student_t_975(df: usize) -> f64 {
-    const TABLE: [f64; 10] = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228];
-    match df {
-        0 => f64::INFINITY,
-        1..=10 => TABLE[df - 1],
-        11..=15 => 2.201,
-        16..=20 => 2.131,
-        21..=30 => 2.086,
-        31..=60 => 2.042,
-        _ => 2.0,
-    }
 }
 
 #[cfg(test)]

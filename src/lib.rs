@@ -23,5 +23,6 @@ pub mod resample;
 pub mod sim;
 pub mod so3;
 pub mod standstill;
+pub mod student_t;
 pub mod train;
 pub mod tsne;

@@ -113,7 +113,7 @@ impl CarryOver {
         let mean = logs.iter().sum::<f64>() / n as f64;
         let upper = if n >= 2 {
             let var = logs.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
-            mean + student_t_95(n - 1) * (var / n as f64).sqrt()
+            mean + crate::student_t::one_sided_95(n - 1) * (var / n as f64).sqrt()
         } else {
             mean
         };
@@ -133,19 +133,6 @@ impl CarryOver {
             if self.recordings == 1 { "" } else { "s" },
             if self.with_standstill_only { " with a standstill" } else { "" }
         )
-    }
-}
-
-/// One-sided 95 % quantile of Student's t with `df` degrees of freedom.
-fn student_t_95(df: usize) -> f64 {
-    const TABLE: [f64; 10] = [6.314, 2.920, 2.353, 2.132, 2.015, 1.943, 1.895, 1.860, 1.833, 1.812];
-    match df {
-        0 => f64::INFINITY,
-        1..=10 => TABLE[df - 1],
-        11..=15 => 1.753,
-        16..=20 => 1.725,
-        21..=30 => 1.697,
-        _ => 1.645,
     }
 }
 
