@@ -156,6 +156,7 @@ pub fn fit_gyro_calibration(
     if !kept.iter().any(|k| *k) {
         return Err(CalibrationError::NothingDetermined { max_stddev: MAX_KEPT_STDDEV_OF_PRIOR * prior_stddev });
     }
+    tracing::debug!("Ĉ_ω before pinning: {:?}, σ {:?}", &x.as_slice()[..9], (0..9).map(sd).collect::<Vec<_>>());
     let pinned = kept.map(|k| !k);
     let x = if pinned.iter().any(|p| *p) { solve(imu, &incs, prior_stddev, &pinned)?.0 } else { x };
     let (c_hat, c) = unpack(&x);

@@ -285,7 +285,7 @@ pub async fn run_node_with_adaptation(
                 tracing::warn!("diagnostics publish: {e:?}");
             }
             if let Some(w) = diag_memory.lock().expect("memory lock").as_mut() {
-                w.tick(&diag_stats);
+                w.tick(&diag_stats, false);
             }
         }
     };
@@ -316,7 +316,7 @@ pub async fn run_node_with_adaptation(
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     if let Some(w) = memory_writer.lock().expect("memory lock").as_mut() {
-        w.tick(&stats);
+        w.tick(&stats, true);
     }
     // Stop the spinner before the node is dropped so peers hear it leave.
     node.stop_spinner();

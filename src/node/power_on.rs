@@ -94,7 +94,8 @@ pub(super) struct BiasMemoryWriter {
     started_unix_s: u64,
     /// What the memory predicted at start, said on /diagnostics.
     predicted: String,
-    saved_at_ns: Option<i64>,
+    /// What was last written, and under which take.
+    saved: Option<(crate::standstill::BiasEstimate, u64)>,
     /// The prediction, and whether this power-on's standstills contradicted it.
     prediction: Option<crate::standstill::BiasPrediction>,
     contradiction: Option<String>,
@@ -108,18 +109,24 @@ impl BiasMemoryWriter {
             predicted: pipeline
                 .remembered_bias()
                 .map_or_else(|| "fewer than two earlier power-ons: nothing predicted".to_string(), |p| p.describe()),
-            saved_at_ns: None,
+            saved: None,
             prediction: pipeline.remembered_bias().filter(|p| p.applies_any()),
             contradiction: None,
         })
     }
 
-    pub(super) fn tick(&mut self, stats: &Mutex<NodeStats>) {
+    /// On the diagnostics tick (`at_exit` false) and once at exit, when the last estimate is
+    /// saved whatever it changed.
+    pub(super) fn tick(&mut self, stats: &Mutex<NodeStats>, at_exit: bool) {
         let (estimate, retakes) = match stats.lock() {
             Ok(s) => (s.standstill_bias, s.power_on_bias_retakes),
             Err(_) => return,
         };
-        let saved = match estimate.filter(|e| Some(e.at_ns) != self.saved_at_ns) {
+        let due = |e: &crate::standstill::BiasEstimate| match &self.saved {
+            None => true,
+            Some((saved, take)) => *take != retakes || (e.at_ns != saved.at_ns && (at_exit || worth_saving(saved, e))),
+        };
+        let saved = match estimate.filter(due) {
             None => None,
             Some(e) => {
                 // A re-take follows a power cycle under the running node: a new power-on.
@@ -128,7 +135,7 @@ impl BiasMemoryWriter {
                     m.remember(&power_on, &e);
                     m.save(&self.path).map(|()| m.power_ons.len())
                 });
-                self.saved_at_ns = Some(e.at_ns);
+                self.saved = Some((e, retakes));
                 Some(result)
             }
         };
@@ -154,5 +161,67 @@ impl BiasMemoryWriter {
 
     pub(super) fn started(&self) -> String {
         self.predicted.clone()
+    }
+}
+
+/// A standstill that goes on refines its estimate at every window; the file is rewritten only
+/// where that changes what it holds: a mean moved by more than the σ saved, or a variance
+/// halved. (Rewriting it at every diagnostics tick while a robot stands wore the storage for
+/// nothing; what a power loss between two saves costs is a refinement, never the entry.)
+fn worth_saving(saved: &crate::standstill::BiasEstimate, now: &crate::standstill::BiasEstimate) -> bool {
+    (0..3).any(|k| (now.bias[k] - saved.bias[k]).abs() > saved.variance[k].sqrt() || now.variance[k] < 0.5 * saved.variance[k])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::standstill::BiasEstimate;
+    use nalgebra::Vector3;
+
+    fn writer(path: &std::path::Path) -> BiasMemoryWriter {
+        BiasMemoryWriter {
+            path: path.into(),
+            started_unix_s: 1,
+            predicted: String::new(),
+            saved: None,
+            prediction: None,
+            contradiction: None,
+        }
+    }
+
+    /// Ten minutes standing, the estimate refined every second: the file is written when it
+    /// would say something new (about log₂ of the refinements), and at exit with the last one.
+    #[test]
+    fn a_long_standstill_rewrites_the_memory_only_when_it_says_something_new() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("bias.json");
+        let mut w = writer(&path);
+        let stats = Mutex::new(NodeStats::default());
+        let mut writes = 0;
+        let mut last = String::new();
+        let estimate_after = |k: u32| BiasEstimate {
+            bias: Vector3::new(0.01, -0.02, 0.003 + 1e-5 / f64::from(k)),
+            variance: Vector3::repeat(1e-6 / f64::from(k)),
+            at_ns: i64::from(k) * 1_000_000_000,
+            still_s: f64::from(k),
+        };
+        for k in 1..=600 {
+            stats.lock().unwrap().standstill_bias = Some(estimate_after(k));
+            w.tick(&stats, false);
+            let now = std::fs::read_to_string(&path).unwrap();
+            if now != last {
+                writes += 1;
+                last = now;
+            }
+        }
+        assert!((8..=12).contains(&writes), "{writes} writes in 600 ticks");
+        w.tick(&stats, true);
+        let memory = crate::bias_memory::BiasMemory::load(&path).unwrap();
+        assert_eq!(memory.power_ons.len(), 1, "{memory:?}");
+        assert_eq!(memory.power_ons[0].still_s, 600.0, "the exit saves the last estimate");
+        // A re-take is a new power-on: saved at once, as a second entry.
+        stats.lock().unwrap().power_on_bias_retakes = 1;
+        w.tick(&stats, false);
+        assert_eq!(crate::bias_memory::BiasMemory::load(&path).unwrap().power_ons.len(), 2);
     }
 }
