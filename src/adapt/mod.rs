@@ -6,203 +6,47 @@
 //! open-loop orientation error (AOE, [`crate::eval::evaluate`]) on a held-back query
 //! recording is lower than the starting model's; otherwise it is rejected with the figures.
 //!
-//! Files: [`frame`] (is the ground truth in the IMU's frame?), [`calibration`] (Ĉ_ω in closed
-//! form), [`judge`] (other power-ons), [`pieces`] and [`keep`] (what is kept without them),
-//! [`swap`] (the node's between-two-samples model swap). See docs/adaptation.md.
+//! Files: `config` (the settings), [`frame`] (is the ground truth in the IMU's frame?),
+//! `networks` (the inner loop), [`calibration`] (Ĉ_ω in closed form) and
+//! `calibration_candidate` (the model holding it), `report` (what was found), [`judge`]
+//! (other power-ons), [`pieces`] and [`keep`] (what is kept without them), [`swap`] (the
+//! node's between-two-samples model swap); this file runs them in order. See
+//! docs/adaptation.md.
 
 pub mod calibration;
+mod calibration_candidate;
+mod config;
 pub mod frame;
 pub mod judge;
 pub mod keep;
+mod networks;
 pub mod pieces;
+mod report;
 pub mod swap;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
-use tch::{nn::VarStore, Device, Tensor};
+use tch::{nn::VarStore, Device};
 
 use crate::core::Recording;
 use crate::eval::{EvalOptions, OrientationErrors};
 use crate::model::export::{export_model, ExportInfo, ExportPaths, LoadedNet, ModelMetadata};
-use crate::model::loss::LossConfig;
 use crate::model::{ModelError, Net};
 use crate::train::config::{DatasetConfig, SourceConfig};
 use crate::train::data::{self, DataError, Task};
-use crate::train::fit::{embedding_and_extra_grads, embedding_inner_step, evaluate_net, evaluate_net_with_gain, evaluate_raw};
+use crate::train::fit::{evaluate_net, evaluate_net_with_gain, evaluate_raw};
 
+use calibration_candidate::calibration_candidate;
+use networks::{adapt_networks, AdaptedNetworks};
+
+pub use config::{AdaptConfig, FramePolicy, Keep, Optimizer};
 pub use frame::{check_frame, FrameCheck};
 pub use judge::{judge, judge_each, CarryOver, Judged};
 pub use keep::keep_without_judge;
 pub use pieces::PieceConfidence;
-
-/// What to do when the ground truth's body frame differs from the IMU's by a constant rotation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
-#[serde(rename_all = "snake_case")]
-pub enum FramePolicy {
-    /// Refuse with the rotation found (the default: a frame mix-up is a set-up error).
-    #[default]
-    Error,
-    /// Re-express the ground truth in the IMU's frame (`R_gt ← R_gt R_x`) and go on.
-    Apply,
-    /// Do not check for another frame (mirrored axes and inverted quaternions, which no
-    /// rotation explains, are still refused).
-    Ignore,
-}
-
-/// The inner loop's update rule.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
-#[serde(rename_all = "snake_case")]
-pub enum Optimizer {
-    /// Plain gradient descent, the paper's inner loop (`θ_e − α ∇L`).
-    Sgd,
-    /// Adam (β 0.9, 0.999) on the same gradient: far less sensitive to α (the default).
-    #[default]
-    Adam,
-}
-
-/// Adaptation settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct AdaptConfig {
-    /// Inner steps (first-order gradient descent on θ_e).
-    pub steps: usize,
-    /// α, the inner learning rate.
-    pub inner_lr: f64,
-    pub optimizer: Optimizer,
-    /// Each step's batch: this many random windows of `window_samples` from the support set
-    /// (the whole support set when it is shorter than one window).
-    pub windows: usize,
-    pub window_samples: usize,
-    /// The loss (the trainer's defaults).
-    pub loss: LossConfig,
-    /// Shortest support set accepted, s.
-    pub min_support_seconds: f64,
-    /// Shortest query set accepted, s.
-    pub min_query_seconds: f64,
-    /// Ground-truth interpolation: longest pose gap, and farthest nearest pose for a sample to count (ms).
-    pub max_interpolation_gap_ms: f64,
-    pub max_nearest_gt_ms: f64,
-    /// Ground truth in another frame: error, apply or ignore; a rotation above this many
-    /// degrees counts as "another frame".
-    pub frame_policy: FramePolicy,
-    pub frame_tolerance_deg: f64,
-    /// Seed of the window sampler.
-    pub seed: u64,
-    /// Stop stepping after this many seconds (the steps done so far are kept).
-    pub max_seconds: f64,
-    /// Also adapt the calibration head (default): a closed-form step of the Generator's output
-    /// bias, then Ĉ_ω and that bias by gradient beside θ_e. `false` is the paper's θ_e-only
-    /// step: a model meta-trained on one IMU has seen one bias, so its Generator may have no
-    /// input that maps to another IMU's bias, and a new IMU is first of all a new bias and
-    /// scale (docs/adaptation.md measures both: θ_e only was rejected on 6 of 8 unseen domains).
-    pub calibration: bool,
-    /// Remove the support's power-on gyro bias (measured at its standstills, as the node
-    /// measures it) before adapting, and mark the model so the node removes each later
-    /// power-on's: what is learned is the IMU's lasting errors, not this power-on's constant.
-    /// A support without a standstill is refused. `false` writes the support's constant into
-    /// the weights: the model is then for that power-on only (docs/poweron.md).
-    pub power_on_bias: bool,
-    /// How a standstill is recognised (the node's `pipeline.standstill`).
-    pub standstill: crate::standstill::StandstillConfig,
-    /// Which candidates may be kept: the adapted networks, the gyro calibration alone
-    /// (Ĉ_ω fitted in closed form, with `power_on_bias` only), or either (`auto`).
-    pub keep: Keep,
-}
-
-/// Which adaptation candidates may be kept.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
-#[serde(rename_all = "snake_case")]
-pub enum Keep {
-    /// Either: with other power-ons to judge on (`adapt --judge`), the one that carries over
-    /// better; without, the gyro calibration where its query gain holds piece by piece, and
-    /// never the networks (their query gain did not carry over to another power-on in any
-    /// measured case: docs/poweron.md; [`keep_without_judge`]).
-    #[default]
-    Auto,
-    /// The adapted networks only (the inner loop on θ_e and the calibration head).
-    Networks,
-    /// The gyro calibration alone.
-    GyroCalibration,
-}
-
-impl Default for AdaptConfig {
-    fn default() -> Self {
-        AdaptConfig {
-            steps: 100,
-            inner_lr: 1e-2,
-            optimizer: Optimizer::Adam,
-            windows: 2,
-            window_samples: 2000,
-            loss: LossConfig::default(),
-            min_support_seconds: 20.0,
-            min_query_seconds: 10.0,
-            max_interpolation_gap_ms: 50.0,
-            max_nearest_gt_ms: 10.0,
-            frame_policy: FramePolicy::Error,
-            frame_tolerance_deg: 5.0,
-            seed: 0,
-            max_seconds: 25.0,
-            calibration: true,
-            power_on_bias: true,
-            standstill: crate::standstill::StandstillConfig::default(),
-            keep: Keep::Auto,
-        }
-    }
-}
-
-impl AdaptConfig {
-    /// Refuses settings the inner loop cannot run with, naming the key (as `train`'s config).
-    pub fn validate(&self) -> Result<(), String> {
-        self.loss.validate("adapt.loss")?;
-        let positive = |x: f64| x.is_finite() && x > 0.0;
-        if !(self.inner_lr.is_finite() && self.inner_lr >= 0.0) {
-            return Err(format!("adapt.inner_lr = {}: must be finite and ≥ 0", self.inner_lr));
-        }
-        if self.windows == 0 {
-            return Err("adapt.windows must be ≥ 1".into());
-        }
-        // One batch of windows × samples × channels in memory, with its gradients.
-        const MAX_BATCH_SAMPLES: usize = 1 << 24;
-        if self.windows.saturating_mul(self.window_samples) > MAX_BATCH_SAMPLES {
-            return Err(format!(
-                "adapt.windows × adapt.window_samples = {} × {}: at most {MAX_BATCH_SAMPLES} samples in one batch",
-                self.windows, self.window_samples
-            ));
-        }
-        let min_window = self.loss.min_window_samples() as usize;
-        if self.window_samples <= min_window {
-            return Err(format!(
-                "adapt.window_samples = {}: must exceed {min_window} samples (every increment length must score one increment after its skip)",
-                self.window_samples
-            ));
-        }
-        for (key, v) in [
-            ("min_support_seconds", self.min_support_seconds),
-            ("min_query_seconds", self.min_query_seconds),
-            ("max_interpolation_gap_ms", self.max_interpolation_gap_ms),
-            ("max_nearest_gt_ms", self.max_nearest_gt_ms),
-            ("max_seconds", self.max_seconds),
-        ] {
-            if !positive(v) {
-                return Err(format!("adapt.{key} = {v}: must be finite and > 0"));
-            }
-        }
-        if !(self.frame_tolerance_deg.is_finite() && self.frame_tolerance_deg >= 0.0) {
-            return Err(format!("adapt.frame_tolerance_deg = {}: must be finite and ≥ 0", self.frame_tolerance_deg));
-        }
-        if self.keep == Keep::GyroCalibration && !self.power_on_bias {
-            return Err(
-                "adapt.keep = gyro_calibration needs power_on_bias: the calibration is fitted on the gyro minus its power-on bias".into()
-            );
-        }
-        Ok(())
-    }
-}
+pub use report::{AdaptOutcome, AdaptReport, AdaptedKind};
 
 /// Why adaptation could not run.
 #[derive(Debug, thiserror::Error)]
@@ -238,182 +82,6 @@ impl From<anyhow::Error> for AdaptError {
     fn from(e: anyhow::Error) -> Self {
         AdaptError::Other(format!("{e:#}"))
     }
-}
-
-/// The figures of one adaptation (also written beside an adapted model).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct AdaptReport {
-    pub model: String,
-    pub support: String,
-    pub query: String,
-    /// Seconds of the support (query) set covered by ground truth (gaps left out).
-    pub support_seconds: f64,
-    pub support_samples: usize,
-    pub query_seconds: f64,
-    pub query_samples: usize,
-    /// Query AOE of the raw gyro, the starting model, and the adapted one.
-    pub query_raw: OrientationErrors,
-    /// The starting model as deployed on the IMU named (with its correction gain).
-    pub query_before: OrientationErrors,
-    pub query_after: OrientationErrors,
-    pub accepted: bool,
-    /// The starting model's correction gain on the IMU named (1: none; the adapted model
-    /// applies all of its correction).
-    #[serde(default = "one")]
-    pub start_correction_gain: f64,
-    /// With the calibration head: the model's constant gyro error on the support set (rad/s),
-    /// removed from the output bias before the steps.
-    pub initial_bias_rad_s: Option<[f64; 3]>,
-    /// Why it was rejected (empty when accepted).
-    pub verdict: String,
-    /// Support loss at each step (before that step's update).
-    pub losses: Vec<f64>,
-    pub steps: usize,
-    pub inner_lr: f64,
-    /// Wall time of the inner loop, and of everything (data, evaluations), s.
-    pub step_seconds: f64,
-    pub total_seconds: f64,
-    pub frame: Option<FrameCheck>,
-    pub frame_applied: bool,
-    /// The support's power-on bias, removed before adapting (with `power_on_bias`).
-    #[serde(default)]
-    pub support_power_on_bias: Option<crate::standstill::BiasEstimate>,
-    /// Query AOE of the raw gyro minus its power-on bias: what the node runs on a new IMU.
-    #[serde(default)]
-    pub query_power_on_bias: Option<OrientationErrors>,
-    /// Other recordings of the IMU it was judged on (`adapt --judge`).
-    #[serde(default)]
-    pub judged: Vec<Judged>,
-    /// The candidate not kept, on the same recordings (where both passed the query).
-    #[serde(default)]
-    pub judged_runner_up: Vec<Judged>,
-    /// How the one kept (or refused) carries over to them.
-    #[serde(default)]
-    pub carry_over: Option<CarryOver>,
-    /// The lasting linear gyro error fitted on the support (with `power_on_bias`).
-    #[serde(default)]
-    pub calibration: Option<calibration::GyroCalibrationFit>,
-    /// Query AOE of that calibration alone, the networks' correction off.
-    #[serde(default)]
-    pub query_calibrated: Option<OrientationErrors>,
-    /// The same piece by piece against the gyro minus its power-on bias: without `--judge`,
-    /// the calibration is kept only where its gain holds ([`pieces`]).
-    #[serde(default)]
-    pub query_calibrated_pieces: Option<PieceConfidence>,
-    /// Why no calibration was fitted (too few increments, a departure no gyro has, nothing
-    /// the support determines).
-    #[serde(default)]
-    pub calibration_refused: Option<String>,
-    /// Which candidate was kept (`None`: rejected).
-    #[serde(default)]
-    pub kind: Option<AdaptedKind>,
-    pub config: AdaptConfig,
-}
-
-/// What an adaptation changed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum AdaptedKind {
-    /// The Embedding (and the calibration head) adapted by the inner loop.
-    Network,
-    /// Ĉ_ω fitted in closed form, the networks' correction off ([`calibration`]).
-    Calibration,
-}
-
-impl AdaptReport {
-    /// The query figures of the candidate kept (`None`: rejected).
-    pub fn kept_query(&self) -> Option<&OrientationErrors> {
-        match self.kind? {
-            AdaptedKind::Network => Some(&self.query_after),
-            AdaptedKind::Calibration => self.query_calibrated.as_ref(),
-        }
-    }
-}
-
-impl AdaptedKind {
-    pub fn name(self) -> &'static str {
-        match self {
-            AdaptedKind::Network => "the adapted networks",
-            AdaptedKind::Calibration => "the gyro calibration alone",
-        }
-    }
-}
-
-fn one() -> f64 {
-    1.0
-}
-
-/// An adaptation's result: the figures, and the adapted model when accepted.
-pub struct AdaptOutcome {
-    pub report: AdaptReport,
-    /// The adapted model (a fresh VarStore; the input model is untouched). `None` when rejected.
-    pub adapted: Option<LoadedNet>,
-    /// The other candidate, where it passed the query too, with its kind.
-    pub runner_up: Option<(AdaptedKind, LoadedNet)>,
-}
-
-/// Ĉ_ω's prior per entry: MEMS datasheets give ±3 % sensitivity and ±2 % cross-axis.
-const CALIBRATION_PRIOR_STDDEV: f64 = 0.05;
-/// The calibration's increments, s (as the calibration head's).
-const CALIBRATION_INCREMENT_S: f64 = 0.25;
-
-/// The calibration candidate: the model with Ĉ_ω fitted on the support, its networks'
-/// correction off (the Generator's last layer zero), scored on the query; or why there is none.
-struct Calibrated {
-    fit: calibration::GyroCalibrationFit,
-    net: LoadedNet,
-    query: OrientationErrors,
-    pieces: Option<PieceConfidence>,
-}
-
-fn calibration_candidate(
-    loaded: &LoadedNet,
-    support: &Task,
-    query: &Task,
-    eopts: &EvalOptions,
-    cfg: &AdaptConfig,
-) -> Result<Result<Calibrated, String>, AdaptError> {
-    let rec = &support.rec;
-    let (gt, valid) = data::ground_truth_at_imu(rec, &dataset_cfg(cfg));
-    let span = (CALIBRATION_INCREMENT_S * rec.nominal_imu_rate_hz()).round().max(1.0) as usize;
-    let fit = match calibration::fit_gyro_calibration(&rec.imu, &gt, &valid, span, CALIBRATION_PRIOR_STDDEV) {
-        Ok(fit) => fit,
-        Err(e) => return Ok(Err(e.to_string())),
-    };
-    let (vs, net) = copy_net(loaded)?;
-    {
-        let vars = vs.variables();
-        // The Generator's last layer zeroed: its output g, so σ ⊙ g, is exactly 0.
-        let head = calibration_head_names(&vs).into_iter().find(|n| n.starts_with("generator."));
-        let weight = head.as_ref().and_then(|b| vars.get(&b.replace(".bias", ".weight")));
-        let (Some(delta), Some(bias), Some(weight)) = (vars.get("gyro_calib.delta"), head.as_ref().and_then(|b| vars.get(b)), weight)
-        else {
-            return Ok(Err("the model has no Ĉ_ω or Generator output layer to hold a calibration".into()));
-        };
-        let m = fit.matrix;
-        let flat: Vec<f64> = (0..9).map(|k| m[k / 3][k % 3] - if k / 3 == k % 3 { 1.0 } else { 0.0 }).collect();
-        tch::no_grad(|| -> Result<(), ModelError> {
-            delta.shallow_clone().f_copy_(&Tensor::from_slice(&flat).reshape([3, 3]).to_kind(delta.kind()))?;
-            let _ = bias.shallow_clone().f_zero_()?;
-            let _ = weight.shallow_clone().f_zero_()?;
-            Ok(())
-        })?;
-    }
-    let gyro = crate::train::fit::corrected_gyro(&net, query)?;
-    let without: Vec<_> = query.rec.imu.iter().map(|s| s.gyro).collect();
-    let pieces = pieces::piece_confidence(&query.rec, &gyro, &without, eopts);
-    let query_task = query;
-    let query = crate::eval::evaluate(&query_task.rec, &gyro, eopts)?;
-    tracing::info!(
-        "gyro calibration on {} increments: Ĉ_ω {:?}, residual {:.3} → {:.3} °/s; query AOE {:.3}°",
-        fit.increments,
-        fit.matrix,
-        fit.residual_before_deg_s,
-        fit.residual_after_deg_s,
-        query.aoe_deg
-    );
-    let metadata = ModelMetadata { imu_correction_gains: BTreeMap::new(), power_on_bias_removed: true, ..loaded.metadata.clone() };
-    Ok(Ok(Calibrated { fit, net: LoadedNet::new(vs, net, metadata), query, pieces }))
 }
 
 fn dataset_cfg(cfg: &AdaptConfig) -> DatasetConfig {
@@ -454,79 +122,6 @@ fn require_covered(task: &Task, what: &'static str, min_seconds: f64) -> Result<
             task.len()
         ),
     })
-}
-
-/// The calibration head's VarStore names: Ĉ_ω's `gyro_calib.delta` and the bias of the
-/// Generator's last conv (its output is scaled by σ and added to the gyro: a constant offset).
-fn calibration_head_names(vs: &VarStore) -> Vec<String> {
-    let vars = vs.variables();
-    let last_conv = vars.keys().filter_map(|n| n.strip_prefix("generator.conv")?.strip_suffix(".bias")?.parse::<usize>().ok()).max();
-    let mut names: Vec<String> = last_conv.map(|l| format!("generator.conv{l}.bias")).into_iter().collect();
-    if vars.contains_key("gyro_calib.delta") {
-        names.push("gyro_calib.delta".into());
-    }
-    names
-}
-
-/// Closed-form first step of the calibration head: the constant gyro error e of the model on
-/// the support set, from 0.25 s increments (`Log(δR_gtᵀ δR̂) ≈ j·dt·e` for a small constant
-/// e), removed from the Generator's output bias (`ω̂ = Ĉ_ω ω + σ ⊙ g`, so bias −= e / σ). A
-/// gradient step moves that bias by about lr·σ, far too slowly for a new IMU's bias of
-/// several °/s; the steps that follow refine it. Returns e (rad/s).
-fn init_output_bias(vs: &VarStore, head_names: &[String], net: &Net, support: &Task, cfg: &AdaptConfig) -> Result<[f64; 3], AdaptError> {
-    const J: usize = 50;
-    let rec = &support.rec;
-    let corrected = crate::model::predict::correct_with_net(&net.inference(), &rec.imu)?;
-    let (gt, valid) = data::ground_truth_at_imu(rec, &dataset_cfg(cfg));
-    let mut sum = nalgebra::Vector3::zeros();
-    let mut count = 0usize;
-    let mut k = 0usize;
-    while k + J < rec.imu.len() {
-        let span_ok = valid[k..=k + J].iter().all(|v| *v);
-        if let (true, Some(a), Some(b)) = (span_ok, gt[k], gt[k + J]) {
-            let mut est = nalgebra::UnitQuaternion::identity();
-            let mut secs = 0.0;
-            for (w, pair) in corrected[k..k + J].iter().zip(rec.imu[k..=k + J].windows(2)) {
-                let dt = (pair[1].stamp_ns - pair[0].stamp_ns) as f64 * 1e-9;
-                est *= crate::so3::exp(&(w * dt));
-                secs += dt;
-            }
-            let r = crate::so3::log(&((a.inverse() * b).inverse() * est));
-            if secs > 0.0 && r.iter().all(|x| x.is_finite()) {
-                sum += r / secs;
-                count += 1;
-            }
-        }
-        k += J;
-    }
-    if count < 10 {
-        return Err(AdaptError::TooLittleData {
-            what: "support",
-            detail: format!(
-                "{count} ground-truth-covered 0.25 s increments to estimate the gyro bias from, at least 10 needed (a ground truth \
-                 slower than {:.0} Hz covers none: raise max_nearest_gt_ms in an `adapt --config` to half its period)",
-                500.0 / cfg.max_nearest_gt_ms.max(1e-3)
-            ),
-        });
-    }
-    let e = sum / count as f64;
-    let sigma = Vec::<f64>::try_from(&net.output_scale().to_kind(tch::Kind::Double)).map_err(ModelError::from)?;
-    if let Some(bias_name) = head_names.iter().find(|n| n.starts_with("generator.")) {
-        let vars = vs.variables();
-        let delta: Vec<f64> = (0..3).map(|i| -e[i] / sigma[i].max(1e-12)).collect();
-        let var = &vars[bias_name];
-        tch::no_grad(|| {
-            let d = Tensor::from_slice(&delta).to_kind(var.kind());
-            let _ = var.shallow_clone().g_add_(&d);
-        });
-    }
-    tracing::info!(
-        "calibration head: constant gyro error of the model on the support set ({count} increments): [{:.4}, {:.4}, {:.4}] °/s, removed before the steps",
-        e[0].to_degrees(),
-        e[1].to_degrees(),
-        e[2].to_degrees()
-    );
-    Ok([e[0], e[1], e[2]])
 }
 
 /// A copy of `loaded` in a fresh VarStore (everything frozen: only the fast weights train).
@@ -733,78 +328,6 @@ fn check_ground_truth_frame(
     Ok((frame, frame_applied))
 }
 
-/// The networks adapted by the inner loop, with what it did.
-struct AdaptedNetworks {
-    vs: VarStore,
-    net: Net,
-    losses: Vec<f64>,
-    step_seconds: f64,
-    initial_bias: Option<[f64; 3]>,
-}
-
-/// The inner loop (docs/adaptation.md, step 4): first order, eval mode, on a copy's fast
-/// weights only (θ_e, and the calibration head with `calibration`).
-fn adapt_networks(loaded: &LoadedNet, s_task: &Task, cfg: &AdaptConfig) -> Result<AdaptedNetworks, AdaptError> {
-    let (mut vs, net) = copy_net(loaded)?;
-    let mut fast: Vec<Tensor> = net.embedding_parameters().iter().map(|p| p.detach().copy().set_requires_grad(true)).collect();
-    let head_names = if cfg.calibration { calibration_head_names(&vs) } else { Vec::new() };
-    let head: Vec<Tensor> = {
-        let vars = vs.variables();
-        head_names.iter().map(|n| vars[n].shallow_clone().set_requires_grad(true)).collect()
-    };
-    let initial_bias = if cfg.calibration { Some(init_output_bias(&vs, &head_names, &net, s_task, cfg)?) } else { None };
-    let mut head_adam = TensorAdam::new(&head);
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-    let win = cfg.window_samples.min(s_task.len());
-    let refs = [s_task];
-    let mut losses = Vec::with_capacity(cfg.steps);
-    let mut adam = TensorAdam::new(&fast);
-    let t_steps = Instant::now();
-    for step in 0..cfg.steps {
-        if t_steps.elapsed().as_secs_f64() > cfg.max_seconds {
-            tracing::warn!("adaptation stopped after {step} steps: time budget of {} s reached", cfg.max_seconds);
-            break;
-        }
-        let count = if win == s_task.len() { 1 } else { cfg.windows.max(1) };
-        let batch = data::sample_windows(&refs, |t| (0, t.len()), count, win, &mut rng);
-        let (l, next) = match cfg.optimizer {
-            Optimizer::Sgd => {
-                let (terms, next) = embedding_inner_step(&net, &cfg.loss, &batch, &fast, cfg.inner_lr, false, false);
-                (terms.total.double_value(&[]), next)
-            }
-            Optimizer::Adam => {
-                let (terms, grads) = embedding_and_extra_grads(&net, &cfg.loss, &batch, &fast, &head, false, false);
-                let (g_fast, g_head) = grads.split_at(fast.len());
-                let new_head = head_adam.step(&head, g_head, cfg.inner_lr);
-                tch::no_grad(|| {
-                    for (h, n) in head.iter().zip(&new_head) {
-                        h.shallow_clone().copy_(n);
-                    }
-                });
-                (terms.total.double_value(&[]), adam.step(&fast, g_fast, cfg.inner_lr))
-            }
-        };
-        if !l.is_finite() {
-            return Err(AdaptError::Other(format!("step {step}: the support loss is {l}: lower the inner learning rate")));
-        }
-        losses.push(l);
-        fast = next.iter().map(|t| t.detach().set_requires_grad(true)).collect();
-        tracing::debug!("adapt step {step}: support loss {l:.4}");
-    }
-    let step_seconds = t_steps.elapsed().as_secs_f64();
-    {
-        let vars = vs.variables();
-        tch::no_grad(|| -> Result<(), ModelError> {
-            for (name, f) in net.embedding_parameter_names().iter().zip(&fast) {
-                vars[name].shallow_clone().f_copy_(f)?;
-            }
-            Ok(())
-        })?;
-    }
-    vs.unfreeze();
-    Ok(AdaptedNetworks { vs, net, losses, step_seconds, initial_bias })
-}
-
 /// Why neither candidate passed the query.
 fn query_verdict(before: f64, after: f64, calibrated: Option<f64>, floor: f64) -> String {
     let calibration = calibrated.map_or(String::new(), |c| format!(", the gyro calibration alone {c:.3}°"));
@@ -917,39 +440,6 @@ pub fn split_recording(rec: &Recording, support_seconds: f64, query_seconds: Opt
         None => format!("{support_seconds} s–end"),
     };
     (part(t0, cut, &format!("0–{support_seconds} s")), part(cut, end, &q_tag))
-}
-
-/// Adam (PyTorch's, no weight decay) over a list of plain tensors (the fast weights).
-struct TensorAdam {
-    m: Vec<Tensor>,
-    v: Vec<Tensor>,
-    t: i32,
-}
-
-impl TensorAdam {
-    fn new(params: &[Tensor]) -> Self {
-        let z = || params.iter().map(|p| p.detach().zeros_like()).collect();
-        TensorAdam { m: z(), v: z(), t: 0 }
-    }
-
-    fn step(&mut self, params: &[Tensor], grads: &[Tensor], lr: f64) -> Vec<Tensor> {
-        let (b1, b2, eps) = (0.9f64, 0.999f64, 1e-8);
-        self.t += 1;
-        let (c1, c2) = (1.0 - b1.powi(self.t), 1.0 - b2.powi(self.t));
-        tch::no_grad(|| {
-            params
-                .iter()
-                .zip(grads)
-                .zip(self.m.iter_mut().zip(self.v.iter_mut()))
-                .map(|((p, g), (m, v))| {
-                    let g = g.detach();
-                    *m = &*m * b1 + &g * (1.0 - b1);
-                    *v = &*v * b2 + g.square() * (1.0 - b2);
-                    p.detach() - (&*m / c1) / ((&*v / c2).sqrt() + eps) * lr
-                })
-                .collect()
-        })
-    }
 }
 
 #[cfg(test)]

@@ -1,0 +1,120 @@
+//! What an adaptation found: the report written beside an adapted model, the kind of
+//! candidate kept, and the outcome handed to the CLI and the node.
+
+use serde::{Deserialize, Serialize};
+
+use super::{calibration, AdaptConfig, CarryOver, FrameCheck, Judged, PieceConfidence};
+use crate::eval::OrientationErrors;
+use crate::model::export::LoadedNet;
+
+/// The figures of one adaptation (also written beside an adapted model).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AdaptReport {
+    pub model: String,
+    pub support: String,
+    pub query: String,
+    /// Seconds of the support (query) set covered by ground truth (gaps left out).
+    pub support_seconds: f64,
+    pub support_samples: usize,
+    pub query_seconds: f64,
+    pub query_samples: usize,
+    /// Query AOE of the raw gyro, the starting model, and the adapted one.
+    pub query_raw: OrientationErrors,
+    /// The starting model as deployed on the IMU named (with its correction gain).
+    pub query_before: OrientationErrors,
+    pub query_after: OrientationErrors,
+    pub accepted: bool,
+    /// The starting model's correction gain on the IMU named (1: none; the adapted model
+    /// applies all of its correction).
+    #[serde(default = "one")]
+    pub start_correction_gain: f64,
+    /// With the calibration head: the model's constant gyro error on the support set (rad/s),
+    /// removed from the output bias before the steps.
+    pub initial_bias_rad_s: Option<[f64; 3]>,
+    /// Why it was rejected (empty when accepted).
+    pub verdict: String,
+    /// Support loss at each step (before that step's update).
+    pub losses: Vec<f64>,
+    pub steps: usize,
+    pub inner_lr: f64,
+    /// Wall time of the inner loop, and of everything (data, evaluations), s.
+    pub step_seconds: f64,
+    pub total_seconds: f64,
+    pub frame: Option<FrameCheck>,
+    pub frame_applied: bool,
+    /// The support's power-on bias, removed before adapting (with `power_on_bias`).
+    #[serde(default)]
+    pub support_power_on_bias: Option<crate::standstill::BiasEstimate>,
+    /// Query AOE of the raw gyro minus its power-on bias: what the node runs on a new IMU.
+    #[serde(default)]
+    pub query_power_on_bias: Option<OrientationErrors>,
+    /// Other recordings of the IMU it was judged on (`adapt --judge`).
+    #[serde(default)]
+    pub judged: Vec<Judged>,
+    /// The candidate not kept, on the same recordings (where both passed the query).
+    #[serde(default)]
+    pub judged_runner_up: Vec<Judged>,
+    /// How the one kept (or refused) carries over to them.
+    #[serde(default)]
+    pub carry_over: Option<CarryOver>,
+    /// The lasting linear gyro error fitted on the support (with `power_on_bias`).
+    #[serde(default)]
+    pub calibration: Option<calibration::GyroCalibrationFit>,
+    /// Query AOE of that calibration alone, the networks' correction off.
+    #[serde(default)]
+    pub query_calibrated: Option<OrientationErrors>,
+    /// The same piece by piece against the gyro minus its power-on bias: without `--judge`,
+    /// the calibration is kept only where its gain holds ([`pieces`]).
+    #[serde(default)]
+    pub query_calibrated_pieces: Option<PieceConfidence>,
+    /// Why no calibration was fitted (too few increments, a departure no gyro has, nothing
+    /// the support determines).
+    #[serde(default)]
+    pub calibration_refused: Option<String>,
+    /// Which candidate was kept (`None`: rejected).
+    #[serde(default)]
+    pub kind: Option<AdaptedKind>,
+    pub config: AdaptConfig,
+}
+
+/// What an adaptation changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AdaptedKind {
+    /// The Embedding (and the calibration head) adapted by the inner loop.
+    Network,
+    /// Ĉ_ω fitted in closed form, the networks' correction off ([`calibration`]).
+    Calibration,
+}
+
+impl AdaptReport {
+    /// The query figures of the candidate kept (`None`: rejected).
+    pub fn kept_query(&self) -> Option<&OrientationErrors> {
+        match self.kind? {
+            AdaptedKind::Network => Some(&self.query_after),
+            AdaptedKind::Calibration => self.query_calibrated.as_ref(),
+        }
+    }
+}
+
+impl AdaptedKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            AdaptedKind::Network => "the adapted networks",
+            AdaptedKind::Calibration => "the gyro calibration alone",
+        }
+    }
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// An adaptation's result: the figures, and the adapted model when accepted.
+pub struct AdaptOutcome {
+    pub report: AdaptReport,
+    /// The adapted model (a fresh VarStore; the input model is untouched). `None` when rejected.
+    pub adapted: Option<LoadedNet>,
+    /// The other candidate, where it passed the query too, with its kind.
+    pub runner_up: Option<(AdaptedKind, LoadedNet)>,
+}
