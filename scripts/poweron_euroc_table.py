@@ -43,13 +43,19 @@ def set_rows(work, name):
             kind = report.get('kind')
             row['kept'] = kind if report.get('accepted') else None
             cal = report.get('calibration')
-            row['calibration_diagonal_percent'] = [100 * (cal['matrix'][k][k] - 1) for k in range(3)] if cal else None
-            first = judged_after(report.get('judged', []))
-            second = judged_after(report.get('judged_runner_up', []))
-            # `judged` holds the candidate kept (or, when refused, the one tried first).
-            first_kind = kind or ('calibration' if report.get('query_calibrated') else 'network')
-            per = {first_kind: first, ('network' if first_kind == 'calibration' else 'calibration'): second}
+            determined = cal and any(any(row_kept) for row_kept in cal['kept'])
+            row['calibration_diagonal_percent'] = [100 * (cal['matrix'][k][k] - 1) for k in range(3)] if determined else None
+            row['offset_rad_s'] = cal['leftover_bias_rad_s'] if cal and report.get('query_calibrated_with_offset') else None
+            # `judged` holds the candidate kept (or, when refused, the one tried first: the
+            # calibration alone, then with the bias offset in motion, then the networks).
+            first_kind = kind or next(k for k, q in (('calibration', 'query_calibrated'),
+                                                    ('calibration_with_offset', 'query_calibrated_with_offset'),
+                                                    ('network', 'query_after')) if report.get(q))
+            per = {first_kind: judged_after(report.get('judged', []))}
+            for other in report.get('judged_others', []):
+                per[other['kind']] = judged_after(other['judged'])
             row['calibration'] = mean(per.get('calibration') or None)
+            row['calibration_with_offset'] = mean(per.get('calibration_with_offset') or None)
             row['networks'] = mean(per.get('network') or None)
             row['calibration_refused'] = report.get('calibration_refused')
             row['carry_over'] = report.get('carry_over')
@@ -80,10 +86,11 @@ def short(why):
 
 def table(rows):
     f = lambda v: '–' if v is None else f'{v:.2f}'
-    out = ['| support (adapted on its first 60 s) | kept | Ĉ_ω diagonal − 1 (%) | carried over: ratio (95 % bound) over the 10 others | static-bias | power-on bias | gyro calibration alone | adapted networks | as deployed after `adapt` | without `--judge`: kept (query pieces: ratio, bound) | as deployed after `adapt` without `--judge` |',
-           '|---|---|---|---|---|---|---|---|---|---|---|']
+    out = ['| support (adapted on its first 60 s) | kept | Ĉ_ω diagonal − 1 (%) | bias offset in motion (mrad/s) | carried over: ratio (95 % bound) over the 10 others | static-bias | power-on bias | gyro calibration alone | with the offset | adapted networks | as deployed after `adapt` | without `--judge`: kept (query pieces: ratio, bound) | as deployed after `adapt` without `--judge` |',
+           '|---|---|---|---|---|---|---|---|---|---|---|---|---|']
+    names = {'calibration': 'gyro calibration', 'calibration_with_offset': 'calibration with the offset', 'network': 'networks'}
     for r in rows:
-        kept = {'calibration': 'gyro calibration', 'network': 'networks'}.get(r['kept'], 'refused')
+        kept = names.get(r['kept'], 'refused')
         if r['kept'] is None:
             v = r['verdict']
             kept += ': ' + ('no standstill in the support' if 'no standstill' in v else 'not better on the other power-ons' if 'other recordings' in v else 'not better on the query' if 'query' in v else v[:60])
@@ -91,10 +98,12 @@ def table(rows):
         diag = ' / '.join(f'{d:+.2f}' for d in diag) if diag else ('none: ' + short(r['calibration_refused']) if r.get('calibration_refused') else '–')
         c = r.get('carry_over')
         ratio = f"{c['ratio']:.3f} (≤ {c['upper_95']:.3f})" if c else '–'
-        alone = {'calibration': 'gyro calibration', 'network': 'networks'}.get(r.get('alone_kept'), 'refused')
+        alone = names.get(r.get('alone_kept'), 'refused')
         p = r.get('alone_pieces')
         alone += f" ({p['ratio']:.2f}, ≤ {p['upper_95']:.2f})" if p else ''
-        out.append(f"| {r['support']} | {kept} | {diag} | {ratio} | {f(r['static_bias'])} | {f(r['power_on_bias'])} | {f(r.get('calibration'))} | {f(r.get('networks'))} | {f(r['deployed'])} | {alone} | {f(r.get('alone_deployed'))} |")
+        offset = r.get('offset_rad_s')
+        offset = ' / '.join(f'{1e3 * b:+.2f}' for b in offset) if offset else '–'
+        out.append(f"| {r['support']} | {kept} | {diag} | {offset} | {ratio} | {f(r['static_bias'])} | {f(r['power_on_bias'])} | {f(r.get('calibration'))} | {f(r.get('calibration_with_offset'))} | {f(r.get('networks'))} | {f(r['deployed'])} | {alone} | {f(r.get('alone_deployed'))} |")
     return '\n'.join(out)
 
 

@@ -49,12 +49,12 @@ fn bundled_model() -> PathBuf {
     manifest_dir().join("models/fsda-f.pt")
 }
 
-/// `adapt --json` on `support`, judged on `other` (none: as the node's `~/adapt`, on the
+/// `adapt --json` on `support`, judged on `others` (none: as the node's `~/adapt`, on the
 /// query alone): the report (written also when rejected).
-fn adapt(support: &Path, other: Option<&Path>, out: &Path) -> (serde_json::Value, String) {
+fn adapt(support: &Path, others: &[&Path], out: &Path) -> (serde_json::Value, String) {
     let mut cmd = Command::new(bin());
     cmd.args(["adapt", "--json", "--model"]).arg(bundled_model()).arg("--bag").arg(support).arg("-o").arg(out);
-    if let Some(other) = other {
+    for other in others {
         cmd.arg("--judge").arg(other);
     }
     let o = output(&mut cmd);
@@ -75,7 +75,7 @@ fn a_gyro_calibration_learned_on_one_real_power_on_carries_to_another() {
     let (v101, v103) = (import(&data, "V1_01_easy", d), import(&data, "V1_03_difficult", d));
     let (i101, i103) = (inject(&v101, d), inject(&v103, d));
     let out = d.join("injected.pt");
-    let (injected, err) = adapt(&i101, Some(&i103), &out);
+    let (injected, err) = adapt(&i101, &[&i103], &out);
 
     // Every diagonal entry is determined on V1_01 and reads the injected scale (the inverse
     // of I + E, E = diag(scale) + misalignment) to within the unit's own few tenths of a per
@@ -97,13 +97,23 @@ fn a_gyro_calibration_learned_on_one_real_power_on_carries_to_another() {
         }
     }
 
-    // Both candidates were judged on the other power-on; the one kept carries over better,
-    // and the calibration alone is far better than the rest calibration there.
+    // Every candidate that passed the query was judged on the other power-on; the one kept
+    // carries over best, and the calibration alone is far better than the rest calibration
+    // there.
     assert!(out.exists(), "{err}");
-    let aoe = |set: &str| injected[set][0]["after"]["aoe_deg"].as_f64().unwrap_or_else(|| panic!("no {set} in {injected}"));
-    let (kept, other) = (aoe("judged"), aoe("judged_runner_up"));
-    assert!(kept <= other, "kept {kept}° against {other}°\n{err}");
-    let calibration = if injected["kind"] == "calibration" { kept } else { other };
+    let aoe = |judged: &serde_json::Value| judged[0]["after"]["aoe_deg"].as_f64().unwrap_or_else(|| panic!("no figures in {injected}"));
+    let kept = aoe(&injected["judged"]);
+    let others = injected["judged_others"].as_array().unwrap_or_else(|| panic!("no judged_others in {injected}"));
+    for other in others {
+        assert!(kept <= aoe(&other["judged"]), "kept {kept}° against {}: {}°\n{err}", other["kind"], aoe(&other["judged"]));
+    }
+    let calibration = match others.iter().find(|o| o["kind"] == "calibration") {
+        Some(o) => aoe(&o["judged"]),
+        None => {
+            assert_eq!(injected["kind"], "calibration", "the calibration alone was judged: {injected}");
+            kept
+        }
+    };
     let pob = injected["judged"][0]["power_on_bias"]["aoe_deg"].as_f64().unwrap();
     assert!(calibration < 0.7 * pob, "V1_03: the calibration alone {calibration}° against the power-on bias {pob}°\n{err}");
 }
@@ -133,7 +143,7 @@ fn without_another_power_on_only_what_lasts_is_kept() {
     let (i101, i103) = (inject(&v101, d), inject(&v103, d));
 
     let out = d.join("recorded.pt");
-    let (recorded, err) = adapt(&v101, None, &out);
+    let (recorded, err) = adapt(&v101, &[], &out);
     assert_ne!(recorded["kind"], "network", "{err}");
     if recorded["kind"] == "calibration" {
         assert!(recorded["query_calibrated_pieces"]["upper_95"].as_f64().unwrap() < 1.0, "{recorded}");
@@ -141,11 +151,41 @@ fn without_another_power_on_only_what_lasts_is_kept() {
     assert_eq!(out.exists(), !recorded["kind"].is_null(), "{err}");
 
     let out = d.join("injected.pt");
-    let (injected, err) = adapt(&i101, None, &out);
+    let (injected, err) = adapt(&i101, &[], &out);
     assert_eq!(injected["kind"], "calibration", "{err}");
     let pieces = &injected["query_calibrated_pieces"];
     assert!(pieces["pieces"].as_u64().unwrap() >= 2 && pieces["upper_95"].as_f64().unwrap() < 1.0, "{pieces}");
     let (adapted, pob) = deployed_and_power_on_bias(&out, &i103, d);
     eprintln!("V1_03 with the injected errors: adapted on V1_01 without a judge {adapted:.3}°, power-on bias {pob:.3}°");
     assert!(adapted < 0.7 * pob, "V1_03: adapted on V1_01 {adapted}° against the power-on bias {pob}°\n{err}");
+}
+
+/// EuRoC as recorded: V1_03's bias in flight is off the one its rest measured (the offset its
+/// support shows, a few mrad/s). Judged on three other power-ons, the calibration with that
+/// offset carries over and is kept, and the model written runs as judged; adapted on V1_03
+/// alone it is never kept (within one power-on a lasting offset and a drift look the same).
+#[test]
+fn a_bias_offset_in_motion_is_kept_only_where_other_power_ons_show_it_lasts() {
+    let Some(data) = shared_data() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let support = import(&data, "V1_03_difficult", d);
+    let (v102, v201, v202) = (import(&data, "V1_02_medium", d), import(&data, "V2_01_easy", d), import(&data, "V2_02_medium", d));
+
+    let out = d.join("judged.pt");
+    let (judged, err) = adapt(&support, &[&v102, &v201, &v202], &out);
+    assert!(judged["query_calibrated_with_offset"]["aoe_deg"].is_f64(), "the support determines an offset: {judged}");
+    assert_eq!(judged["kind"], "calibration_with_offset", "{err}");
+    let carry = &judged["carry_over"];
+    assert!(carry["upper_95"].as_f64().unwrap() < 1.0 && carry["recordings"] == 3, "{carry}");
+    let (deployed, pob) = deployed_and_power_on_bias(&out, &v102, d);
+    let as_judged = judged["judged"][0]["after"]["aoe_deg"].as_f64().unwrap();
+    eprintln!("V1_02: adapted on V1_03 with the offset {deployed:.3}° (judged {as_judged:.3}°), power-on bias {pob:.3}°");
+    assert!((deployed - as_judged).abs() < 0.01 && deployed < pob, "V1_02 {deployed}° (judged {as_judged}°) against {pob}°\n{err}");
+
+    let out = d.join("alone.pt");
+    let (alone, err) = adapt(&support, &[], &out);
+    assert!(alone["query_calibrated_with_offset"]["aoe_deg"].is_f64(), "{alone}");
+    assert_ne!(alone["kind"], "calibration_with_offset", "{err}");
+    assert!(err.contains("bias offset in motion"), "the offset and why it is not kept are said:\n{err}");
 }

@@ -24,7 +24,7 @@ pub const MIN_INCREMENTS: usize = 20;
 const MIN_RESIDUAL_VARIANCE: f64 = 1e-12;
 /// An entry is kept only where the support determines it: σ below a tenth of the prior and
 /// the departure from I beyond 3 σ (as the bias seen in motion is applied); the rest stays I.
-const MAX_KEPT_STDDEV_OF_PRIOR: f64 = 0.1;
+pub const MAX_KEPT_STDDEV_OF_PRIOR: f64 = 0.1;
 const MIN_SIGNIFICANCE: f64 = 3.0;
 /// Beyond every MEMS datasheet's sensitivity and cross-axis tolerance (±3 % and ±2 % are
 /// typical): a fitted departure this large is the reference's error (a drifting pose, a
@@ -42,12 +42,29 @@ pub struct GyroCalibrationFit {
     pub stddev: [[f64; 3]; 3],
     /// Entries the support determines (the others are pinned at I).
     pub kept: [[bool; 3]; 3],
-    /// The support's leftover constant c, rad/s (not kept).
+    /// The support's leftover constant c, rad/s: the bias in motion less the power-on bias
+    /// measured at rest (kept only by the candidate that carries it, where other power-ons
+    /// show it lasts).
     pub leftover_bias_rad_s: [f64; 3],
+    /// Its 1 σ per axis, rad/s.
+    #[serde(default)]
+    pub leftover_bias_stddev_rad_s: [f64; 3],
     pub increments: usize,
     /// RMS increment residual, °/s: with Ĉ = I and c = 0, and with the fit.
     pub residual_before_deg_s: f64,
     pub residual_after_deg_s: f64,
+}
+
+impl GyroCalibrationFit {
+    /// Some entry of Ĉ_ω is determined by the support (the others are I).
+    pub fn determines_matrix(&self) -> bool {
+        self.kept.iter().flatten().any(|k| *k)
+    }
+
+    /// The leftover constant departs from none beyond 3 σ on some axis.
+    pub fn determines_leftover_bias(&self) -> bool {
+        (0..3).any(|k| self.leftover_bias_rad_s[k].abs() > MIN_SIGNIFICANCE * self.leftover_bias_stddev_rad_s[k])
+    }
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -58,7 +75,7 @@ pub enum CalibrationError {
     Singular,
     #[error("Ĉ_ω[{row}][{col}] departs from I by {departure:+.3}, beyond any gyro's scale or cross-axis error (±{MAX_LASTING_ERROR}): the ground truth does not follow this gyro well enough on the support")]
     Implausible { row: usize, col: usize, departure: f64 },
-    #[error("no scale or cross-axis error is determined by the support (each within 3 σ of none, or σ above {:.2} %)", 100.0 * .max_stddev)]
+    #[error("no scale or cross-axis error is determined by the support (each within 3 σ of none, or σ above {:.2} %), nor a bias offset in motion", 100.0 * .max_stddev)]
     NothingDetermined { max_stddev: f64 },
 }
 
@@ -153,22 +170,32 @@ pub fn fit_gyro_calibration(
     }
     let kept: [bool; 9] =
         std::array::from_fn(|k| sd(k) < MAX_KEPT_STDDEV_OF_PRIOR * prior_stddev && (x[k] - prior[k]).abs() > MIN_SIGNIFICANCE * sd(k));
-    if !kept.iter().any(|k| *k) {
-        return Err(CalibrationError::NothingDetermined { max_stddev: MAX_KEPT_STDDEV_OF_PRIOR * prior_stddev });
-    }
     tracing::debug!("Ĉ_ω before pinning: {:?}, σ {:?}", &x.as_slice()[..9], (0..9).map(sd).collect::<Vec<_>>());
     let pinned = kept.map(|k| !k);
-    let x = if pinned.iter().any(|p| *p) { solve(imu, &incs, prior_stddev, &pinned)?.0 } else { x };
+    // The leftover's σ with the pinned entries held (what it is fitted beside), not free.
+    let (x, leftover_covariance) = if pinned.iter().any(|p| *p) {
+        let (x, normal, residual_variance) = solve(imu, &incs, prior_stddev, &pinned)?;
+        (x, normal.try_inverse().ok_or(CalibrationError::Singular)? * residual_variance)
+    } else {
+        (x, covariance)
+    };
+    let leftover_sd = |k: usize| leftover_covariance[(9 + k, 9 + k)].max(0.0).sqrt();
     let (c_hat, c) = unpack(&x);
-    Ok(GyroCalibrationFit {
+    let fit = GyroCalibrationFit {
         matrix: std::array::from_fn(|r| std::array::from_fn(|col| c_hat[(r, col)])),
         stddev: std::array::from_fn(|r| std::array::from_fn(|col| sd(3 * r + col))),
         kept: std::array::from_fn(|r| std::array::from_fn(|col| kept[3 * r + col])),
         leftover_bias_rad_s: [c[0], c[1], c[2]],
+        leftover_bias_stddev_rad_s: [leftover_sd(0), leftover_sd(1), leftover_sd(2)],
         increments: incs.len(),
         residual_before_deg_s: rms_deg_s(imu, &incs, &prior),
         residual_after_deg_s: rms_deg_s(imu, &incs, &x),
-    })
+    };
+    tracing::debug!("leftover bias {:?} rad/s, σ {:?}", fit.leftover_bias_rad_s, fit.leftover_bias_stddev_rad_s);
+    if !fit.determines_matrix() && !fit.determines_leftover_bias() {
+        return Err(CalibrationError::NothingDetermined { max_stddev: MAX_KEPT_STDDEV_OF_PRIOR * prior_stddev });
+    }
+    Ok(fit)
 }
 
 /// Gauss–Newton with the prior toward I (`pinned` entries held at I): the unknowns, the
@@ -294,6 +321,25 @@ mod tests {
         for (r, c) in [(1, 1), (2, 2), (0, 1), (1, 0), (2, 0), (1, 2)] {
             assert!(!fit.kept[r][c] && (fit.matrix[r][c] - f64::from(u8::from(r == c))).abs() < 1e-9, "[{r}][{c}]: {fit:?}");
         }
+    }
+
+    /// A gyro with no lasting linear error whose bias in motion is off the one removed at rest:
+    /// nothing of Ĉ_ω is determined, the offset is, and its σ covers it.
+    #[test]
+    fn a_bias_offset_in_motion_alone_is_determined_without_a_matrix() {
+        let offset = Vector3::new(0.0, 0.002, -0.001);
+        let (imu, gt) = tumbling(Matrix3::zeros(), offset, 0.05, 7);
+        let valid = vec![true; imu.len()];
+        let fit = fit_gyro_calibration(&imu, &gt, &valid, 50, 0.05).unwrap();
+        assert!(!fit.determines_matrix() && fit.determines_leftover_bias(), "{fit:?}");
+        for k in 0..3 {
+            let err = fit.leftover_bias_rad_s[k] + offset[k];
+            assert!(err.abs() < 5.0 * fit.leftover_bias_stddev_rad_s[k], "axis {k}: {:?} against {offset:?}", fit.leftover_bias_rad_s);
+        }
+        // Nothing in motion beyond the noise: neither is determined.
+        let (imu, gt) = tumbling(Matrix3::zeros(), Vector3::zeros(), 0.05, 8);
+        let err = fit_gyro_calibration(&imu, &gt, &valid, 50, 0.05).unwrap_err();
+        assert!(matches!(err, CalibrationError::NothingDetermined { .. }), "{err}");
     }
 
     #[test]

@@ -17,8 +17,8 @@ const CALIBRATION_PRIOR_STDDEV: f64 = 0.05;
 /// The calibration's increments, s (as the calibration head's).
 const CALIBRATION_INCREMENT_S: f64 = 0.25;
 
-/// The calibration candidate: the model with Ĉ_ω fitted on the support, its networks'
-/// correction off (the Generator's last layer zero), scored on the query; or why there is none.
+/// A calibration candidate: the model holding the fit (`net`), scored on the query whole and
+/// piece by piece against the gyro minus its power-on bias.
 pub(super) struct Calibrated {
     pub(super) fit: calibration::GyroCalibrationFit,
     pub(super) net: LoadedNet,
@@ -26,35 +26,77 @@ pub(super) struct Calibrated {
     pub(super) pieces: Option<PieceConfidence>,
 }
 
-pub(super) fn calibration_candidate(
+/// The two candidates one fit makes: Ĉ_ω alone (or why not), and Ĉ_ω with the support's bias
+/// offset in motion, where the support determines it.
+pub(super) struct CalibrationCandidates {
+    pub(super) alone: Result<Calibrated, String>,
+    pub(super) with_offset: Option<Calibrated>,
+}
+
+pub(super) fn calibration_candidates(
     loaded: &LoadedNet,
     support: &Task,
     query: &Task,
     eopts: &EvalOptions,
     cfg: &AdaptConfig,
-) -> Result<Result<Calibrated, String>, AdaptError> {
+) -> Result<CalibrationCandidates, AdaptError> {
     let rec = &support.rec;
     let (gt, valid) = data::ground_truth_at_imu(rec, &dataset_cfg(cfg));
     let span = (CALIBRATION_INCREMENT_S * rec.nominal_imu_rate_hz()).round().max(1.0) as usize;
     let fit = match calibration::fit_gyro_calibration(&rec.imu, &gt, &valid, span, CALIBRATION_PRIOR_STDDEV) {
         Ok(fit) => fit,
-        Err(e) => return Ok(Err(e.to_string())),
+        Err(e) => return Ok(CalibrationCandidates { alone: Err(e.to_string()), with_offset: None }),
     };
+    tracing::info!(
+        "gyro calibration on {} increments: Ĉ_ω {:?}, leftover bias {:?} rad/s (σ {:?}), residual {:.3} → {:.3} °/s",
+        fit.increments,
+        fit.matrix,
+        fit.leftover_bias_rad_s,
+        fit.leftover_bias_stddev_rad_s,
+        fit.residual_before_deg_s,
+        fit.residual_after_deg_s
+    );
+    let alone = if fit.determines_matrix() {
+        match scored(loaded, &fit, false, query, eopts)? {
+            Some(c) => Ok(c),
+            None => Err(NO_HEAD.to_string()),
+        }
+    } else {
+        let max_stddev = calibration::MAX_KEPT_STDDEV_OF_PRIOR * CALIBRATION_PRIOR_STDDEV;
+        Err(calibration::CalibrationError::NothingDetermined { max_stddev }.to_string())
+    };
+    let with_offset = if fit.determines_leftover_bias() { scored(loaded, &fit, true, query, eopts)? } else { None };
+    Ok(CalibrationCandidates { alone, with_offset })
+}
+
+const NO_HEAD: &str = "the model has no Ĉ_ω or Generator output layer to hold a calibration";
+
+/// The model holding `fit`: Ĉ_ω, the Generator's last layer's weight zero and its bias the
+/// leftover constant over σ (`with_offset`) or zero, so its correction σ ⊙ g is exactly that
+/// constant or nothing; scored on the query. `None`: the model has no such layers.
+fn scored(
+    loaded: &LoadedNet,
+    fit: &calibration::GyroCalibrationFit,
+    with_offset: bool,
+    query: &Task,
+    eopts: &EvalOptions,
+) -> Result<Option<Calibrated>, AdaptError> {
     let (vs, net) = copy_net(loaded)?;
     {
         let vars = vs.variables();
-        // The Generator's last layer zeroed: its output g, so σ ⊙ g, is exactly 0.
         let head = calibration_head_names(&vs).into_iter().find(|n| n.starts_with("generator."));
         let weight = head.as_ref().and_then(|b| vars.get(&b.replace(".bias", ".weight")));
         let (Some(delta), Some(bias), Some(weight)) = (vars.get("gyro_calib.delta"), head.as_ref().and_then(|b| vars.get(b)), weight)
         else {
-            return Ok(Err("the model has no Ĉ_ω or Generator output layer to hold a calibration".into()));
+            return Ok(None);
         };
         let m = fit.matrix;
         let flat: Vec<f64> = (0..9).map(|k| m[k / 3][k % 3] - if k / 3 == k % 3 { 1.0 } else { 0.0 }).collect();
+        let sigma = loaded.metadata.config.output_scale_rad_s();
+        let offset: Vec<f64> = (0..3).map(|k| if with_offset { fit.leftover_bias_rad_s[k] / sigma[k] } else { 0.0 }).collect();
         tch::no_grad(|| -> Result<(), ModelError> {
             delta.shallow_clone().f_copy_(&Tensor::from_slice(&flat).reshape([3, 3]).to_kind(delta.kind()))?;
-            let _ = bias.shallow_clone().f_zero_()?;
+            bias.shallow_clone().f_copy_(&Tensor::from_slice(&offset).to_kind(bias.kind()))?;
             let _ = weight.shallow_clone().f_zero_()?;
             Ok(())
         })?;
@@ -62,16 +104,12 @@ pub(super) fn calibration_candidate(
     let gyro = crate::train::fit::corrected_gyro(&net, query)?;
     let without: Vec<_> = query.rec.imu.iter().map(|s| s.gyro).collect();
     let pieces = pieces::piece_confidence(&query.rec, &gyro, &without, eopts);
-    let query_task = query;
-    let query = crate::eval::evaluate(&query_task.rec, &gyro, eopts)?;
+    let errors = crate::eval::evaluate(&query.rec, &gyro, eopts)?;
     tracing::info!(
-        "gyro calibration on {} increments: Ĉ_ω {:?}, residual {:.3} → {:.3} °/s; query AOE {:.3}°",
-        fit.increments,
-        fit.matrix,
-        fit.residual_before_deg_s,
-        fit.residual_after_deg_s,
-        query.aoe_deg
+        "gyro calibration{}: query AOE {:.3}°",
+        if with_offset { " with the bias offset in motion" } else { " alone" },
+        errors.aoe_deg
     );
     let metadata = ModelMetadata { imu_correction_gains: BTreeMap::new(), power_on_bias_removed: true, ..loaded.metadata.clone() };
-    Ok(Ok(Calibrated { fit, net: LoadedNet::new(vs, net, metadata), query, pieces }))
+    Ok(Some(Calibrated { fit: fit.clone(), net: LoadedNet::new(vs, net, metadata), query: errors, pieces }))
 }

@@ -4,7 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{to_task, AdaptConfig, AdaptError};
+use super::{to_task, AdaptConfig, AdaptError, AdaptOutcome, AdaptedKind, JudgedCandidate};
 use crate::core::Recording;
 use crate::eval::{evaluate, EvalOptions, OrientationErrors};
 use crate::model::export::LoadedNet;
@@ -134,6 +134,54 @@ impl CarryOver {
             if self.with_standstill_only { " with a standstill" } else { "" }
         )
     }
+}
+
+/// Judges every candidate of `outcome` (those that passed the query) on `recordings` (other
+/// power-ons) and keeps the one that carries over best among those that carry over with
+/// confidence; none does: all are refused (nothing to write), with the figures of the one
+/// tried first. What is shared (raw, the starting model, the power-on bias) is computed once
+/// per recording.
+pub fn keep_judged(start: &LoadedNet, outcome: &mut AdaptOutcome, recordings: &[Recording], cfg: &AdaptConfig) -> Result<(), AdaptError> {
+    let Some(first) = outcome.adapted.take() else { return Ok(()) };
+    let r = &mut outcome.report;
+    let mut candidates = vec![(r.kind.unwrap_or(AdaptedKind::Network), first)];
+    candidates.append(&mut outcome.others);
+    let models: Vec<&LoadedNet> = candidates.iter().map(|(_, m)| m).collect();
+    let mut per_model: Vec<Vec<Judged>> = vec![Vec::new(); models.len()];
+    for rec in recordings {
+        for (k, j) in judge_each(start, &models, rec, cfg)?.into_iter().enumerate() {
+            per_model[k].push(j);
+        }
+    }
+    let mut judged: Vec<JudgedCandidate> = candidates
+        .iter()
+        .zip(per_model)
+        .map(|((kind, _), judged)| JudgedCandidate { kind: *kind, carry_over: CarryOver::of(&judged), judged })
+        .collect();
+    let best = (0..judged.len())
+        .filter(|&k| judged[k].carry_over.carries_over())
+        .min_by(|&a, &b| judged[a].carry_over.ratio.total_cmp(&judged[b].carry_over.ratio));
+    let chosen = best.unwrap_or(0);
+    let kept = judged.remove(chosen);
+    let (kind, model) = candidates.remove(chosen);
+    r.judged = kept.judged;
+    r.judged_others = judged;
+    r.carry_over = Some(kept.carry_over);
+    if best.is_some() {
+        r.kind = Some(kind);
+        outcome.adapted = Some(model);
+    } else {
+        let c = kept.carry_over;
+        r.accepted = false;
+        r.kind = None;
+        r.verdict = format!(
+            "rejected on the other recordings: AOE adapted / without adapting (the power-on bias) is {:.3} (geometric mean {}), its 95 % upper bound {:.3} is not below 1; the adaptation does not carry over to another power-on",
+            c.ratio,
+            c.over(),
+            c.upper_95
+        );
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -11,13 +11,15 @@ use crate::model::export::LoadedNet;
 /// networks only where the user asked for them (`keep: networks`) or for this power-on alone
 /// (`power_on_bias: false`): their query gain did not carry over to another power-on in
 /// any measured case (docs/poweron.md). A candidate asked for by `keep` is kept on the
-/// query's evidence alone. Otherwise nothing, with the reason.
+/// query's evidence alone. The calibration with the support's bias offset in motion never:
+/// within one power-on, an offset that lasts on the platform and a drift of this power-on's
+/// bias look the same. Otherwise nothing, with the reason.
 pub fn keep_without_judge(mut outcome: AdaptOutcome, cfg: &AdaptConfig) -> AdaptOutcome {
     let mut candidates: Vec<(AdaptedKind, LoadedNet)> = Vec::new();
     if let (Some(kind), Some(model)) = (outcome.report.kind, outcome.adapted.take()) {
         candidates.push((kind, model));
     }
-    candidates.extend(outcome.runner_up.take());
+    candidates.append(&mut outcome.others);
     let r = &mut outcome.report;
     let networks_asked = cfg.keep == Keep::Networks || !cfg.power_on_bias;
     let mut why_not = Vec::new();
@@ -33,6 +35,10 @@ pub fn keep_without_judge(mut outcome: AdaptOutcome, cfg: &AdaptConfig) -> Adapt
                 )),
                 None => Some("the gyro calibration could not be judged piece by piece on the query".to_string()),
             },
+            AdaptedKind::CalibrationWithOffset => Some(format!(
+                "the bias offset in motion the support shows ({}) is this power-on's until another power-on shows it lasts (--judge OTHER.mcap): a drift of this power-on's bias looks the same",
+                offset_said(r)
+            )),
             AdaptedKind::Network if networks_asked => None,
             AdaptedKind::Network => Some(format!(
                 "the adapted networks' query gain ({:.3}° against {:.3}° {}) is this power-on's: it has not carried over to another power-on in the measured cases, so they are kept only when judged on one (--judge OTHER.mcap) or asked for (keep: networks)",
@@ -51,7 +57,7 @@ pub fn keep_without_judge(mut outcome: AdaptOutcome, cfg: &AdaptConfig) -> Adapt
         Some((kind, model)) => {
             r.kind = Some(kind);
             outcome.adapted = Some(model);
-            outcome.runner_up = kept.next();
+            outcome.others = kept.collect();
         }
         None => {
             if r.accepted {
@@ -62,4 +68,11 @@ pub fn keep_without_judge(mut outcome: AdaptOutcome, cfg: &AdaptConfig) -> Adapt
         }
     }
     outcome
+}
+
+fn offset_said(r: &super::AdaptReport) -> String {
+    r.calibration.as_ref().map_or(String::new(), |c| {
+        let b = c.leftover_bias_rad_s;
+        format!("[{:.5}, {:.5}, {:.5}] rad/s", b[0], b[1], b[2])
+    })
 }

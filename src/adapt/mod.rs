@@ -38,15 +38,15 @@ use crate::train::config::{DatasetConfig, SourceConfig};
 use crate::train::data::{self, DataError, Task};
 use crate::train::fit::{evaluate_net, evaluate_net_with_gain, evaluate_raw};
 
-use calibration_candidate::calibration_candidate;
+use calibration_candidate::{calibration_candidates, CalibrationCandidates};
 use networks::{adapt_networks, AdaptedNetworks};
 
 pub use config::{AdaptConfig, FramePolicy, Keep, Optimizer};
 pub use frame::{check_frame, FrameCheck};
-pub use judge::{judge, judge_each, CarryOver, Judged};
+pub use judge::{judge, judge_each, keep_judged, CarryOver, Judged};
 pub use keep::keep_without_judge;
 pub use pieces::PieceConfidence;
-pub use report::{AdaptOutcome, AdaptReport, AdaptedKind};
+pub use report::{AdaptOutcome, AdaptReport, AdaptedKind, JudgedCandidate};
 
 /// Why adaptation could not run.
 #[derive(Debug, thiserror::Error)]
@@ -223,23 +223,30 @@ pub fn adapt_knowing(
 
     let AdaptedNetworks { vs, net, losses, step_seconds, initial_bias } = adapt_networks(loaded, &s_task, cfg)?;
     let query_after = evaluate_net(&net, &q_task, &eopts)?;
-    // The second candidate: the lasting linear gyro error alone, the networks off.
-    let (calibrated, calibration_refused) = if cfg.power_on_bias && cfg.keep != Keep::Networks {
-        match calibration_candidate(loaded, &s_task, &q_task, &eopts, cfg)? {
-            Ok(c) => (Some(c), None),
-            Err(why) => (None, Some(why)),
+    // The other candidates: the lasting linear gyro error alone, the networks off; and with
+    // the support's bias offset in motion.
+    let (calibrated, with_offset, calibration_refused) = if cfg.power_on_bias && cfg.keep != Keep::Networks {
+        let CalibrationCandidates { alone, with_offset } = calibration_candidates(loaded, &s_task, &q_task, &eopts, cfg)?;
+        let with_offset = with_offset.filter(|_| cfg.keep == Keep::Auto);
+        match alone {
+            Ok(c) => (Some(c), with_offset, None),
+            Err(why) => (None, with_offset, Some(why)),
         }
     } else {
-        (None, None)
+        (None, None, None)
     };
     // Better than the starting model, and than what the node runs without it on a new IMU.
     let floor = query_power_on_bias.as_ref().map_or(f64::INFINITY, |e| e.aoe_deg);
     let passes = |e: &OrientationErrors| e.aoe_deg < query_before.aoe_deg && e.aoe_deg < floor;
     let network_passes = cfg.keep != Keep::GyroCalibration && passes(&query_after);
     let calibration_passes = calibrated.as_ref().is_some_and(|c| passes(&c.query));
-    let accepted = network_passes || calibration_passes;
-    let calibrated_aoe = calibrated.as_ref().map(|c| c.query.aoe_deg);
-    let verdict = if accepted { String::new() } else { query_verdict(query_before.aoe_deg, query_after.aoe_deg, calibrated_aoe, floor) };
+    let offset_passes = with_offset.as_ref().is_some_and(|c| passes(&c.query));
+    let accepted = network_passes || calibration_passes || offset_passes;
+    let others_aoe = [(AdaptedKind::Calibration, &calibrated), (AdaptedKind::CalibrationWithOffset, &with_offset)]
+        .into_iter()
+        .filter_map(|(k, c)| c.as_ref().map(|c| (k, c.query.aoe_deg)))
+        .collect::<Vec<_>>();
+    let verdict = if accepted { String::new() } else { query_verdict(query_before.aoe_deg, query_after.aoe_deg, &others_aoe, floor) };
     let mut report = AdaptReport {
         model: loaded.metadata.name.clone(),
         support: s_task.source.clone(),
@@ -265,11 +272,12 @@ pub fn adapt_knowing(
         support_power_on_bias,
         query_power_on_bias,
         judged: Vec::new(),
-        judged_runner_up: Vec::new(),
+        judged_others: Vec::new(),
         carry_over: None,
-        calibration: calibrated.as_ref().map(|c| c.fit.clone()),
+        calibration: calibrated.as_ref().or(with_offset.as_ref()).map(|c| c.fit.clone()),
         query_calibrated: calibrated.as_ref().map(|c| c.query.clone()),
         query_calibrated_pieces: calibrated.as_ref().and_then(|c| c.pieces),
+        query_calibrated_with_offset: with_offset.as_ref().map(|c| c.query.clone()),
         calibration_refused,
         kind: None,
         config: cfg.clone(),
@@ -281,15 +289,15 @@ pub fn adapt_knowing(
         (AdaptedKind::Network, LoadedNet::new(vs, net, metadata))
     });
     let calibration = calibrated.filter(|_| calibration_passes).map(|c| (AdaptedKind::Calibration, c.net));
-    // Both passed: the calibration first (the query is this power-on's, where the networks'
-    // gain has not carried over); `adapt --judge` keeps whichever carries over better,
-    // [`keep_without_judge`] what lasts.
-    let (adapted, runner_up) = match (calibration, network) {
-        (Some(c), Some(n)) => (Some(c), Some(n)),
-        (c, n) => (c.or(n), None),
-    };
+    let offset = with_offset.filter(|_| offset_passes).map(|c| (AdaptedKind::CalibrationWithOffset, c.net));
+    // The calibration first (the query is this power-on's, where the networks' gain has not
+    // carried over); `adapt --judge` keeps whichever carries over best, [`keep_without_judge`]
+    // what lasts.
+    let mut candidates = [calibration, offset, network].into_iter().flatten();
+    let adapted = candidates.next();
+    let others: Vec<_> = candidates.collect();
     report.kind = adapted.as_ref().map(|(k, _)| *k);
-    Ok(AdaptOutcome { report, adapted: adapted.map(|(_, m)| m), runner_up })
+    Ok(AdaptOutcome { report, adapted: adapted.map(|(_, m)| m), others })
 }
 
 /// The frame check on the support (docs/adaptation.md, step 2): a rotation between the IMU
@@ -329,8 +337,8 @@ fn check_ground_truth_frame(
 }
 
 /// Why neither candidate passed the query.
-fn query_verdict(before: f64, after: f64, calibrated: Option<f64>, floor: f64) -> String {
-    let calibration = calibrated.map_or(String::new(), |c| format!(", the gyro calibration alone {c:.3}°"));
+fn query_verdict(before: f64, after: f64, others: &[(AdaptedKind, f64)], floor: f64) -> String {
+    let calibration: String = others.iter().map(|(k, aoe)| format!(", {} {aoe:.3}°", k.name())).collect();
     if after >= before {
         format!("rejected: the adapted model is not better on the query data (AOE {before:.3}° → {after:.3}°{calibration}); the previous model is kept")
     } else {
@@ -349,6 +357,13 @@ pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name:
         Some(AdaptedKind::Calibration) => {
             let c = report.calibration.as_ref().map_or(0, |c| c.increments);
             format!("gyro calibration (Ĉ_ω, the networks off) fitted on {c} increments")
+        }
+        Some(AdaptedKind::CalibrationWithOffset) => {
+            let (n, b) = report.calibration.as_ref().map_or((0, [0.0; 3]), |c| (c.increments, c.leftover_bias_rad_s));
+            format!(
+                "gyro calibration (Ĉ_ω, the networks off) with a bias offset in motion of [{:.5}, {:.5}, {:.5}] rad/s, fitted on {n} increments",
+                b[0], b[1], b[2]
+            )
         }
         _ => format!("{} steps", report.steps),
     };

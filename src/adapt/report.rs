@@ -51,9 +51,9 @@ pub struct AdaptReport {
     /// Other recordings of the IMU it was judged on (`adapt --judge`).
     #[serde(default)]
     pub judged: Vec<Judged>,
-    /// The candidate not kept, on the same recordings (where both passed the query).
+    /// The candidates not kept (those that passed the query too), on the same recordings.
     #[serde(default)]
-    pub judged_runner_up: Vec<Judged>,
+    pub judged_others: Vec<JudgedCandidate>,
     /// How the one kept (or refused) carries over to them.
     #[serde(default)]
     pub carry_over: Option<CarryOver>,
@@ -67,6 +67,10 @@ pub struct AdaptReport {
     /// the calibration is kept only where its gain holds ([`pieces`]).
     #[serde(default)]
     pub query_calibrated_pieces: Option<PieceConfidence>,
+    /// Query AOE of the calibration with the support's bias offset in motion (its leftover
+    /// constant), where the support determines that offset.
+    #[serde(default)]
+    pub query_calibrated_with_offset: Option<OrientationErrors>,
     /// Why no calibration was fitted (too few increments, a departure no gyro has, nothing
     /// the support determines).
     #[serde(default)]
@@ -85,6 +89,19 @@ pub enum AdaptedKind {
     Network,
     /// Ĉ_ω fitted in closed form, the networks' correction off ([`calibration`]).
     Calibration,
+    /// The same Ĉ_ω (I where the support determines none of it) and the support's bias offset
+    /// in motion: the gyro's bias while moving less the power-on bias measured at rest (rotor
+    /// vibration, a warm-up under load). Lasting on a platform, or this power-on's drift: only
+    /// other power-ons tell, so it is kept only where judged on them.
+    CalibrationWithOffset,
+}
+
+/// A candidate judged on the other recordings but not kept.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct JudgedCandidate {
+    pub kind: AdaptedKind,
+    pub carry_over: CarryOver,
+    pub judged: Vec<Judged>,
 }
 
 impl AdaptReport {
@@ -93,6 +110,7 @@ impl AdaptReport {
         match self.kind? {
             AdaptedKind::Network => Some(&self.query_after),
             AdaptedKind::Calibration => self.query_calibrated.as_ref(),
+            AdaptedKind::CalibrationWithOffset => self.query_calibrated_with_offset.as_ref(),
         }
     }
 }
@@ -102,6 +120,7 @@ impl AdaptedKind {
         match self {
             AdaptedKind::Network => "the adapted networks",
             AdaptedKind::Calibration => "the gyro calibration alone",
+            AdaptedKind::CalibrationWithOffset => "the gyro calibration with the support's bias offset in motion",
         }
     }
 }
@@ -115,6 +134,6 @@ pub struct AdaptOutcome {
     pub report: AdaptReport,
     /// The adapted model (a fresh VarStore; the input model is untouched). `None` when rejected.
     pub adapted: Option<LoadedNet>,
-    /// The other candidate, where it passed the query too, with its kind.
-    pub runner_up: Option<(AdaptedKind, LoadedNet)>,
+    /// The other candidates that passed the query too, with their kinds, in the order tried.
+    pub others: Vec<(AdaptedKind, LoadedNet)>,
 }

@@ -301,6 +301,17 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     if let Some(why) = &r.calibration_refused {
         eprintln!("gyro calibration alone: not a candidate: {why}");
     }
+    if let (Some(c), Some(q)) = (&r.calibration, &r.query_calibrated_with_offset) {
+        let (b, sd) = (c.leftover_bias_rad_s, c.leftover_bias_stddev_rad_s);
+        eprintln!(
+            "gyro calibration with the support's bias offset in motion [{:.5}, {:.5}, {:.5}] rad/s (σ {:.1e}): query AOE {:.3}°; kept only where other power-ons show it lasts (--judge)",
+            b[0],
+            b[1],
+            b[2],
+            sd.iter().copied().fold(0.0, f64::max),
+            q.aoe_deg
+        );
+    }
     if let Some(k) = r.kind {
         eprintln!("kept: {}", k.name());
     }
@@ -320,8 +331,8 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
 }
 
 /// `--judge`: scores each candidate that passed the query on each other recording, keeps the
-/// one that carries over best, and rejects both (nothing written) when neither's AOE there is
-/// below what the node runs without it.
+/// one that carries over best, and rejects all (nothing written) when none's AOE there is
+/// below what the node runs without it ([`imu_fsda::adapt::keep_judged`]).
 fn judge_on_other_recordings(
     args: &AdaptArgs,
     topics: &RecordingTopics,
@@ -335,23 +346,11 @@ fn judge_on_other_recordings(
     let mut recordings = Vec::new();
     for bag in &args.judges {
         let (rec, _) = read_recording(bag, topics).with_context(|| format!("reading --judge {}", bag.display()))?;
-        recordings.push((bag, rec));
+        recordings.push(rec);
     }
-    // Both candidates on each recording (what they share computed once), split per candidate.
-    let mut models = vec![outcome.adapted.as_ref().expect("checked above")];
-    models.extend(outcome.runner_up.as_ref().map(|(_, m)| m));
-    let mut per_model: Vec<Vec<imu_fsda::adapt::Judged>> = vec![Vec::new(); models.len()];
-    for (bag, rec) in &recordings {
-        let judged = imu_fsda::adapt::judge_each(start, &models, rec, cfg).with_context(|| format!("judging on {}", bag.display()))?;
-        for (k, j) in judged.into_iter().enumerate() {
-            per_model[k].push(j);
-        }
-    }
-    let runner_up = (per_model.len() > 1).then(|| per_model.pop().expect("two models"));
-    let chosen = per_model.pop().expect("one model");
-    let first = CarryOver::of(&chosen);
-    let r = &mut outcome.report;
-    let kind = r.kind.map_or("the adapted model", |k| k.name());
+    let tried = outcome.report.kind;
+    imu_fsda::adapt::keep_judged(start, outcome, &recordings, cfg).context("judging on the other recordings")?;
+    let r = &outcome.report;
     let say = |what: &str, c: &CarryOver| {
         eprintln!(
             "on the other recordings: AOE with {what} / without adapting {:.3} (geometric mean {}, 95 % upper bound {:.3})",
@@ -360,36 +359,11 @@ fn judge_on_other_recordings(
             c.upper_95
         )
     };
-    say(kind, &first);
-    let second = runner_up.as_ref().map(|j| CarryOver::of(j));
-    if let (Some((k, _)), Some(c)) = (&outcome.runner_up, &second) {
-        say(k.name(), c);
+    if let Some(c) = &r.carry_over {
+        say(r.kind.or(tried).map_or("the adapted model", |k| k.name()), c);
     }
-    // The runner-up carries over better (and confidently): it is the one kept.
-    let swap = second.is_some_and(|c| c.carries_over() && (c.ratio < first.ratio || !first.carries_over()));
-    let (carry, judged, judged_other) = if swap {
-        let (k, m) = outcome.runner_up.take().expect("judged above");
-        let previous = outcome.adapted.replace(m).expect("checked above");
-        outcome.runner_up = Some((r.kind.unwrap_or(imu_fsda::adapt::AdaptedKind::Network), previous));
-        r.kind = Some(k);
-        (second.expect("judged above"), runner_up.unwrap_or_default(), chosen)
-    } else {
-        (first, chosen, runner_up.unwrap_or_default())
-    };
-    r.judged = judged;
-    r.judged_runner_up = judged_other;
-    r.carry_over = Some(carry);
-    if !carry.carries_over() {
-        r.accepted = false;
-        r.kind = None;
-        r.verdict = format!(
-            "rejected on the other recordings: AOE adapted / without adapting (the power-on bias) is {:.3} (geometric mean {}), its 95 % upper bound {:.3} is not below 1; the adaptation does not carry over to another power-on",
-            carry.ratio,
-            carry.over(),
-            carry.upper_95
-        );
-        outcome.adapted = None;
-        outcome.runner_up = None;
+    for other in &r.judged_others {
+        say(other.kind.name(), &other.carry_over);
     }
     Ok(())
 }

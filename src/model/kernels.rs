@@ -269,9 +269,11 @@ impl<T: Real> StreamConv<T> {
         }
     }
 
-    /// The last layer is all zeros: its output is exactly 0 whatever its input.
-    pub fn is_zero(&self) -> bool {
-        self.weight.is_zero() && self.bias.iter().all(|v| *v == T::default())
+    /// The layer's output whatever its input, where its weights are all zero and nothing
+    /// follows them (no LayerNorm, no activation): its bias. `None` otherwise.
+    pub fn constant_output(&self) -> Option<Vec<f64>> {
+        (self.weight.is_zero() && self.layer_norm.is_none() && matches!(self.activation, Activation::Identity))
+            .then(|| self.bias.iter().map(|b| b.to_f64()).collect())
     }
 
     /// Advances the ring and returns the slot for the newest input.

@@ -77,9 +77,10 @@ pub struct StreamingDenoiser {
     /// The share g of the model's correction applied: `ω + g (ω̂ − ω)` (1: the model as
     /// trained; see [`crate::model::export::ModelMetadata::imu_correction_gains`]).
     correction_gain: f64,
-    /// The last layer is all zeros (an adaptation that kept the gyro calibration alone): the
-    /// networks' output is exactly 0, so they are not run (`Ĉ_ω ω`, bit for bit the same).
-    networks_off: bool,
+    /// The last layer's weights are all zero (an adaptation that kept the gyro calibration,
+    /// alone or with a bias offset in motion): the networks' output is exactly σ ⊙ its bias,
+    /// so they are not run (`Ĉ_ω ω + σ ⊙ b`, bit for bit the same).
+    constant_correction: Option<Vector3<f64>>,
 }
 
 /// `ω + g (ω̂ − ω)`: the share `g` of a model's correction `ω̂ − ω` (exactly `ω̂` for g = 1).
@@ -178,7 +179,12 @@ impl StreamingDenoiser {
         let calib = Matrix3::from_row_slice(&c);
         let scale = Vector3::from_column_slice(&to_vec(&net.scale)?);
         let networks = networks_of(net)?;
-        let networks_off = networks.convs.last().is_some_and(StreamConv::is_zero);
+        let constant_correction = networks
+            .convs
+            .last()
+            .and_then(StreamConv::constant_output)
+            .filter(|b| b.len() == 3)
+            .map(|b| scale.component_mul(&Vector3::from_column_slice(&b)));
         let receptive_field = 1 + networks.convs.iter().map(|c| c.rows - 1).sum::<usize>();
         Ok(Self {
             mean,
@@ -189,7 +195,7 @@ impl StreamingDenoiser {
             receptive_field,
             samples_seen: 0,
             correction_gain: 1.0,
-            networks_off,
+            constant_correction,
         })
     }
 
@@ -241,9 +247,10 @@ impl StreamingDenoiser {
         self.samples_seen = 0;
     }
 
-    /// The networks' output is exactly 0 (the gyro calibration alone): they are not run.
+    /// The networks' output is a constant (the gyro calibration, alone or with a bias offset
+    /// in motion): they are not run.
     pub fn networks_off(&self) -> bool {
-        self.networks_off
+        self.constant_correction.is_some()
     }
 
     /// Number of conv layers.
@@ -275,9 +282,9 @@ impl StreamingDenoiser {
     /// non-finite input poisons the state for N samples: reject those first (see
     /// [`StreamingDenoiser::try_step`]).
     pub fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64> {
-        if self.networks_off {
+        if let Some(constant) = &self.constant_correction {
             self.samples_seen += 1;
-            return apply_correction_gain(gyro, &(self.calib * gyro), self.correction_gain);
+            return apply_correction_gain(gyro, &(self.calib * gyro + constant), self.correction_gain);
         }
         let first = self.samples_seen == 0;
         let mut imu = [0.0; 6];
@@ -406,29 +413,36 @@ mod tests {
         }
     }
 
-    /// An adaptation that kept the gyro calibration alone zeroes the last layer: the step
-    /// skips the networks and still equals the batch forward.
+    /// An adaptation that kept the gyro calibration zeroes the last layer's weights, and its
+    /// bias too (alone) or holds the bias offset in motion there: the step skips the networks
+    /// and still equals the batch forward.
     #[test]
     fn a_zero_last_layer_skips_the_networks_and_equals_the_batch_forward() {
         tch::set_num_threads(1);
         let samples = random_imu(1000, 3);
-        let (vs, net) = random_net(Mode::FsdaF, 5);
-        let last =
-            vs.variables().keys().filter_map(|n| n.strip_prefix("generator.conv")?.strip_suffix(".bias")?.parse::<usize>().ok()).max();
-        let vars = vs.variables();
-        tch::no_grad(|| {
-            for part in ["weight", "bias"] {
-                let _ = vars[&format!("generator.conv{}.{part}", last.unwrap())].shallow_clone().zero_();
-            }
-            vars["gyro_calib.delta"].shallow_clone().copy_(&(Tensor::randn([3, 3], (Kind::Float, Device::Cpu)) * 0.02));
-        });
-        let mut d = StreamingDenoiser::from_net(&net).unwrap();
-        assert!(d.networks_off());
-        let streamed = stream(&mut d, &samples);
-        let inference64 = net.inference().to_kind(Kind::Double);
-        let exact = batch(|u| inference64.forward(u), &samples, Kind::Double);
-        assert!(max_abs_diff(&streamed, &exact) < 1e-12, "{:e}", max_abs_diff(&streamed, &exact));
-        assert_eq!(d.samples_seen(), samples.len() as u64);
+        for offset in [[0.0f32; 3], [0.3, -0.1, 0.05]] {
+            let (vs, net) = random_net(Mode::FsdaF, 5);
+            let last = vs
+                .variables()
+                .keys()
+                .filter_map(|n| n.strip_prefix("generator.conv")?.strip_suffix(".bias")?.parse::<usize>().ok())
+                .max()
+                .unwrap();
+            let vars = vs.variables();
+            tch::no_grad(|| {
+                let _ = vars[&format!("generator.conv{last}.weight")].shallow_clone().zero_();
+                vars[&format!("generator.conv{last}.bias")].shallow_clone().copy_(&Tensor::from_slice(&offset));
+                vars["gyro_calib.delta"].shallow_clone().copy_(&(Tensor::randn([3, 3], (Kind::Float, Device::Cpu)) * 0.02));
+            });
+            let mut d = StreamingDenoiser::from_net(&net).unwrap();
+            assert!(d.networks_off());
+            assert_eq!(net.correction_networks_off(), offset == [0.0; 3], "the metadata's flag is for an exact 0 only");
+            let streamed = stream(&mut d, &samples);
+            let inference64 = net.inference().to_kind(Kind::Double);
+            let exact = batch(|u| inference64.forward(u), &samples, Kind::Double);
+            assert!(max_abs_diff(&streamed, &exact) < 1e-12, "{offset:?}: {:e}", max_abs_diff(&streamed, &exact));
+            assert_eq!(d.samples_seen(), samples.len() as u64);
+        }
         // A trained last layer is run.
         assert!(!StreamingDenoiser::from_net(&random_net(Mode::FsdaF, 6).1).unwrap().networks_off());
     }
