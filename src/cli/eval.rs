@@ -98,293 +98,14 @@ pub struct Row {
 }
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
-    let methods = if args.methods.is_empty() && args.models.is_empty() {
-        vec![BaselineMethod::Raw, BaselineMethod::StaticBias]
-    } else {
-        args.methods.clone()
-    };
-    let model_files: Vec<PathBuf> = args.models.iter().flat_map(|m| [m.clone(), metadata_path(m), m.with_extension("ot")]).collect();
-    let inputs: Vec<&std::path::Path> = args.bags.iter().chain(&model_files).map(PathBuf::as_path).collect();
-    for out in args.json.iter().chain(&args.markdown) {
-        super::refuse_overwriting_input(out, &inputs)?;
-    }
-    let outputs: Vec<(&str, &std::path::Path)> =
-        [("--json", &args.json), ("--markdown", &args.markdown)].into_iter().filter_map(|(n, p)| Some((n, p.as_deref()?))).collect();
-    super::refuse_shared_outputs(&outputs)?;
-    let names = bag_names(&args.bags);
-    let opts = EvalOptions { max_gap_ns: (args.max_gap_ms * 1e6) as i64 };
-    super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
-    let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
-    let detector = RestDetector::default();
-    let standstill = match &args.params {
-        Some(path) => {
-            let node =
-                imu_fsda::node::NodeParams::from_yaml_file(path, "imu_fsda").with_context(|| format!("--params {}", path.display()))?;
-            node.pipeline.standstill
-        }
-        None => StandstillConfig::default(),
-    };
-    let memory = match &args.bias_memory {
-        Some(p) => Some(imu_fsda::bias_memory::BiasMemory::load(p)?),
-        None => None,
-    };
-    // The models' metadata, read once, before any bag.
-    let metas: Vec<imu_fsda::model::export::ModelMetadata> = args
-        .models
-        .iter()
-        .map(|m| load_metadata(&metadata_path(m)).with_context(|| format!("model {}", m.display())))
-        .collect::<anyhow::Result<_>>()?;
-    // Which models know IMUs by name (one Ĉ_ω or a correction gain per IMU; the others ignore --imu).
-    let per_imu: Vec<bool> = metas.iter().map(|m| !m.imu_names().is_empty()).collect();
-    // The start-up check for each IMU the bags will be run as, too: a per-IMU Ĉ_ω edited in
-    // the `.json` is a mismatch only with that IMU selected.
-    let imu_names: std::collections::BTreeSet<&str> =
-        args.imus.iter().map(|rule| rule.split_once('=').map_or(rule.as_str(), |(_, name)| name)).filter(|n| !n.is_empty()).collect();
-    for (m, meta) in args.models.iter().zip(&metas) {
-        super::corrector::check_model_files(m, None)?;
-        let known = meta.imu_names();
-        for name in imu_names.iter().filter(|n| known.iter().any(|k| k == *n)) {
-            super::corrector::check_model_files(m, Some(name)).with_context(|| format!("run as IMU {name}"))?;
-        }
-    }
-    let labels = model_labels(&args.models, &metas);
+    let evaluation = Evaluation::new(&args)?;
     let mut rows = Vec::new();
     let mut failed: Vec<String> = Vec::new();
-    for (bag, name) in args.bags.iter().zip(names) {
+    for (bag, name) in args.bags.iter().zip(bag_names(&args.bags)) {
         let rows_before = rows.len();
         // One bag that cannot be read or scored is a row saying why when there are others:
         // their rows are kept (before, the first such bag ended the command with nothing).
-        let evaluated = (|| -> anyhow::Result<()> {
-            let standstill = StandstillConfig {
-                remembered: memory.as_ref().and_then(|m| m.predict(Some(name.as_str()), standstill.min_power_on_spread)),
-                ..standstill
-            };
-            let (mut rec, report) = read_recording(bag, &topics)?;
-            // Stamps that are not the samples' times leave nothing to score: the pauses between
-            // bursts stamped on arrival are holes, and every method read 0.00°.
-            if let Some(why) = report.stamp_problem().or_else(|| imu_fsda::core::burst_stamps(&rec.imu)) {
-                anyhow::bail!("{}: {why}", bag.display());
-            }
-            // Values no IMU measures are dropped, as the node drops them, and said in every row:
-            // one 1e30 rad/s sample would otherwise decide every method's score.
-            let before = rec.imu.len();
-            rec.imu.retain(ImuSample::is_plausible);
-            let implausible = before - rec.imu.len();
-            // Clipped samples are scored as recorded (the node integrates them too), and said.
-            let clipped = imu_fsda::core::clipped_samples(&rec.imu);
-            if let Some(c) = &clipped {
-                tracing::warn!("{}: {c}", bag.display());
-            }
-            if implausible > 0 {
-                tracing::warn!("{}: dropped {implausible} IMU samples beyond what any IMU measures", bag.display());
-            }
-            if rec.ground_truth.is_empty() {
-                let (present, _) = imu_fsda::bag::bag_info(bag);
-                let present: Vec<String> = present.iter().map(|t| format!("{} [{}]", t.topic, t.type_name)).collect();
-                anyhow::bail!(
-                    "{}: no ground truth on {} (topics: {}); pass --ground-truth-topic",
-                    bag.display(),
-                    args.ground_truth_topic,
-                    present.join(", ")
-                );
-            }
-            if let (Some(a), Some(g0), Some(g1)) = (args.start_s, rec.ground_truth.first(), rec.ground_truth.last()) {
-                let covered = (g1.stamp_ns - g0.stamp_ns) as f64 * 1e-9;
-                if a >= covered {
-                    anyhow::bail!(
-                        "{}: --start-s {a} is past the ground truth, which covers {covered:.1} s from its first pose: nothing left to score",
-                        bag.display()
-                    );
-                }
-            }
-            // The methods and models run over the whole recording, as the node would have (the
-            // initial rest and a model's window lie before a scored span), and are scored on the
-            // span: before, a model warmed up again at --start-s, and static-bias found no rest.
-            let (whole, rec) = if args.start_s.is_some() || args.end_s.is_some() {
-                let span = rec.crop_after_ground_truth_start(args.start_s, args.end_s).with_context(|| {
-                    format!(
-                        "{}: fewer than 2 IMU samples between --start-s {} and --end-s {} after the ground truth starts ({:.1} s recorded)",
-                        bag.display(),
-                        args.start_s.unwrap_or(0.0),
-                        args.end_s.map_or("(end)".to_string(), |e| e.to_string()),
-                        rec.imu_seconds()
-                    )
-                })?;
-                (Some(rec), span)
-            } else {
-                (None, rec)
-            };
-            let lag = imu_fsda::eval::ground_truth_lag(&rec, &opts, imu_fsda::eval::GROUND_TRUTH_LAG_SEARCH_S);
-            if let Some(l) = lag {
-                tracing::info!("{name}: ground truth lags the IMU by {:.1} ms (rate correlation {:.3})", l.lag_s * 1e3, l.correlation);
-            }
-            // A clock offset is scored as recorded (it is part of what the user has), and said.
-            let lag_note = lag.filter(imu_fsda::eval::GroundTruthLag::is_misaligned).map(|l| {
-                let note = format!(
-                    "ground truth lags the IMU by {:.1} ms (rate correlation {:.2}): scored as recorded",
-                    l.lag_s * 1e3,
-                    l.correlation
-                );
-                tracing::warn!("{}: {note}; check the clocks", bag.display());
-                note
-            });
-            // Ground truth that cannot be this IMU's attitude (a gyro in °/s, another frame,
-            // inverted quaternions) and an accelerometer not in m/s² are scored as recorded and
-            // said on every row: `train` and `adapt` refuse them.
-            // (A clock offset, said above, also makes the frames disagree: not said twice.)
-            let input_notes: Vec<String> = [
-                imu_fsda::train::data::check_ground_truth_follows_gyro(&rec, true).err().filter(|_| lag_note.is_none()),
-                imu_fsda::train::data::check_accel_units(&rec).err(),
-            ]
-            .into_iter()
-            .flatten()
-            .map(|e| {
-                let text = e.to_string();
-                let text = text.strip_prefix(&format!("{}: ", rec.name)).unwrap_or(&text).to_string();
-                tracing::warn!("{}: {text}", bag.display());
-                format!("{text}; scored as recorded")
-            })
-            .collect();
-            // Integrated paths of the methods that evaluated, for the figures.
-            let mut paths: Vec<(String, OrientationPath)> = Vec::new();
-            let mut keep = |name: &str, path: OrientationPath| {
-                if args.plot_dir.is_some() {
-                    paths.push((name.to_string(), path));
-                }
-            };
-            // Every method's and model's gyro stream (or why it has none), then one scoring loop.
-            let source = whole.as_ref().unwrap_or(&rec);
-            let span = scored_span(source, &rec);
-            let mut streams: Vec<(String, Stream)> = Vec::new();
-            for &m in &methods {
-                let got = match m.apply(source, &detector, &standstill) {
-                    Ok((g, note)) => Ok((g[span.clone()].to_vec(), note)),
-                    Err(imu_fsda::eval::EvalError::Method { why, .. }) => Err(why),
-                    Err(e) => Err(e.to_string()),
-                };
-                streams.push((m.name().into(), got));
-            }
-            let imu = imu_for_bag(&args.imus, bag);
-            for (model_index, (model, &per_imu)) in args.models.iter().zip(&per_imu).enumerate() {
-                let imu = imu.filter(|_| per_imu);
-                // The node's decision for this model on this IMU ([`imu_fsda::infer::choose`]).
-                let (correction, why) = choose(ModelDomain::of(&metas[model_index], imu), true, args.model_on_new_imu);
-                let track = correction.removes_power_on_bias().then(|| BiasTrack::over(&source.imu, &standstill));
-                let input = match (&track, correction.runs_model()) {
-                    (Some(t), true) => t.debiased(&source.imu),
-                    _ => source.imu.clone(),
-                };
-                let run =
-                    correct_with_torchscript_at_model_rate(model, &input, imu).with_context(|| format!("model {}", model.display()))?;
-                let mut corrected = run.corrected;
-                if let (Some(t), true) = (&track, correction.runs_model()) {
-                    t.hold_still_windows(&source.imu, &mut corrected);
-                }
-                let (gyro, meta) = (corrected[span.clone()].to_vec(), run.metadata);
-                let calib = imu.map_or(String::new(), |n| match meta.imu_correction_gains.get(n).filter(|_| meta.adapted_from.is_none()) {
-                    Some(g) => format!(", as on IMU {n} (correction gain {g:.3})"),
-                    None => format!(", Ĉ_ω of {n}"),
-                });
-                let mut note = format!("{:?}, N = {}{calib}", meta.mode, meta.window_n);
-                // As the node runs it: in the model's periods (the mean rate over each).
-                if let Some(rate) = run.resampled_from_hz {
-                    add_note(&mut note, &format!("the {rate:.1} Hz input run in the model's {:.0} Hz periods", meta.rate_hz));
-                }
-                let label = labels[model_index].clone();
-                let non_finite = gyro.iter().filter(|g| !g.iter().all(|v| v.is_finite())).count();
-                if non_finite > 0 {
-                    let why = format!("the model's output is not finite at {non_finite} of {} samples: not scored", gyro.len());
-                    tracing::error!("{name}: {}: {why}", model.display());
-                    streams.push((label, Err(why)));
-                    continue;
-                }
-                if correction.removes_power_on_bias() && correction.runs_model() {
-                    add_note(&mut note, &format!("{why}: {}", track.as_ref().map(BiasTrack::note).unwrap_or_default()));
-                }
-                if !correction.runs_model() {
-                    // The model alone is scored (what it does here), and beside it what the node
-                    // runs on this IMU instead.
-                    add_note(&mut note, &format!("the model alone; as deployed the node runs {}", correction.name()));
-                    let deployed = match &track {
-                        Some(t) => (t.corrected_gyro(&source.imu)[span.clone()].to_vec(), format!("{why}: {}", t.note())),
-                        None => (source.imu[span.clone()].iter().map(|s| s.gyro).collect(), why.to_string()),
-                    };
-                    streams.push((label.clone(), Ok((gyro, note))));
-                    streams.push((format!("{label} as deployed"), Ok(deployed)));
-                    continue;
-                }
-                streams.push((label, Ok((gyro, note))));
-            }
-            for (method, got) in streams {
-                let (gyro, note) = match got {
-                    Ok(g) => g,
-                    Err(why) => {
-                        rows.push(Row { bag: name.clone(), method, errors: None, note: why });
-                        continue;
-                    }
-                };
-                let mut note = note;
-                if report.skipped() > 0 {
-                    add_note(&mut note, &skipped_note(&report));
-                }
-                if let Some(stream) = report.imu_stream_note() {
-                    add_note(&mut note, &stream);
-                }
-                if let Some(clipped) = &clipped {
-                    add_note(&mut note, clipped);
-                }
-                if implausible > 0 {
-                    add_note(
-                        &mut note,
-                        &format!(
-                            "dropped {implausible} implausible IMU samples (|ω| > {:e} rad/s or |a| > {:e} m/s²)",
-                            imu_fsda::core::IMPLAUSIBLE_RATE_RAD_S,
-                            imu_fsda::core::IMPLAUSIBLE_ACCEL_M_S2
-                        ),
-                    );
-                }
-                if let Some(lag) = &lag_note {
-                    add_note(&mut note, lag);
-                }
-                for n in &input_notes {
-                    add_note(&mut note, n);
-                }
-                match evaluate_with_path(&rec, &gyro, &opts) {
-                    Ok((e, path)) => {
-                        keep(&method, path);
-                        if let Some(gaps) = e.gap_note() {
-                            add_note(&mut note, &gaps);
-                        }
-                        rows.push(Row { bag: name.clone(), method: method.clone(), errors: Some(e), note });
-                    }
-                    Err(e) => rows.push(Row { bag: name.clone(), method: method.clone(), errors: None, note: e.to_string() }),
-                }
-                if args.oracle_bias {
-                    let bound = format!("{method} − oracle bias");
-                    let row = mean_rate_error(&rec, &gyro, &opts).and_then(|b| {
-                        let fixed: Vec<Vector3<f64>> = gyro.iter().map(|g| g - b).collect();
-                        let (e, _) = evaluate_with_path(&rec, &fixed, &opts)?;
-                        let note = format!("oracle, reads the ground truth: constant [{:.5}, {:.5}, {:.5}] rad/s removed", b.x, b.y, b.z);
-                        Ok(Row { bag: name.clone(), method: bound.clone(), errors: Some(e), note })
-                    });
-                    rows.push(row.unwrap_or_else(|e| Row { bag: name.clone(), method: bound, errors: None, note: e.to_string() }));
-                }
-            }
-            if let Some(dir) = &args.plot_dir {
-                if paths.is_empty() {
-                    tracing::warn!("{name}: no method evaluated, no figure");
-                } else {
-                    imu_fsda::core::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-                    let files =
-                        imu_fsda::figures::orientation_figures(dir, &name, &rec, &paths).with_context(|| format!("{name}: figures"))?;
-                    for f in files {
-                        tracing::info!("wrote {}", f.display());
-                    }
-                }
-            }
-            Ok(())
-        })();
-        if let Err(e) = evaluated {
+        if let Err(e) = evaluation.bag(bag, &name, &mut rows) {
             if args.bags.len() == 1 {
                 return Err(e);
             }
@@ -398,13 +119,350 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let table = markdown_table(&rows);
     out!("{}", table.trim_end_matches('\n'))?;
     if let Some(p) = &args.json {
-        std::fs::write(p, serde_json::to_string_pretty(&serde_json::json!({"options": opts, "rows": rows}))?)
+        std::fs::write(p, serde_json::to_string_pretty(&serde_json::json!({"options": evaluation.opts, "rows": rows}))?)
             .with_context(|| format!("writing {}", p.display()))?;
     }
     if let Some(p) = &args.markdown {
         std::fs::write(p, &table).with_context(|| format!("writing {}", p.display()))?;
     }
     super::every_bag_scored(&failed, args.bags.len())
+}
+
+/// What `eval` runs on every bag, checked and loaded once before the first: the methods, the
+/// models' metadata, the standstill rule and the bias memory.
+struct Evaluation<'a> {
+    args: &'a EvalArgs,
+    methods: Vec<BaselineMethod>,
+    opts: EvalOptions,
+    topics: RecordingTopics,
+    detector: RestDetector,
+    standstill: StandstillConfig,
+    memory: Option<imu_fsda::bias_memory::BiasMemory>,
+    metas: Vec<imu_fsda::model::export::ModelMetadata>,
+    /// Which models know IMUs by name (one Ĉ_ω or a correction gain per IMU; the others ignore --imu).
+    per_imu: Vec<bool>,
+    labels: Vec<String>,
+}
+
+/// A bag read for scoring: the span scored (`rec`), the whole recording the methods run over
+/// when a span was asked for, and what reading it found.
+struct ScoredRecording {
+    whole: Option<Recording>,
+    rec: Recording,
+    report: imu_fsda::bag::LoadReport,
+    implausible: usize,
+    clipped: Option<String>,
+}
+
+impl<'a> Evaluation<'a> {
+    fn new(args: &'a EvalArgs) -> anyhow::Result<Self> {
+        let methods = if args.methods.is_empty() && args.models.is_empty() {
+            vec![BaselineMethod::Raw, BaselineMethod::StaticBias]
+        } else {
+            args.methods.clone()
+        };
+        let model_files: Vec<PathBuf> = args.models.iter().flat_map(|m| [m.clone(), metadata_path(m), m.with_extension("ot")]).collect();
+        let inputs: Vec<&std::path::Path> = args.bags.iter().chain(&model_files).map(PathBuf::as_path).collect();
+        for out in args.json.iter().chain(&args.markdown) {
+            super::refuse_overwriting_input(out, &inputs)?;
+        }
+        let outputs: Vec<(&str, &std::path::Path)> =
+            [("--json", &args.json), ("--markdown", &args.markdown)].into_iter().filter_map(|(n, p)| Some((n, p.as_deref()?))).collect();
+        super::refuse_shared_outputs(&outputs)?;
+        super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
+        let standstill = match &args.params {
+            Some(path) => {
+                imu_fsda::node::NodeParams::from_yaml_file(path, "imu_fsda")
+                    .with_context(|| format!("--params {}", path.display()))?
+                    .pipeline
+                    .standstill
+            }
+            None => StandstillConfig::default(),
+        };
+        let memory = match &args.bias_memory {
+            Some(p) => Some(imu_fsda::bias_memory::BiasMemory::load(p)?),
+            None => None,
+        };
+        let metas = Self::checked_models(args)?;
+        Ok(Evaluation {
+            args,
+            methods,
+            opts: EvalOptions { max_gap_ns: (args.max_gap_ms * 1e6) as i64 },
+            topics: RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None },
+            detector: RestDetector::default(),
+            standstill,
+            memory,
+            per_imu: metas.iter().map(|m| !m.imu_names().is_empty()).collect(),
+            labels: model_labels(&args.models, &metas),
+            metas,
+        })
+    }
+
+    /// The models' metadata, read once, before any bag; the start-up check for each IMU the
+    /// bags will be run as, too (a per-IMU Ĉ_ω edited in the `.json` is a mismatch only with
+    /// that IMU selected).
+    fn checked_models(args: &EvalArgs) -> anyhow::Result<Vec<imu_fsda::model::export::ModelMetadata>> {
+        let metas: Vec<imu_fsda::model::export::ModelMetadata> = args
+            .models
+            .iter()
+            .map(|m| load_metadata(&metadata_path(m)).with_context(|| format!("model {}", m.display())))
+            .collect::<anyhow::Result<_>>()?;
+        let imu_names: std::collections::BTreeSet<&str> =
+            args.imus.iter().map(|rule| rule.split_once('=').map_or(rule.as_str(), |(_, name)| name)).filter(|n| !n.is_empty()).collect();
+        for (m, meta) in args.models.iter().zip(&metas) {
+            super::corrector::check_model_files(m, None)?;
+            let known = meta.imu_names();
+            for name in imu_names.iter().filter(|n| known.iter().any(|k| k == *n)) {
+                super::corrector::check_model_files(m, Some(name)).with_context(|| format!("run as IMU {name}"))?;
+            }
+        }
+        Ok(metas)
+    }
+
+    /// One bag's rows: every method's and model's gyro stream (or why it has none), each
+    /// scored on the span with what reading the bag found, then the figures.
+    fn bag(&self, bag: &std::path::Path, name: &str, rows: &mut Vec<Row>) -> anyhow::Result<()> {
+        let standstill = StandstillConfig {
+            remembered: self.memory.as_ref().and_then(|m| m.predict(Some(name), self.standstill.min_power_on_spread)),
+            ..self.standstill
+        };
+        let scored = self.read_for_scoring(bag)?;
+        let rec = &scored.rec;
+        let notes = self.recording_notes(&scored, bag, name);
+        let source = scored.whole.as_ref().unwrap_or(rec);
+        let span = scored_span(source, rec);
+        let mut streams: Vec<(String, Stream)> = Vec::new();
+        for &m in &self.methods {
+            let got = match m.apply(source, &self.detector, &standstill) {
+                Ok((g, note)) => Ok((g[span.clone()].to_vec(), note)),
+                Err(imu_fsda::eval::EvalError::Method { why, .. }) => Err(why),
+                Err(e) => Err(e.to_string()),
+            };
+            streams.push((m.name().into(), got));
+        }
+        self.model_streams(source, &span, bag, name, &standstill, &mut streams)?;
+        // Integrated paths of the methods that evaluated, for the figures.
+        let mut paths: Vec<(String, OrientationPath)> = Vec::new();
+        for (method, got) in streams {
+            let (gyro, mut note) = match got {
+                Ok(g) => g,
+                Err(why) => {
+                    rows.push(Row { bag: name.to_string(), method, errors: None, note: why });
+                    continue;
+                }
+            };
+            for n in &notes {
+                add_note(&mut note, n);
+            }
+            match evaluate_with_path(rec, &gyro, &self.opts) {
+                Ok((e, path)) => {
+                    if self.args.plot_dir.is_some() {
+                        paths.push((method.clone(), path));
+                    }
+                    if let Some(gaps) = e.gap_note() {
+                        add_note(&mut note, &gaps);
+                    }
+                    rows.push(Row { bag: name.to_string(), method: method.clone(), errors: Some(e), note });
+                }
+                Err(e) => rows.push(Row { bag: name.to_string(), method: method.clone(), errors: None, note: e.to_string() }),
+            }
+            if self.args.oracle_bias {
+                rows.push(self.oracle_bias_row(rec, name, &method, &gyro));
+            }
+        }
+        self.figures(name, rec, &paths)
+    }
+
+    /// Reads `bag` and keeps what can be scored: values no IMU measures dropped (as the node
+    /// drops them), a bag without ground truth or stamps that are not the samples' times
+    /// refused, and the span cut where `--start-s` / `--end-s` ask.
+    fn read_for_scoring(&self, bag: &std::path::Path) -> anyhow::Result<ScoredRecording> {
+        let args = self.args;
+        let (mut rec, report) = read_recording(bag, &self.topics)?;
+        // Stamps that are not the samples' times leave nothing to score: the pauses between
+        // bursts stamped on arrival are holes, and every method read 0.00°.
+        if let Some(why) = report.stamp_problem().or_else(|| imu_fsda::core::burst_stamps(&rec.imu)) {
+            anyhow::bail!("{}: {why}", bag.display());
+        }
+        // One 1e30 rad/s sample would otherwise decide every method's score.
+        let before = rec.imu.len();
+        rec.imu.retain(ImuSample::is_plausible);
+        let implausible = before - rec.imu.len();
+        // Clipped samples are scored as recorded (the node integrates them too), and said.
+        let clipped = imu_fsda::core::clipped_samples(&rec.imu);
+        if let Some(c) = &clipped {
+            tracing::warn!("{}: {c}", bag.display());
+        }
+        if implausible > 0 {
+            tracing::warn!("{}: dropped {implausible} IMU samples beyond what any IMU measures", bag.display());
+        }
+        if rec.ground_truth.is_empty() {
+            let (present, _) = imu_fsda::bag::bag_info(bag);
+            let present: Vec<String> = present.iter().map(|t| format!("{} [{}]", t.topic, t.type_name)).collect();
+            anyhow::bail!(
+                "{}: no ground truth on {} (topics: {}); pass --ground-truth-topic",
+                bag.display(),
+                args.ground_truth_topic,
+                present.join(", ")
+            );
+        }
+        if let (Some(a), Some(g0), Some(g1)) = (args.start_s, rec.ground_truth.first(), rec.ground_truth.last()) {
+            let covered = (g1.stamp_ns - g0.stamp_ns) as f64 * 1e-9;
+            if a >= covered {
+                anyhow::bail!(
+                    "{}: --start-s {a} is past the ground truth, which covers {covered:.1} s from its first pose: nothing left to score",
+                    bag.display()
+                );
+            }
+        }
+        // The methods and models run over the whole recording, as the node would have (the
+        // initial rest and a model's window lie before a scored span), and are scored on the
+        // span: before, a model warmed up again at --start-s, and static-bias found no rest.
+        if args.start_s.is_none() && args.end_s.is_none() {
+            return Ok(ScoredRecording { whole: None, rec, report, implausible, clipped });
+        }
+        let span = rec.crop_after_ground_truth_start(args.start_s, args.end_s).with_context(|| {
+            format!(
+                "{}: fewer than 2 IMU samples between --start-s {} and --end-s {} after the ground truth starts ({:.1} s recorded)",
+                bag.display(),
+                args.start_s.unwrap_or(0.0),
+                args.end_s.map_or("(end)".to_string(), |e| e.to_string()),
+                rec.imu_seconds()
+            )
+        })?;
+        Ok(ScoredRecording { whole: Some(rec), rec: span, report, implausible, clipped })
+    }
+
+    /// What every row of this bag says about its input: samples skipped or dropped, a clock
+    /// offset, ground truth that cannot be this IMU's attitude, an accelerometer not in m/s².
+    /// All are scored as recorded (`train` and `adapt` refuse the last two).
+    fn recording_notes(&self, scored: &ScoredRecording, bag: &std::path::Path, name: &str) -> Vec<String> {
+        let (rec, report) = (&scored.rec, &scored.report);
+        let mut notes = Vec::new();
+        if report.skipped() > 0 {
+            notes.push(skipped_note(report));
+        }
+        notes.extend(report.imu_stream_note());
+        notes.extend(scored.clipped.clone());
+        if scored.implausible > 0 {
+            notes.push(format!(
+                "dropped {} implausible IMU samples (|ω| > {:e} rad/s or |a| > {:e} m/s²)",
+                scored.implausible,
+                imu_fsda::core::IMPLAUSIBLE_RATE_RAD_S,
+                imu_fsda::core::IMPLAUSIBLE_ACCEL_M_S2
+            ));
+        }
+        let lag = imu_fsda::eval::ground_truth_lag(rec, &self.opts, imu_fsda::eval::GROUND_TRUTH_LAG_SEARCH_S);
+        if let Some(l) = lag {
+            tracing::info!("{name}: ground truth lags the IMU by {:.1} ms (rate correlation {:.3})", l.lag_s * 1e3, l.correlation);
+        }
+        let lag_note = lag.filter(imu_fsda::eval::GroundTruthLag::is_misaligned).map(|l| {
+            let note =
+                format!("ground truth lags the IMU by {:.1} ms (rate correlation {:.2}): scored as recorded", l.lag_s * 1e3, l.correlation);
+            tracing::warn!("{}: {note}; check the clocks", bag.display());
+            note
+        });
+        // A clock offset also makes the frames disagree: not said twice.
+        let follows = imu_fsda::train::data::check_ground_truth_follows_gyro(rec, true).err().filter(|_| lag_note.is_none());
+        notes.extend(lag_note);
+        for e in [follows, imu_fsda::train::data::check_accel_units(rec).err()].into_iter().flatten() {
+            let text = e.to_string();
+            let text = text.strip_prefix(&format!("{}: ", rec.name)).unwrap_or(&text).to_string();
+            tracing::warn!("{}: {text}", bag.display());
+            notes.push(format!("{text}; scored as recorded"));
+        }
+        notes
+    }
+
+    /// Each model's stream as the node runs it on this IMU ([`imu_fsda::infer::choose`]);
+    /// where the node would not run it, the model alone and beside it what runs instead.
+    fn model_streams(
+        &self,
+        source: &Recording,
+        span: &std::ops::Range<usize>,
+        bag: &std::path::Path,
+        name: &str,
+        standstill: &StandstillConfig,
+        streams: &mut Vec<(String, Stream)>,
+    ) -> anyhow::Result<()> {
+        let imu = imu_for_bag(&self.args.imus, bag);
+        for (model_index, (model, &per_imu)) in self.args.models.iter().zip(&self.per_imu).enumerate() {
+            let imu = imu.filter(|_| per_imu);
+            let (correction, why) = choose(ModelDomain::of(&self.metas[model_index], imu), true, self.args.model_on_new_imu);
+            let track = correction.removes_power_on_bias().then(|| BiasTrack::over(&source.imu, standstill));
+            let input = match (&track, correction.runs_model()) {
+                (Some(t), true) => t.debiased(&source.imu),
+                _ => source.imu.clone(),
+            };
+            let run = correct_with_torchscript_at_model_rate(model, &input, imu).with_context(|| format!("model {}", model.display()))?;
+            let mut corrected = run.corrected;
+            if let (Some(t), true) = (&track, correction.runs_model()) {
+                t.hold_still_windows(&source.imu, &mut corrected);
+            }
+            let (gyro, meta) = (corrected[span.clone()].to_vec(), run.metadata);
+            let calib = imu.map_or(String::new(), |n| match meta.imu_correction_gains.get(n).filter(|_| meta.adapted_from.is_none()) {
+                Some(g) => format!(", as on IMU {n} (correction gain {g:.3})"),
+                None => format!(", Ĉ_ω of {n}"),
+            });
+            let mut note = format!("{:?}, N = {}{calib}", meta.mode, meta.window_n);
+            // As the node runs it: in the model's periods (the mean rate over each).
+            if let Some(rate) = run.resampled_from_hz {
+                add_note(&mut note, &format!("the {rate:.1} Hz input run in the model's {:.0} Hz periods", meta.rate_hz));
+            }
+            let label = self.labels[model_index].clone();
+            let non_finite = gyro.iter().filter(|g| !g.iter().all(|v| v.is_finite())).count();
+            if non_finite > 0 {
+                let why = format!("the model's output is not finite at {non_finite} of {} samples: not scored", gyro.len());
+                tracing::error!("{name}: {}: {why}", model.display());
+                streams.push((label, Err(why)));
+                continue;
+            }
+            if correction.removes_power_on_bias() && correction.runs_model() {
+                add_note(&mut note, &format!("{why}: {}", track.as_ref().map(BiasTrack::note).unwrap_or_default()));
+            }
+            if correction.runs_model() {
+                streams.push((label, Ok((gyro, note))));
+                continue;
+            }
+            // The model alone is scored (what it does here), and beside it what the node runs
+            // on this IMU instead.
+            add_note(&mut note, &format!("the model alone; as deployed the node runs {}", correction.name()));
+            let deployed = match &track {
+                Some(t) => (t.corrected_gyro(&source.imu)[span.clone()].to_vec(), format!("{why}: {}", t.note())),
+                None => (source.imu[span.clone()].iter().map(|s| s.gyro).collect(), why.to_string()),
+            };
+            streams.push((label.clone(), Ok((gyro, note))));
+            streams.push((format!("{label} as deployed"), Ok(deployed)));
+        }
+        Ok(())
+    }
+
+    /// `M − oracle bias`: the stream with its own mean rate error against the ground truth
+    /// removed (it reads the ground truth: a reference, not a method).
+    fn oracle_bias_row(&self, rec: &Recording, name: &str, method: &str, gyro: &[Vector3<f64>]) -> Row {
+        let bound = format!("{method} − oracle bias");
+        let row = mean_rate_error(rec, gyro, &self.opts).and_then(|b| {
+            let fixed: Vec<Vector3<f64>> = gyro.iter().map(|g| g - b).collect();
+            let (e, _) = evaluate_with_path(rec, &fixed, &self.opts)?;
+            let note = format!("oracle, reads the ground truth: constant [{:.5}, {:.5}, {:.5}] rad/s removed", b.x, b.y, b.z);
+            Ok(Row { bag: name.to_string(), method: bound.clone(), errors: Some(e), note })
+        });
+        row.unwrap_or_else(|e| Row { bag: name.to_string(), method: bound, errors: None, note: e.to_string() })
+    }
+
+    fn figures(&self, name: &str, rec: &Recording, paths: &[(String, OrientationPath)]) -> anyhow::Result<()> {
+        let Some(dir) = &self.args.plot_dir else { return Ok(()) };
+        if paths.is_empty() {
+            tracing::warn!("{name}: no method evaluated, no figure");
+            return Ok(());
+        }
+        imu_fsda::core::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let files = imu_fsda::figures::orientation_figures(dir, name, rec, paths).with_context(|| format!("{name}: figures"))?;
+        for f in files {
+            tracing::info!("wrote {}", f.display());
+        }
+        Ok(())
+    }
 }
 
 /// What the bag reader left out, by stream: IMU samples and ground-truth poses are not the same.
