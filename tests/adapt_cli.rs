@@ -12,9 +12,8 @@ use imu_fsda::model::export::{export_model, load_metadata, load_torchscript, Exp
 use imu_fsda::model::{Config, Mode, Net};
 use nalgebra::UnitQuaternion;
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_imu-fsda")
-}
+mod common;
+use common::bin;
 
 fn run(args: &[&str]) -> Output {
     Command::new(bin()).args(args).output().expect("run imu-fsda")

@@ -10,9 +10,8 @@ use std::process::{Command, Output};
 
 use imu_fsda::bag::{read_recording, write_recording, RecordingTopics};
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_imu-fsda")
-}
+mod common;
+use common::bin;
 
 fn simulate(out: &Path, terms: &[&str]) {
     let mut cmd = Command::new(bin());

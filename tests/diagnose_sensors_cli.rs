@@ -6,9 +6,8 @@
 use std::path::Path;
 use std::process::Command;
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_imu-fsda")
-}
+mod common;
+use common::bin;
 
 fn run(cmd: &mut Command) -> String {
     let out = cmd.output().expect("spawn");

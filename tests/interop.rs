@@ -34,6 +34,8 @@ use imu_fsda::msg::{
 use rand::{Rng, SeedableRng};
 use serde_json::{json, Value};
 
+mod common;
+
 // ---------------------------------------------------------------------------------------------
 // Python and the CLI
 
@@ -51,12 +53,7 @@ fn python() -> Option<PathBuf> {
     if py.exists() {
         return Some(py);
     }
-    if std::env::var_os("CI").is_some() {
-        panic!("independent readers not installed: {} does not exist (CI must run scripts/setup.sh first)", py.display());
-    }
-    eprintln!("\n==============================================================================");
-    eprintln!("SKIPPED: independent readers not installed (run scripts/setup.sh); no {}", py.display());
-    eprintln!("==============================================================================\n");
+    common::skip_or_fail("the independent readers", &format!("not installed: no {} (run scripts/setup.sh)", py.display()));
     None
 }
 

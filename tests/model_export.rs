@@ -11,6 +11,8 @@ use nalgebra::Vector3;
 use tch::nn::VarStore;
 use tch::{Device, Kind, Tensor};
 
+mod common;
+
 const TOL_RAD_S: f64 = 1e-5;
 
 /// A seeded model with non-trivial normalisation and BatchNorm statistics.
@@ -71,10 +73,7 @@ fn read_f32(path: &Path, shape: &[i64]) -> Tensor {
 /// (a failure under CI).
 fn run_python(model: &Path, u: &Tensor, dir: &Path) -> Option<Tensor> {
     let Some(py) = python() else {
-        if std::env::var_os("CI").is_some() {
-            panic!("no Python with torch (set PYTHON or run scripts/setup.sh): required under CI");
-        }
-        eprintln!("\n*** SKIPPED the Python TorchScript check: no Python with torch (set PYTHON or run scripts/setup.sh) ***\n");
+        common::skip_or_fail("the Python TorchScript check", "no Python with torch (set PYTHON or run scripts/setup.sh)");
         return None;
     };
     let (b, t) = (u.size()[0], u.size()[1]);

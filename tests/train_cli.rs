@@ -11,9 +11,8 @@ use imu_fsda::core::{ImuSample, PoseSample, Recording};
 use imu_fsda::model::export::{load_metadata, load_torchscript};
 use nalgebra::{UnitQuaternion, Vector3};
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_imu-fsda")
-}
+mod common;
+use common::bin;
 
 fn manifest() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -24,8 +23,7 @@ fn shared_data() -> Option<PathBuf> {
     if p.join("euroc").is_dir() {
         Some(p)
     } else {
-        assert!(std::env::var_os("CI").is_none(), "../shared/data is missing in CI");
-        eprintln!("SKIPPED: ../shared/data not found; the training test needs EuRoC");
+        common::skip_or_fail("the training test", "../shared/data not found: it needs EuRoC");
         None
     }
 }
