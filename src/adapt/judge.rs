@@ -140,8 +140,14 @@ impl CarryOver {
 /// power-ons) and keeps the one that carries over best among those that carry over with
 /// confidence; none does: all are refused (nothing to write), with the figures of the one
 /// tried first. What is shared (raw, the starting model, the power-on bias) is computed once
-/// per recording.
-pub fn keep_judged(start: &LoadedNet, outcome: &mut AdaptOutcome, recordings: &[Recording], cfg: &AdaptConfig) -> Result<(), AdaptError> {
+/// per recording; `judged_one` is told after each (a progress bar).
+pub fn keep_judged(
+    start: &LoadedNet,
+    outcome: &mut AdaptOutcome,
+    recordings: &[Recording],
+    cfg: &AdaptConfig,
+    mut judged_one: impl FnMut(&Recording),
+) -> Result<(), AdaptError> {
     let Some(first) = outcome.adapted.take() else { return Ok(()) };
     let r = &mut outcome.report;
     let mut candidates = vec![(r.kind.unwrap_or(AdaptedKind::Network), first)];
@@ -152,6 +158,7 @@ pub fn keep_judged(start: &LoadedNet, outcome: &mut AdaptOutcome, recordings: &[
         for (k, j) in judge_each(start, &models, rec, cfg)?.into_iter().enumerate() {
             per_model[k].push(j);
         }
+        judged_one(rec);
     }
     let mut judged: Vec<JudgedCandidate> = candidates
         .iter()

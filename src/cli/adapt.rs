@@ -349,7 +349,13 @@ fn judge_on_other_recordings(
         recordings.push(rec);
     }
     let tried = outcome.report.kind;
-    imu_fsda::adapt::keep_judged(start, outcome, &recordings, cfg).context("judging on the other recordings")?;
+    let bar = super::progress::bar(recordings.len(), "judging on the other power-ons");
+    imu_fsda::adapt::keep_judged(start, outcome, &recordings, cfg, |rec| {
+        bar.set_message(rec.name.clone());
+        bar.inc(1);
+    })
+    .context("judging on the other recordings")?;
+    bar.finish_and_clear();
     let r = &outcome.report;
     let say = |what: &str, c: &CarryOver| {
         eprintln!(

@@ -101,7 +101,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let evaluation = Evaluation::new(&args)?;
     let mut rows = Vec::new();
     let mut failed: Vec<String> = Vec::new();
+    let bar = super::progress::bar(args.bags.len(), "eval");
     for (bag, name) in args.bags.iter().zip(bag_names(&args.bags)) {
+        bar.set_message(name.clone());
         let rows_before = rows.len();
         // One bag that cannot be read or scored is a row saying why when there are others:
         // their rows are kept (before, the first such bag ended the command with nothing).
@@ -115,7 +117,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             rows.push(Row { bag: name.clone(), method: "–".into(), errors: None, note: format!("not evaluated: {why}") });
             failed.push(bag.display().to_string());
         }
+        bar.inc(1);
     }
+    bar.finish_and_clear();
     let table = markdown_table(&rows);
     out!("{}", table.trim_end_matches('\n'))?;
     if let Some(p) = &args.json {

@@ -22,6 +22,7 @@ mod import;
 mod inject;
 mod node;
 mod play;
+mod progress;
 mod replay;
 mod simulate;
 mod train;
