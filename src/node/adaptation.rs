@@ -1,0 +1,321 @@
+//! The adaptation service (`~/adapt`, std_srvs/Trigger): the ground truth buffered beside
+//! the IMU, the service loop, and the job that adapts on its own thread, below the real-time
+//! path's priority, and swaps the model in between two samples.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use futures::StreamExt;
+
+use super::{AdaptSetup, NodeParams, NodeStats, TriggerRequest, TriggerResponse};
+use crate::adapt::swap::{warm_up, Buffers, SeqSample, SwapHandle};
+use crate::infer::{GyroCorrector, ModelCorrector};
+
+pub(super) enum GroundTruthSub {
+    Pose(ros2_client::Subscription<crate::msg::PoseStamped>),
+    Odometry(ros2_client::Subscription<crate::msg::Odometry>),
+}
+
+pub(super) async fn ground_truth_loop(src: &GroundTruthSub, buffers: &Arc<Mutex<Buffers>>) {
+    let mut rejected = 0u64;
+    let mut push = |p: Option<crate::core::PoseSample>| {
+        let ok = p.is_some_and(|p| buffers.lock().expect("buffers lock").push_ground_truth(p));
+        if !ok {
+            rejected += 1;
+            if rejected.is_power_of_two() {
+                tracing::warn!("{rejected} ground-truth messages ignored (invalid or out of order)");
+            }
+        }
+    };
+    match src {
+        GroundTruthSub::Pose(sub) => {
+            let stream = sub.async_stream();
+            futures::pin_mut!(stream);
+            while let Some(m) = stream.next().await {
+                if let Ok((m, _)) = m {
+                    push(m.sample());
+                }
+            }
+        }
+        GroundTruthSub::Odometry(sub) => {
+            let stream = sub.async_stream();
+            futures::pin_mut!(stream);
+            while let Some(m) = stream.next().await {
+                if let Ok((m, _)) = m {
+                    push(m.sample());
+                }
+            }
+        }
+    }
+}
+
+/// The result of one adaptation job (run on its own thread).
+pub(super) struct JobResult {
+    success: bool,
+    message: String,
+    report: Option<crate::adapt::AdaptReport>,
+    model_name: Option<String>,
+}
+
+/// `~/adapt`: one adaptation at a time, on a blocking thread; a second request while one runs
+/// is answered at once with success = false.
+pub(super) async fn service_loop(
+    server: &ros2_client::service::Server<TriggerRequest, TriggerResponse>,
+    buffers: &Arc<Mutex<Buffers>>,
+    setup: &AdaptSetup,
+    params: &NodeParams,
+    stats: Arc<Mutex<NodeStats>>,
+    adapting: Arc<AtomicBool>,
+    open_request: &Mutex<Option<ros2_client::RmwRequestId>>,
+) {
+    let mut running: Option<(ros2_client::RmwRequestId, tokio::sync::oneshot::Receiver<JobResult>, Instant)> = None;
+    loop {
+        let finished = async {
+            match running.as_mut() {
+                Some((_, rx, _)) => rx.await.ok(),
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            req = server.async_receive_request() => {
+                let id = match req {
+                    Ok((id, _)) => id,
+                    Err(e) => {
+                        tracing::warn!("~/adapt request: {e:?}");
+                        continue;
+                    }
+                };
+                if let Some((_, _, started)) = &running {
+                    let msg = format!("an adaptation is already running (started {:.1} s ago); the current model keeps running — call again when it ends", started.elapsed().as_secs_f64());
+                    respond(server, id, false, msg).await;
+                    continue;
+                }
+                let (imu, gt): (Vec<SeqSample>, Vec<crate::core::PoseSample>) = {
+                    let b = buffers.lock().expect("buffers lock");
+                    (b.imu.iter().copied().collect(), b.ground_truth.iter().copied().collect())
+                };
+                let (tx, rx) = tokio::sync::oneshot::channel();
+                let job = Job {
+                    model: setup.model.clone(),
+                    imu_calibration: setup.imu.clone(),
+                    handle: setup.handle.clone(),
+                    buffers: buffers.clone(),
+                    imu,
+                    gt,
+                    support_seconds: params.adapt_support_seconds,
+                    ground_truth: format!("{} as {}", params.ground_truth_topic, params.ground_truth_type),
+                    out_dir: params.adapted_model_dir.clone(),
+                    cfg: params.adapt.clone(),
+                    known_power_on_bias: stats.lock().ok().and_then(|s| s.standstill_bias),
+                };
+                adapting.store(true, Ordering::Relaxed);
+                let flag = adapting.clone();
+                let nice = params.adapt_thread_nice.clamp(0, 19);
+                let spawned = std::thread::Builder::new().name("imu-fsda-adapt".into()).spawn(move || {
+                    // Below the real-time path: the scheduler serves the node's threads first.
+                    lower_thread_priority(nice);
+                    let res = job.run();
+                    flag.store(false, Ordering::Relaxed);
+                    let _ = tx.send(res);
+                });
+                if let Err(e) = spawned {
+                    adapting.store(false, Ordering::Relaxed);
+                    respond(server, id, false, format!("cannot start the adaptation thread: {e}")).await;
+                    continue;
+                }
+                stats.lock().expect("stats lock").adapt_status = "running".into();
+                tracing::info!("adaptation started");
+                *open_request.lock().expect("request lock") = Some(id);
+                running = Some((id, rx, Instant::now()));
+            }
+            res = finished => {
+                let Some((id, _, started)) = running.take() else { continue };
+                *open_request.lock().expect("request lock") = None;
+                // Normally cleared by the job's thread; also when that thread died.
+                adapting.store(false, Ordering::Relaxed);
+                let res = res.unwrap_or(JobResult { success: false, message: "the adaptation thread died".into(), report: None, model_name: None });
+                {
+                    let mut s = stats.lock().expect("stats lock");
+                    s.adaptations += 1;
+                    s.adapt_seconds = Some(started.elapsed().as_secs_f64());
+                    if let Some(r) = &res.report {
+                        s.adapt_query_aoe_before_deg = Some(r.query_before.aoe_deg);
+                        // The candidate kept (the adapted networks where none was).
+                        s.adapt_query_aoe_after_deg = Some(r.kept_query().unwrap_or(&r.query_after).aoe_deg);
+                    }
+                    if let Some(n) = &res.model_name {
+                        s.model.clone_from(n);
+                    }
+                    s.adapt_status = format!("{}: {}", if res.success { "accepted" } else { "not applied" }, res.message);
+                }
+                tracing::info!("adaptation finished: {}", res.message);
+                respond(server, id, res.success, res.message).await;
+            }
+        }
+    }
+}
+
+/// `~/adapt` with nothing to adapt: every call is answered at once with the reason.
+pub(super) async fn refusing_service_loop(server: &ros2_client::service::Server<TriggerRequest, TriggerResponse>, why: &str) {
+    loop {
+        match server.async_receive_request().await {
+            Ok((id, _)) => respond(server, id, false, format!("cannot adapt: {why}")).await,
+            Err(e) => tracing::warn!("~/adapt request: {e:?}"),
+        }
+    }
+}
+
+/// Lowers the calling thread's scheduling priority to `nice` (Linux: `setpriority` on the
+/// thread id changes that thread only). Failure only costs latency: logged, not fatal.
+fn lower_thread_priority(nice: i32) {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: plain syscalls on the calling thread's own id; no memory is passed.
+        let rc = unsafe {
+            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+            libc::setpriority(libc::PRIO_PROCESS, tid, nice)
+        };
+        if rc != 0 {
+            tracing::warn!("adaptation thread: setpriority(nice {nice}) failed: {}", std::io::Error::last_os_error());
+        } else {
+            tracing::debug!("adaptation thread at nice {nice}");
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = nice;
+}
+
+pub(super) async fn respond(
+    server: &ros2_client::service::Server<TriggerRequest, TriggerResponse>,
+    id: ros2_client::RmwRequestId,
+    success: bool,
+    message: String,
+) {
+    if let Err(e) = server.async_send_response(id, TriggerResponse { success, message }).await {
+        tracing::warn!("~/adapt response: {e:?}");
+    }
+}
+
+struct Job {
+    model: PathBuf,
+    imu_calibration: Option<String>,
+    handle: SwapHandle,
+    buffers: Arc<Mutex<Buffers>>,
+    imu: Vec<SeqSample>,
+    gt: Vec<crate::core::PoseSample>,
+    support_seconds: f64,
+    /// "<topic> as <type>", for the reply when none arrived.
+    ground_truth: String,
+    out_dir: String,
+    cfg: crate::adapt::AdaptConfig,
+    /// The node's power-on bias from a standstill at the request, if any.
+    known_power_on_bias: Option<crate::standstill::BiasEstimate>,
+}
+
+impl Job {
+    fn run(self) -> JobResult {
+        match self.run_inner() {
+            Ok(r) => r,
+            Err(e) => {
+                JobResult { success: false, message: format!("{e:#}; the current model keeps running"), report: None, model_name: None }
+            }
+        }
+    }
+
+    fn run_inner(&self) -> anyhow::Result<JobResult> {
+        use anyhow::Context;
+        // Off the real-time path, one intra-op thread (the node's setting).
+        tch::set_num_threads(1);
+        let t0 = Instant::now();
+        let meta = crate::model::predict::metadata_path(&self.model);
+        let loaded = crate::model::export::load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading {}", meta.display()))?;
+        loaded.select_imu(self.imu_calibration.as_deref())?;
+        anyhow::ensure!(!self.imu.is_empty(), "no input buffered yet");
+        // A publisher of another type on the topic is not matched by DDS, and nothing else says so.
+        anyhow::ensure!(
+            !self.gt.is_empty(),
+            "no ground truth received yet on {} (a publisher of another type there is not matched: set ground_truth_type)",
+            self.ground_truth
+        );
+        let rec = crate::core::Recording {
+            name: "node buffer".into(),
+            imu: self.imu.iter().map(|s| s.sample).collect(),
+            ground_truth: self.gt.clone(),
+            temperature: Vec::new(),
+        };
+        let (support, query) = crate::adapt::split_recording(&rec, self.support_seconds, None, &self.cfg);
+        anyhow::ensure!(
+            !query.imu.is_empty(),
+            "only {:.1} s buffered: nothing after the {} s support set to judge the adaptation on",
+            rec.imu_seconds(),
+            self.support_seconds
+        );
+        let outcome = crate::adapt::adapt_knowing(&loaded, &support, &query, &self.cfg, self.known_power_on_bias.as_ref())?;
+        // No other power-on to judge on here: what lasts is kept (docs/adaptation.md, step 7).
+        let outcome = crate::adapt::keep_without_judge(outcome, &self.cfg);
+        let r = outcome.report;
+        let figures = format!(
+            "query AOE {:.3}° → {:.3}° (raw gyro {:.3}°), support {:.1} s, query {:.1} s, {} steps in {:.1} s",
+            r.query_before.aoe_deg,
+            r.kept_query().unwrap_or(&r.query_after).aoe_deg,
+            r.query_raw.aoe_deg,
+            r.support_seconds,
+            r.query_seconds,
+            r.steps,
+            r.step_seconds
+        );
+        let figures = match r.kind {
+            Some(k) => format!("{}: {figures}", k.name()),
+            None => figures,
+        };
+        let Some(adapted) = outcome.adapted else {
+            return Ok(JobResult { success: false, message: format!("{}; {figures}", r.verdict), report: Some(r), model_name: None });
+        };
+        let dir =
+            if self.out_dir.is_empty() { meta.parent().unwrap_or(Path::new(".")).to_path_buf() } else { PathBuf::from(&self.out_dir) };
+        let unix = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+        let name = format!("{}-adapted-{unix}", loaded.metadata.name);
+        let paths = crate::adapt::save_adapted(&adapted, &r, &dir, &name)?;
+        // Its own (adapted) Ĉ_ω.
+        let mut corrector = ModelCorrector::load(&paths.torchscript, None)?;
+        // Warm the new streaming model on the recent history, then hand it over: the
+        // pipeline catches up on what arrived meanwhile and swaps between two samples. While
+        // the model is fed periods, the buffer's samples are not its inputs: offered cold, it
+        // is warmed at the swap on the corrector's own.
+        let (history, periods): (Vec<SeqSample>, bool) = {
+            let b = self.buffers.lock().expect("buffers lock");
+            let n = corrector.window() + 1;
+            (b.imu.iter().skip(b.imu.len().saturating_sub(n)).copied().collect(), b.model_fed_periods)
+        };
+        let (swaps_before, _) = self.handle.swaps();
+        if periods {
+            self.handle.offer_cold(Box::new(corrector));
+        } else {
+            let fed = warm_up(&mut corrector, &history);
+            self.handle.offer(Box::new(corrector), fed);
+        }
+        let wait = Instant::now();
+        while self.handle.swaps().0 == swaps_before && wait.elapsed() < Duration::from_secs(5) {
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let swapped = match self.handle.swaps() {
+            (n, Some((seq, fed))) if n > swaps_before && periods => {
+                format!("swapped in at model period {seq} (warmed on the last {fed} periods the model was fed)")
+            }
+            (n, Some((seq, caught_up))) if n > swaps_before => format!("swapped in at sample {seq} (caught up {caught_up} samples)"),
+            _ => "will be swapped in at the next sample".to_string(),
+        };
+        Ok(JobResult {
+            success: true,
+            message: format!(
+                "adapted: {figures}; saved {}; {swapped}; total {:.1} s",
+                paths.torchscript.display(),
+                t0.elapsed().as_secs_f64()
+            ),
+            report: Some(r),
+            model_name: Some(name),
+        })
+    }
+}
