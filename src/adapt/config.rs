@@ -76,6 +76,31 @@ pub struct AdaptConfig {
     /// Which candidates may be kept: the adapted networks, the gyro calibration alone
     /// (Ĉ_ω fitted in closed form, with `power_on_bias` only), or either (`auto`).
     pub keep: Keep,
+    /// Set from another thread to stop the adaptation at its next step or phase (the node at
+    /// shutdown): not a setting, never read from a file.
+    #[serde(skip)]
+    pub cancel: CancelFlag,
+}
+
+/// A flag another thread sets to stop an adaptation between two steps; clones share it.
+#[derive(Debug, Clone, Default)]
+pub struct CancelFlag(std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+impl CancelFlag {
+    pub fn cancel(&self) {
+        self.0.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    pub fn is_cancelled(&self) -> bool {
+        self.0.load(std::sync::atomic::Ordering::Relaxed)
+    }
+}
+
+/// Settings compare equal whatever their flags: the flag is not a setting.
+impl PartialEq for CancelFlag {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 /// Which adaptation candidates may be kept.
@@ -115,6 +140,7 @@ impl Default for AdaptConfig {
             power_on_bias: true,
             standstill: crate::standstill::StandstillConfig::default(),
             keep: Keep::Auto,
+            cancel: CancelFlag::default(),
         }
     }
 }

@@ -41,7 +41,7 @@ use crate::train::fit::{evaluate_net, evaluate_net_with_gain, evaluate_raw};
 use calibration_candidate::{calibration_candidates, CalibrationCandidates};
 use networks::{adapt_networks, AdaptedNetworks};
 
-pub use config::{AdaptConfig, FramePolicy, Keep, Optimizer};
+pub use config::{AdaptConfig, CancelFlag, FramePolicy, Keep, Optimizer};
 pub use frame::{check_frame, FrameCheck};
 pub use judge::{judge, judge_each, keep_judged, CarryOver, Judged};
 pub use keep::keep_without_judge;
@@ -74,6 +74,8 @@ pub enum AdaptError {
          rule (power_on_bias: false: the model is then for this power-on only)"
     )]
     NoStandstill(String, String),
+    #[error("cancelled (the node is shutting down): nothing was kept")]
+    Cancelled,
     #[error("{0}")]
     Other(String),
 }
@@ -222,6 +224,9 @@ pub fn adapt_knowing(
     let query_before = evaluate_net_with_gain(&loaded.net, &q_task, &eopts, start_correction_gain)?;
 
     let AdaptedNetworks { vs, net, losses, step_seconds, initial_bias } = adapt_networks(loaded, &s_task, cfg)?;
+    if cfg.cancel.is_cancelled() {
+        return Err(AdaptError::Cancelled);
+    }
     let query_after = evaluate_net(&net, &q_task, &eopts)?;
     // The other candidates: the lasting linear gyro error alone, the networks off; and with
     // the support's bias offset in motion.
@@ -235,6 +240,9 @@ pub fn adapt_knowing(
     } else {
         (None, None, None)
     };
+    if cfg.cancel.is_cancelled() {
+        return Err(AdaptError::Cancelled);
+    }
     // Better than the starting model, and than what the node runs without it on a new IMU.
     let floor = query_power_on_bias.as_ref().map_or(f64::INFINITY, |e| e.aoe_deg);
     let passes = |e: &OrientationErrors| e.aoe_deg < query_before.aoe_deg && e.aoe_deg < floor;

@@ -115,6 +115,9 @@ pub(super) fn adapt_networks(loaded: &LoadedNet, s_task: &Task, cfg: &AdaptConfi
     let mut adam = TensorAdam::new(&fast);
     let t_steps = Instant::now();
     for step in 0..cfg.steps {
+        if cfg.cancel.is_cancelled() {
+            return Err(AdaptError::Cancelled);
+        }
         if t_steps.elapsed().as_secs_f64() > cfg.max_seconds {
             tracing::warn!("adaptation stopped after {step} steps: time budget of {} s reached", cfg.max_seconds);
             break;

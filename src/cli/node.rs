@@ -157,8 +157,9 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
         )?;
     }
     if stats.adaptation_abandoned {
-        // The adaptation thread is still inside libtorch: the exit-time destructors of its
-        // globals would run under it (SIGSEGV). Everything is said and written; leave now.
+        // The adaptation did not stop at its next step in time (it is cancelled and joined
+        // otherwise): its thread is still inside libtorch, and the exit-time destructors of
+        // libtorch's globals would run under it (SIGSEGV). Everything is said and written.
         use std::io::Write as _;
         let _ = std::io::stdout().flush();
         let _ = std::io::stderr().flush();

@@ -61,6 +61,28 @@ pub(super) struct JobResult {
 
 /// `~/adapt`: one adaptation at a time, on a blocking thread; a second request while one runs
 /// is answered at once with success = false.
+/// The adaptation running on its thread, shared with the end of the run: the request it will
+/// answer (answered at shutdown if still open), and the thread with the flag that stops it.
+#[derive(Default)]
+pub(super) struct RunningJob {
+    pub(super) request: Mutex<Option<ros2_client::RmwRequestId>>,
+    thread: Mutex<Option<(crate::adapt::CancelFlag, std::thread::JoinHandle<()>)>>,
+}
+
+impl RunningJob {
+    /// Stops the running adaptation at its next step and waits for its thread, at most
+    /// `wait`: true when no thread is left inside libtorch (none ran, or it was joined).
+    pub(super) fn cancel_and_join(&self, wait: Duration) -> bool {
+        let Some((cancel, thread)) = self.thread.lock().ok().and_then(|mut t| t.take()) else { return true };
+        cancel.cancel();
+        let start = Instant::now();
+        while !thread.is_finished() && start.elapsed() < wait {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        thread.is_finished() && thread.join().is_ok()
+    }
+}
+
 pub(super) async fn service_loop(
     server: &ros2_client::service::Server<TriggerRequest, TriggerResponse>,
     buffers: &Arc<Mutex<Buffers>>,
@@ -68,7 +90,7 @@ pub(super) async fn service_loop(
     params: &NodeParams,
     stats: Arc<Mutex<NodeStats>>,
     adapting: Arc<AtomicBool>,
-    open_request: &Mutex<Option<ros2_client::RmwRequestId>>,
+    job: &RunningJob,
 ) {
     let mut running: Option<(ros2_client::RmwRequestId, tokio::sync::oneshot::Receiver<JobResult>, Instant)> = None;
     loop {
@@ -97,7 +119,8 @@ pub(super) async fn service_loop(
                     (b.imu.iter().copied().collect(), b.ground_truth.iter().copied().collect())
                 };
                 let (tx, rx) = tokio::sync::oneshot::channel();
-                let job = Job {
+                let cancel = crate::adapt::CancelFlag::default();
+                let work = Job {
                     model: setup.model.clone(),
                     imu_calibration: setup.imu.clone(),
                     handle: setup.handle.clone(),
@@ -107,7 +130,7 @@ pub(super) async fn service_loop(
                     support_seconds: params.adapt_support_seconds,
                     ground_truth: format!("{} as {}", params.ground_truth_topic, params.ground_truth_type),
                     out_dir: params.adapted_model_dir.clone(),
-                    cfg: params.adapt.clone(),
+                    cfg: crate::adapt::AdaptConfig { cancel: cancel.clone(), ..params.adapt.clone() },
                     known_power_on_bias: stats.lock().ok().and_then(|s| s.standstill_bias),
                 };
                 adapting.store(true, Ordering::Relaxed);
@@ -116,23 +139,30 @@ pub(super) async fn service_loop(
                 let spawned = std::thread::Builder::new().name("imu-fsda-adapt".into()).spawn(move || {
                     // Below the real-time path: the scheduler serves the node's threads first.
                     lower_thread_priority(nice);
-                    let res = job.run();
+                    let res = work.run();
                     flag.store(false, Ordering::Relaxed);
                     let _ = tx.send(res);
                 });
-                if let Err(e) = spawned {
-                    adapting.store(false, Ordering::Relaxed);
-                    respond(server, id, false, format!("cannot start the adaptation thread: {e}")).await;
-                    continue;
+                match spawned {
+                    Ok(thread) => *job.thread.lock().expect("job lock") = Some((cancel, thread)),
+                    Err(e) => {
+                        adapting.store(false, Ordering::Relaxed);
+                        respond(server, id, false, format!("cannot start the adaptation thread: {e}")).await;
+                        continue;
+                    }
                 }
                 stats.lock().expect("stats lock").adapt_status = "running".into();
                 tracing::info!("adaptation started");
-                *open_request.lock().expect("request lock") = Some(id);
+                *job.request.lock().expect("request lock") = Some(id);
                 running = Some((id, rx, Instant::now()));
             }
             res = finished => {
                 let Some((id, _, started)) = running.take() else { continue };
-                *open_request.lock().expect("request lock") = None;
+                *job.request.lock().expect("request lock") = None;
+                // The job has answered: its thread is ending, joined here.
+                if let Some((_, thread)) = job.thread.lock().expect("job lock").take() {
+                    let _ = thread.join();
+                }
                 // Normally cleared by the job's thread; also when that thread died.
                 adapting.store(false, Ordering::Relaxed);
                 let res = res.unwrap_or(JobResult { success: false, message: "the adaptation thread died".into(), report: None, model_name: None });
@@ -255,6 +285,10 @@ impl Job {
         let outcome = crate::adapt::adapt_knowing(&loaded, &support, &query, &self.cfg, self.known_power_on_bias.as_ref())?;
         // No other power-on to judge on here: what lasts is kept (docs/adaptation.md, step 7).
         let outcome = crate::adapt::keep_without_judge(outcome, &self.cfg);
+        // Stopped while the candidates were scored: nothing is saved or swapped in.
+        if self.cfg.cancel.is_cancelled() {
+            return Err(crate::adapt::AdaptError::Cancelled.into());
+        }
         let r = outcome.report;
         let figures = format!(
             "query AOE {:.3}° → {:.3}° (raw gyro {:.3}°), support {:.1} s, query {:.1} s, {} steps in {:.1} s",

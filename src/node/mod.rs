@@ -12,7 +12,7 @@ mod params;
 mod power_on;
 mod status;
 
-use adaptation::{ground_truth_loop, refusing_service_loop, respond, service_loop, GroundTruthSub};
+use adaptation::{ground_truth_loop, refusing_service_loop, respond, service_loop, GroundTruthSub, RunningJob};
 pub use environment::{sensor_data_qos, RosEnvironment};
 pub use latency::{LatencyHistogram, SplitLatency, StageLatency};
 pub use messages::{ros_type_name, TriggerRequest, TriggerResponse};
@@ -125,6 +125,9 @@ pub enum AdaptService {
 }
 
 /// The reply to a call still running when the node stops.
+/// How long the end of the run waits for an adaptation to stop at its next step.
+const ADAPTATION_STOP_WAIT: Duration = Duration::from_secs(15);
+
 const ABANDONED_REPLY: &str = "the node is shutting down: the adaptation was abandoned; no model was saved or swapped in";
 
 /// [`run_node`] with the `~/adapt` service (see [`AdaptService`]; nothing without `ground_truth_topic`).
@@ -239,8 +242,8 @@ pub async fn run_node_with_adaptation(
     // Set while an adaptation job runs (by the service before it spawns the job, cleared by
     // the job's thread as it ends): the process loop files its latencies under it.
     let adapting = Arc::new(AtomicBool::new(false));
-    // The request a running adaptation will answer: answered at shutdown if it is still open.
-    let open_request: Mutex<Option<ros2_client::RmwRequestId>> = Mutex::new(None);
+    // The adaptation running, if any: its request is answered and its thread stopped at shutdown.
+    let job = RunningJob::default();
     let tap = buffers.as_ref().map(|b| AdaptTap { buffers: b.clone(), adapting: adapting.clone() });
     // Set by `~/retake_power_on_bias`, taken by the process loop between two samples.
     let retake = Arc::new(AtomicBool::new(false));
@@ -260,7 +263,7 @@ pub async fn run_node_with_adaptation(
     };
     let service_task = async {
         match (&server, &buffers, &adapt, &unavailable) {
-            (Some(srv), Some(b), Some(a), _) => service_loop(srv, b, a, &params, stats.clone(), adapting.clone(), &open_request).await,
+            (Some(srv), Some(b), Some(a), _) => service_loop(srv, b, a, &params, stats.clone(), adapting.clone(), &job).await,
             (Some(srv), _, None, Some(why)) => refusing_service_loop(srv, why).await,
             _ => std::future::pending().await,
         }
@@ -311,7 +314,7 @@ pub async fn run_node_with_adaptation(
         _ = retake_task => {}
         _ = shutdown => tracing::info!("shutting down"),
     }
-    let open = open_request.lock().expect("request lock").take();
+    let open = job.request.lock().expect("request lock").take();
     if let (Some(srv), Some(id)) = (&server, open) {
         respond(srv, id, false, ABANDONED_REPLY.into()).await;
         // A moment for the reliable reply to leave before the writer goes.
@@ -323,11 +326,18 @@ pub async fn run_node_with_adaptation(
     // Stop the spinner before the node is dropped so peers hear it leave.
     node.stop_spinner();
     spin.abort();
+    let was_adapting = adapting.load(Ordering::Relaxed);
+    // Stopped at its next step (a few seconds at most) and joined, so nothing is left inside
+    // libtorch when the process exits; one that does not stop in time is left behind.
+    let joined = job.cancel_and_join(ADAPTATION_STOP_WAIT);
     let mut s = std::mem::take(&mut *stats.lock().expect("stats lock"));
-    if adapting.load(Ordering::Relaxed) {
+    if was_adapting {
         tracing::warn!("stopped during an adaptation: it is abandoned, the running model was not changed");
-        s.adaptation_abandoned = true;
-        s.adapt_status = "abandoned: the node stopped while it ran".into();
+        s.adaptation_abandoned = !joined;
+        s.adapt_status = format!(
+            "abandoned: the node stopped while it ran ({})",
+            if joined { "stopped and joined" } else { "its thread did not stop in time" }
+        );
     }
     Ok(s)
 }

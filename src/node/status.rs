@@ -53,7 +53,8 @@ pub struct NodeStats {
     pub split_latency: SplitLatency,
     /// The in-node latency by stage, and DDS receive before it.
     pub stage_latency: StageLatency,
-    /// The node stopped while an adaptation ran on its thread: abandoned, the running model
+    /// The node stopped while an adaptation ran on its thread and the thread did not stop at
+    /// its next step in time (it is cancelled and joined otherwise): the running model
     /// unchanged. The process must then end without running libtorch's exit-time destructors
     /// under that thread (it crashed with SIGSEGV): see `imu-fsda node`.
     pub adaptation_abandoned: bool,
