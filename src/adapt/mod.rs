@@ -6,7 +6,8 @@
 //! open-loop orientation error (AOE, [`crate::eval::evaluate`]) on a held-back query
 //! recording is lower than the starting model's; otherwise it is rejected with the figures.
 //!
-//! Files: `config` (the settings), [`frame`] (is the ground truth in the IMU's frame?),
+//! Files: `config` (the settings), [`frame`] (is the ground truth in the IMU's frame?, in
+//! `crate::ground_truth_frame`),
 //! `networks` (the inner loop), [`calibration`] (Ĉ_ω in closed form) and
 //! `calibration_candidate` (the model holding it), `report` (what was found), [`judge`]
 //! (other power-ons), [`pieces`] and [`keep`] (what is kept without them), [`swap`] (the
@@ -16,7 +17,8 @@
 pub mod calibration;
 mod calibration_candidate;
 mod config;
-pub mod frame;
+/// The frame check lives below train and adapt, which both use it.
+pub use crate::ground_truth_frame as frame;
 pub mod judge;
 pub mod keep;
 mod networks;

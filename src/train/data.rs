@@ -263,15 +263,15 @@ pub fn read_source(root: &Path, src: &SourceConfig) -> Result<Recording, DataErr
 /// How the ground truth's rotation compares with the gyro's over 0.25-s increments: the median
 /// ratio of their angles where either turns by over 0.1 rad (6°, beyond any gyro bias over
 /// 0.25 s), the number of such increments, the frame check on them, and whether the quaternions
-/// read inverted follow the gyro better ([`crate::adapt::frame::inverted_quaternions`]).
-pub fn rotation_agreement(rec: &Recording) -> Option<(Option<f64>, usize, Option<crate::adapt::frame::FrameCheck>, bool)> {
+/// read inverted follow the gyro better ([`crate::ground_truth_frame::inverted_quaternions`]).
+pub fn rotation_agreement(rec: &Recording) -> Option<(Option<f64>, usize, Option<crate::ground_truth_frame::FrameCheck>, bool)> {
     let rate = rec.nominal_imu_rate_hz();
     if rate <= 0.0 {
         return None;
     }
     let window = ((0.25 * rate).round() as usize).max(2);
     let gt = slerp_at(&rec.ground_truth, rec.imu.iter().map(|s| s.stamp_ns), crate::eval::EvalOptions::default().max_gap_ns);
-    let pairs = crate::adapt::frame::increments(&rec.imu, &gt, window);
+    let pairs = crate::ground_truth_frame::increments(&rec.imu, &gt, window);
     let mut ratios: Vec<f64> =
         pairs.iter().map(|p| (p.gt.norm(), p.imu.norm())).filter(|(g, i)| g.max(*i) > 0.1).map(|(g, i)| g / i.max(1e-9)).collect();
     // A slow motion (a car turning at under 0.4 rad/s) has no such increment: no ratio, but the
@@ -281,9 +281,9 @@ pub fn rotation_agreement(rec: &Recording) -> Option<(Option<f64>, usize, Option
         *ratios.select_nth_unstable_by(mid, f64::total_cmp).1
     });
     // The frame on longer increments where the 0.25-s ones turn too little (a gently driven car).
-    let pairs = crate::adapt::frame::turning_increments(&rec.imu, &gt, rate, 0.05, 10);
-    let frame = crate::adapt::frame::check_frame_on(&pairs, 0.05);
-    let inverted = frame.as_ref().is_some_and(|f| crate::adapt::frame::inverted_quaternions(&pairs, 0.05, f));
+    let pairs = crate::ground_truth_frame::turning_increments(&rec.imu, &gt, rate, 0.05, 10);
+    let frame = crate::ground_truth_frame::check_frame_on(&pairs, 0.05);
+    let inverted = frame.as_ref().is_some_and(|f| crate::ground_truth_frame::inverted_quaternions(&pairs, 0.05, f));
     Some((median, ratios.len(), frame, inverted))
 }
 
