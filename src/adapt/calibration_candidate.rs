@@ -62,8 +62,12 @@ pub(super) fn calibration_candidates(
             None => Err(NO_HEAD.to_string()),
         }
     } else {
+        // Only the offset is determined (the fit refuses a support that determines neither).
         let max_stddev = calibration::MAX_KEPT_STDDEV_OF_PRIOR * CALIBRATION_PRIOR_STDDEV;
-        Err(calibration::CalibrationError::NothingDetermined { max_stddev }.to_string())
+        Err(format!(
+            "no scale or cross-axis error is determined by the support (each within 3 σ of none, or σ above {:.2} %); only its bias offset in motion is",
+            100.0 * max_stddev
+        ))
     };
     let with_offset = if fit.determines_leftover_bias() { scored(loaded, &fit, true, query, eopts)? } else { None };
     Ok(CalibrationCandidates { alone, with_offset })

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics, IMU_TOPIC};
 use imu_fsda::bias_memory::BiasMemory;
-use imu_fsda::standstill::{BiasTrack, StandstillConfig};
+use imu_fsda::standstill::BiasTrack;
 
 #[derive(Debug, clap::Args)]
 pub struct BiasMemoryArgs {
@@ -26,15 +26,7 @@ pub struct BiasMemoryArgs {
 }
 
 pub fn run(args: BiasMemoryArgs) -> anyhow::Result<()> {
-    let cfg = match &args.params {
-        Some(path) => {
-            imu_fsda::node::NodeParams::from_yaml_file(path, "imu_fsda")
-                .with_context(|| format!("--params {}", path.display()))?
-                .pipeline
-                .standstill
-        }
-        None => StandstillConfig::default(),
-    };
+    let cfg = super::standstill_of(args.params.as_deref())?;
     let inputs: Vec<&Path> = args.bags.iter().map(PathBuf::as_path).collect();
     super::refuse_overwriting_input(&args.output, &inputs)?;
     let mut memory = BiasMemory::load(&args.output)?;

@@ -174,15 +174,7 @@ impl<'a> Evaluation<'a> {
             [("--json", &args.json), ("--markdown", &args.markdown)].into_iter().filter_map(|(n, p)| Some((n, p.as_deref()?))).collect();
         super::refuse_shared_outputs(&outputs)?;
         super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
-        let standstill = match &args.params {
-            Some(path) => {
-                imu_fsda::node::NodeParams::from_yaml_file(path, "imu_fsda")
-                    .with_context(|| format!("--params {}", path.display()))?
-                    .pipeline
-                    .standstill
-            }
-            None => StandstillConfig::default(),
-        };
+        let standstill = super::standstill_of(args.params.as_deref())?;
         let memory = match &args.bias_memory {
             Some(p) => Some(imu_fsda::bias_memory::BiasMemory::load(p)?),
             None => None,

@@ -255,6 +255,21 @@ pub fn every_bag_scored(failed: &[String], bags: usize) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The standstill rule of the node's parameter file (`--params`), else the node's defaults:
+/// how `eval`'s and `bias-memory`'s power-on bias is found, as the node finds it.
+fn standstill_of(params: Option<&std::path::Path>) -> anyhow::Result<imu_fsda::standstill::StandstillConfig> {
+    use anyhow::Context;
+    Ok(match params {
+        Some(path) => {
+            imu_fsda::node::NodeParams::from_yaml_file(path, "imu_fsda")
+                .with_context(|| format!("--params {}", path.display()))?
+                .pipeline
+                .standstill
+        }
+        None => imu_fsda::standstill::StandstillConfig::default(),
+    })
+}
+
 pub fn refuse_imu_as_ground_truth(imu_topic: &str, ground_truth_topic: &str) -> anyhow::Result<()> {
     if imu_topic == ground_truth_topic {
         anyhow::bail!(
