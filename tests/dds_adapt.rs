@@ -535,3 +535,109 @@ fn a_power_on_bias_is_remembered_for_the_next_power_on_over_dds() {
     }
     assert!(o.node_stats["power_on_bias_memory"].as_str().unwrap_or_default().contains("saved (4 power-ons"), "{}", o.node_stats);
 }
+
+/// A robot that reboots: the first power-on's `~/adapt` keeps its support in
+/// `adapt_support_archive` (judged on itself alone: nowhere else to judge); the next power-on's
+/// is judged on the earlier ones there (that support, and two bags a user imported into the
+/// folder), and keeps what carries over to them. EuRoC V2_01 then V1_03, the archive also
+/// holding V1_02 and V2_02: the `adapt --judge` case of tests/adapt_real_cli.rs, in the node.
+#[test]
+fn an_adaptation_is_judged_on_the_earlier_power_ons_the_node_kept_over_dds() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Ok(pre) = prerequisites().map_err(|why| skip_or_fail(&why)) else { return };
+    let Some(data) = common::shared_data() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let archive = d.join("config/supports/imu0");
+    std::fs::create_dir_all(&archive).unwrap();
+    let params = d.join("config/params.yaml");
+    std::fs::write(
+        &params,
+        format!(
+            "{NODE_NAME}:\n  ros__parameters:\n    adapt_support_archive: supports/imu0\n    adapted_model_dir: adapted\n    adapt_support_seconds: 60.0\n"
+        ),
+    )
+    .unwrap();
+    let model = manifest_dir().join("models/fsda-f.pt");
+    let power_on = |tag: &str, sequence: &str| {
+        let seq = data.join("euroc").join(sequence).join("mav0");
+        let (imu_csv, gt_csv) = (seq.join("imu0/data.csv"), seq.join("state_groundtruth_estimate0/data.csv"));
+        let o = run(
+            &pre,
+            d,
+            tag,
+            &["--params", params.to_str().unwrap(), "--model", model.to_str().unwrap()],
+            "adapt_peer.py",
+            &[
+                "--csv",
+                imu_csv.to_str().unwrap(),
+                "--gt-csv",
+                gt_csv.to_str().unwrap(),
+                "--requests",
+                "100",
+                "--after-s",
+                "1",
+                "--rate-fast",
+                "2000",
+                "--rate-busy",
+                "200",
+            ],
+            ADAPT_RUN_TIMEOUT,
+        );
+        assert_eq!(o.peer["matched"], true, "{tag}: the peer never matched the node\n{}", o.logs);
+        assert_eq!(o.rc, vec![0, 0], "{tag}: peer / node exit codes\n{}", o.logs);
+        let replies = o.peer["replies"].as_array().unwrap().clone();
+        assert_eq!(replies.len(), 1, "{tag}: {replies:?}\n{}", o.logs);
+        (o, replies[0]["message"].as_str().unwrap().to_string(), replies[0]["success"].as_bool().unwrap())
+    };
+    let supports = |dir: &Path| -> Vec<PathBuf> {
+        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.to_string_lossy().contains("support-")).collect()
+    };
+
+    let (first, said, _) = power_on("first", "V2_01_easy");
+    assert!(said.contains("no earlier power-on in") && said.contains("support kept as"), "{said}\n{}", first.logs);
+    let kept = supports(&archive);
+    assert_eq!(kept.len(), 1, "{kept:?}");
+    // What was kept is what the node buffered: read back by `imu-fsda bag info`.
+    let info = Command::new(common::bin()).args(["bag", "info"]).arg(&kept[0]).output().unwrap();
+    let info = String::from_utf8_lossy(&info.stdout).to_string() + &String::from_utf8_lossy(&info.stderr);
+    assert!(info.contains("/imu/data") && info.contains("/ground_truth/pose"), "{info}");
+    for s in ["V1_02_medium", "V2_02_medium"] {
+        let o = Command::new(common::bin())
+            .arg("import")
+            .arg(data.join("euroc").join(s))
+            .arg("-o")
+            .arg(archive.join(format!("{s}.mcap")))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+
+    let (second, said, success) = power_on("second", "V1_03_difficult");
+    assert!(said.contains("judged on 3 earlier power-ons"), "{said}\n{}", second.logs);
+    assert_eq!(supports(&archive).len(), 2, "the second power-on's support is kept too");
+    assert!(
+        success && said.starts_with("adapted: the gyro calibration with the support's bias offset in motion"),
+        "V1_03 judged on three other power-ons keeps its offset: {said}\n{}",
+        second.logs
+    );
+    // The next power-on runs the saved model: /diagnostics says what runs and why.
+    let adapted = d.join("config/adapted");
+    let pt = std::fs::read_dir(&adapted).unwrap().map(|e| e.unwrap().path()).find(|p| p.extension().is_some_and(|e| e == "pt"));
+    let pt = pt.unwrap_or_else(|| panic!("no model saved in {}: {said}", adapted.display()));
+    let csv = data.join("euroc/V1_02_medium/mav0/imu0/data.csv");
+    let r = run(
+        &pre,
+        d,
+        "third",
+        &["--params", params.to_str().unwrap(), "--model", pt.to_str().unwrap()],
+        "dds_peer.py",
+        &["--csv", csv.to_str().unwrap(), "--count", "400", "--rate", "1000"],
+        RESTART_RUN_TIMEOUT,
+    );
+    assert_eq!(r.rc, vec![0, 0], "third: peer / node exit codes\n{}", r.logs);
+    let values: Vec<&serde_json::Map<String, Value>> = r.peer["diagnostics"].as_array().unwrap().iter().filter_map(diag_values).collect();
+    let reason = values.iter().rev().map(|v| value(v, "correction_reason")).find(|r| !r.is_empty()).unwrap_or_default();
+    assert!(reason.contains("bias offset in motion"), "/diagnostics on the next power-on: {reason:?}\n{}", r.logs);
+    eprintln!("dds_adapt power-ons: first {:.1} s, second {:.1} s: {said}", first.wall_s, second.wall_s);
+}

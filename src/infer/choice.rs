@@ -21,6 +21,9 @@ pub enum ModelDomain {
     AdaptedAfterPowerOnBias,
     /// The same, with the gyro calibration alone kept (Ĉ_ω, the networks' correction off).
     CalibratedAfterPowerOnBias,
+    /// The same with a constant bias offset in motion (the networks' correction a constant):
+    /// kept only where other power-ons of the IMU showed it lasts.
+    CalibratedWithOffsetAfterPowerOnBias,
     /// Adapted on this IMU with the support's power-on constant inside (an adaptation made
     /// before the power-on rule): run as it was made.
     AdaptedWithBias,
@@ -33,6 +36,9 @@ impl ModelDomain {
     pub fn of(meta: &crate::model::ModelMetadata, imu: Option<&str>) -> Self {
         match (&meta.adapted_from, imu) {
             (Some(_), _) if meta.power_on_bias_removed && meta.correction_networks_off => ModelDomain::CalibratedAfterPowerOnBias,
+            (Some(_), _) if meta.power_on_bias_removed && meta.correction_constant_rad_s.is_some() => {
+                ModelDomain::CalibratedWithOffsetAfterPowerOnBias
+            }
             (Some(_), _) if meta.power_on_bias_removed => ModelDomain::AdaptedAfterPowerOnBias,
             (Some(_), _) => ModelDomain::AdaptedWithBias,
             (None, Some(name)) if meta.imu_names().contains(&name) => ModelDomain::Trained,
@@ -100,6 +106,14 @@ pub fn choose(domain: ModelDomain, power_on_bias: bool, model_on_new_imu: bool) 
         ModelDomain::CalibratedAfterPowerOnBias => {
             (Correction::Model, "power_on_bias off: the gyro calibration adapted on this IMU runs on the raw gyro (it was fitted without its support's bias)")
         }
+        ModelDomain::CalibratedWithOffsetAfterPowerOnBias if power_on_bias => (
+            Correction::PowerOnBiasThenModel,
+            "the gyro calibration and bias offset in motion adapted on this IMU (kept where other power-ons showed it lasts) after its power-on bias was removed",
+        ),
+        ModelDomain::CalibratedWithOffsetAfterPowerOnBias => (
+            Correction::Model,
+            "power_on_bias off: the gyro calibration and bias offset in motion adapted on this IMU run on the raw gyro (fitted without its support's bias)",
+        ),
         ModelDomain::NewImu if model_on_new_imu => (Correction::Model, "model_on_new_imu: the model on an IMU it was neither trained nor adapted on"),
         ModelDomain::NewImu if power_on_bias => (
             Correction::PowerOnBias,
@@ -122,6 +136,8 @@ mod tests {
         assert_eq!(choose(ModelDomain::AdaptedAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
         assert_eq!(choose(ModelDomain::CalibratedAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
         assert!(choose(ModelDomain::CalibratedAfterPowerOnBias, true, false).1.contains("gyro calibration"));
+        assert_eq!(choose(ModelDomain::CalibratedWithOffsetAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
+        assert!(choose(ModelDomain::CalibratedWithOffsetAfterPowerOnBias, true, false).1.contains("bias offset in motion"));
         assert_eq!(choose(ModelDomain::NoModel, true, false).0, Correction::PowerOnBias);
     }
 }

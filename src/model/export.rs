@@ -88,6 +88,10 @@ pub struct ModelMetadata {
     /// the model is its Ĉ_ω alone, a gyro calibration (read from the weights at export).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub correction_networks_off: bool,
+    /// The networks' correction is this constant, rad/s ([`crate::model::Net::correction_constant`]):
+    /// the model is its Ĉ_ω and a bias offset in motion (read from the weights at export).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub correction_constant_rad_s: Option<[f64; 3]>,
     /// Sequences / bags the model was trained on (filled by the trainer).
     pub training_data: Vec<String>,
     /// Evaluation figures (filled by the trainer), e.g. `"MH_04_difficult/aoe_deg"`. A figure
@@ -278,6 +282,7 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         adapted_from: info.adapted_from.clone(),
         power_on_bias_removed: info.power_on_bias_removed,
         correction_networks_off: net.correction_networks_off(),
+        correction_constant_rad_s: net.correction_constant(),
         training_data: info.training_data.clone(),
         metrics: info.metrics.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), *v)).collect(),
         code_revision: info.code_revision.clone().or_else(code_revision),

@@ -229,6 +229,21 @@ impl Net {
         }
     }
 
+    /// The Generator's last layer has zero weights and a bias (the adaptation's gyro
+    /// calibration with a bias offset in motion): the networks' correction is the constant
+    /// σ ⊙ b, rad/s, returned; `None` where it varies or is 0.
+    pub fn correction_constant(&self) -> Option<[f64; 3]> {
+        let Body::Fsda { generator, .. } = &self.body else { return None };
+        let layers = generator.folded();
+        let last = layers.last()?;
+        let zero = |t: &Tensor| t.abs().max().double_value(&[]) == 0.0;
+        if !zero(&last.weight) || zero(&last.bias) || last.layer_norm.is_some() || last.gelu {
+            return None;
+        }
+        let c = Vec::<f64>::try_from(&(tch::no_grad(|| &last.bias * &self.output_scale)).to_kind(Kind::Double)).ok()?;
+        (c.len() == 3).then(|| [c[0], c[1], c[2]])
+    }
+
     /// The Embedding (FSDA modes).
     pub fn embedding(&self) -> Option<&Embedding> {
         match &self.body {

@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 
 use futures::StreamExt;
 
+use super::support_archive::SupportArchive;
 use super::{AdaptSetup, NodeParams, NodeStats, TriggerRequest, TriggerResponse};
 use crate::adapt::swap::{warm_up, Buffers, SeqSample, SwapHandle};
 use crate::infer::{GyroCorrector, ModelCorrector};
@@ -93,6 +94,8 @@ pub(super) async fn service_loop(
     job: &RunningJob,
 ) {
     let mut running: Option<(ros2_client::RmwRequestId, tokio::sync::oneshot::Receiver<JobResult>, Instant)> = None;
+    // Started with the node: its start names this power-on's supports.
+    let archive = SupportArchive::new(&params.adapt_support_archive, params.adapt_judge_power_ons).map(Arc::new);
     loop {
         let finished = async {
             match running.as_mut() {
@@ -132,6 +135,7 @@ pub(super) async fn service_loop(
                     out_dir: params.adapted_model_dir.clone(),
                     cfg: crate::adapt::AdaptConfig { cancel: cancel.clone(), ..params.adapt.clone() },
                     known_power_on_bias: stats.lock().ok().and_then(|s| s.standstill_bias),
+                    archive: archive.clone(),
                 };
                 adapting.store(true, Ordering::Relaxed);
                 let flag = adapting.clone();
@@ -242,9 +246,47 @@ struct Job {
     cfg: crate::adapt::AdaptConfig,
     /// The node's power-on bias from a standstill at the request, if any.
     known_power_on_bias: Option<crate::standstill::BiasEstimate>,
+    /// Where supports are kept and earlier power-ons' read from.
+    archive: Option<Arc<SupportArchive>>,
 }
 
 impl Job {
+    /// Keeps the candidate that carries over to the earlier power-ons in the archive
+    /// ([`crate::adapt::keep_judged`]), or, with none there, what lasts within this one
+    /// (docs/adaptation.md, step 7). Returns what it was judged on, for the reply.
+    fn judge(
+        &self,
+        start: &crate::model::export::LoadedNet,
+        mut outcome: crate::adapt::AdaptOutcome,
+    ) -> anyhow::Result<(crate::adapt::AdaptOutcome, String)> {
+        let earlier = match &self.archive {
+            Some(a) if outcome.adapted.is_some() => a.read_earlier(),
+            _ => super::support_archive::EarlierPowerOns { recordings: Vec::new(), skipped: Vec::new() },
+        };
+        for why in &earlier.skipped {
+            tracing::warn!("adapt_support_archive: not judged on {why}");
+        }
+        let skipped = match earlier.skipped.len() {
+            0 => String::new(),
+            n => format!(" ({n} bag{} there could not serve: {})", if n == 1 { "" } else { "s" }, earlier.skipped.join("; ")),
+        };
+        if earlier.recordings.is_empty() {
+            let said = match &self.archive {
+                Some(a) => format!("no earlier power-on in {} to judge on: what lasts within this one is kept{skipped}", a.dir().display()),
+                None => "judged on this power-on alone (no adapt_support_archive)".into(),
+            };
+            return Ok((crate::adapt::keep_without_judge(outcome, &self.cfg), said));
+        }
+        crate::adapt::keep_judged(start, &mut outcome, &earlier.recordings, &self.cfg, |_| {})?;
+        let n = earlier.recordings.len();
+        let ratio = outcome
+            .report
+            .carry_over
+            .map_or(String::new(), |c| format!(": AOE adapted / without {:.3} (95 % bound {:.3})", c.ratio, c.upper_95));
+        let said = format!("judged on {n} earlier power-on{}{ratio}{skipped}", if n == 1 { "" } else { "s" });
+        Ok((outcome, said))
+    }
+
     fn run(self) -> JobResult {
         match self.run_inner() {
             Ok(r) => r,
@@ -282,9 +324,16 @@ impl Job {
             rec.imu_seconds(),
             self.support_seconds
         );
+        // Kept before adapting: a later power-on judges on it whatever this one decides.
+        let kept_as = self.archive.as_ref().map(|a| match a.save(&rec) {
+            Ok(path) => format!("support kept as {}", path.display()),
+            Err(e) => {
+                tracing::warn!("adapt_support_archive: {e}");
+                format!("support not kept: {e}")
+            }
+        });
         let outcome = crate::adapt::adapt_knowing(&loaded, &support, &query, &self.cfg, self.known_power_on_bias.as_ref())?;
-        // No other power-on to judge on here: what lasts is kept (docs/adaptation.md, step 7).
-        let outcome = crate::adapt::keep_without_judge(outcome, &self.cfg);
+        let (outcome, judged_on) = self.judge(&loaded, outcome)?;
         // Stopped while the candidates were scored: nothing is saved or swapped in.
         if self.cfg.cancel.is_cancelled() {
             return Err(crate::adapt::AdaptError::Cancelled.into());
@@ -304,6 +353,7 @@ impl Job {
             Some(k) => format!("{}: {figures}", k.name()),
             None => figures,
         };
+        let figures = [Some(figures), Some(judged_on), kept_as].into_iter().flatten().collect::<Vec<_>>().join("; ");
         let Some(adapted) = outcome.adapted else {
             return Ok(JobResult { success: false, message: format!("{}; {figures}", r.verdict), report: Some(r), model_name: None });
         };

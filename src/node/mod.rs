@@ -11,6 +11,7 @@ mod messages;
 mod params;
 mod power_on;
 mod status;
+mod support_archive;
 
 use adaptation::{ground_truth_loop, refusing_service_loop, respond, service_loop, GroundTruthSub, RunningJob};
 pub use environment::{sensor_data_qos, RosEnvironment};

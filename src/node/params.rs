@@ -51,6 +51,13 @@ pub struct NodeParams {
     /// Where adapted models are written (`<model name>-adapted-<unix s>.{pt,ot,json}`); empty:
     /// beside the model. Set `model` to one to start with it.
     pub adapted_model_dir: String,
+    /// A folder (one per IMU) where each `~/adapt` call's buffered IMU and ground truth are
+    /// kept as a bag; a later power-on's `~/adapt` judges what it learns on the newest
+    /// `adapt_judge_power_ons` earlier ones there, and only then may it keep what needs them
+    /// (the bias offset in motion). Empty: none kept, judged on this power-on alone.
+    pub adapt_support_archive: String,
+    /// Earlier power-ons in `adapt_support_archive` an adaptation is judged on (the newest).
+    pub adapt_judge_power_ons: usize,
     /// The gyro's turn-on bias at earlier power-ons of this IMU (a JSON file,
     /// [`crate::bias_memory`]): read at start, what they predict is removed before the first
     /// standstill; this power-on's standstill estimate is added to it as it is measured.
@@ -81,6 +88,8 @@ impl Default for NodeParams {
             adapt_buffer_seconds: 120.0,
             adapt_support_seconds: 60.0,
             adapted_model_dir: String::new(),
+            adapt_support_archive: String::new(),
+            adapt_judge_power_ons: 3,
             power_on_bias_memory: String::new(),
             adapt: crate::adapt::AdaptConfig::default(),
             adapt_thread_nice: 10,
@@ -92,7 +101,7 @@ impl NodeParams {
     /// Read the `node_name: ros__parameters:` section of a ROS 2 parameter file. `/**` (any
     /// node) is accepted too, as ROS 2 does.
     /// Reads the node's section of a parameter file. Relative paths in it (`model`,
-    /// `adapted_model_dir`, `power_on_bias_memory`) are taken against the file's own folder, as cargo and docker
+    /// `adapted_model_dir`, `adapt_support_archive`, `power_on_bias_memory`) are taken against the file's own folder, as cargo and docker
     /// compose do: the node finds them from a launch file or a service unit started anywhere.
     pub fn from_yaml_file(path: &Path, node_name: &str) -> Result<Self, NodeError> {
         let text =
@@ -103,7 +112,8 @@ impl NodeParams {
             other => other,
         })?;
         let folder = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        for value in [&mut params.model, &mut params.adapted_model_dir, &mut params.power_on_bias_memory] {
+        for value in [&mut params.model, &mut params.adapted_model_dir, &mut params.adapt_support_archive, &mut params.power_on_bias_memory]
+        {
             if !value.is_empty() && Path::new(value.as_str()).is_relative() {
                 *value = folder.join(value.as_str()).to_string_lossy().into_owned();
             }
@@ -150,6 +160,12 @@ impl NodeParams {
         // Said, not changed without a word (they were taken as 1 and clamped).
         if self.queue_depth == 0 {
             return Err("queue_depth must be at least 1 (a history of 0 messages holds nothing)".into());
+        }
+        if !(1..=20).contains(&self.adapt_judge_power_ons) {
+            return Err(format!(
+                "adapt_judge_power_ons must be 1–20 (earlier power-ons an adaptation is judged on), not {}",
+                self.adapt_judge_power_ons
+            ));
         }
         if !(0..=19).contains(&self.adapt_thread_nice) {
             return Err(format!("adapt_thread_nice must be 0–19 (a niceness at or below the node's own), not {}", self.adapt_thread_nice));
@@ -270,6 +286,7 @@ mod tests {
             ("    pipeline:\n      bias_stddev: -1.0\n", "bias_stddev"),
             ("    queue_depth: 0\n", "queue_depth"),
             ("    adapt_thread_nice: -5\n", "adapt_thread_nice"),
+            ("    adapt_judge_power_ons: 0\n", "adapt_judge_power_ons"),
             ("    adapt_support_seconds: 120.0\n", "adapt_support_seconds"),
         ] {
             let err = with(body).unwrap_err().to_string();
