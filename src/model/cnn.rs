@@ -126,23 +126,16 @@ impl DilatedCausalCnn {
 
     /// `x: [B, C_in, T]` → `[B, C_out, T]`. `train` selects batch statistics and dropout.
     pub fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
-        self.forward_with(x, train, train)
-    }
-
-    /// [`DilatedCausalCnn::forward_t`] with dropout and BatchNorm's batch statistics chosen
-    /// apart: dropout with BatchNorm on its running statistics, not updated, is the deployed
-    /// network trained as it runs (`train.frozen_batch_norm_from`).
-    pub fn forward_with(&self, x: &Tensor, dropout: bool, batch_statistics: bool) -> Tensor {
         let mut h = x.replication_pad1d([self.left_pad, 0]);
         for layer in &self.layers {
             h = h.conv1d(&layer.weight, Some(&layer.bias), [1], [0], [layer.dilation], 1);
             if layer.hidden {
                 match &layer.norm {
                     None => {}
-                    Some(NormLayer::Batch(bn)) => h = bn.forward_t(&h, batch_statistics),
+                    Some(NormLayer::Batch(bn)) => h = bn.forward_t(&h, train),
                     Some(NormLayer::ChannelLayer(g, b)) => h = channel_layer_norm(&h, g, b),
                 }
-                h = h.gelu("none").dropout(self.dropout, dropout);
+                h = h.gelu("none").dropout(self.dropout, train);
             }
         }
         h

@@ -36,13 +36,7 @@ impl Generator {
 
     /// `embedding: [B, T, E]` → `[B, T, 3]`.
     pub fn forward_t(&self, embedding: &Tensor, train: bool) -> Tensor {
-        self.forward_with(embedding, train, train)
-    }
-
-    /// [`Generator::forward_t`] with dropout and batch statistics chosen apart
-    /// ([`DilatedCausalCnn::forward_with`]).
-    pub fn forward_with(&self, embedding: &Tensor, dropout: bool, batch_statistics: bool) -> Tensor {
-        self.cnn.forward_with(&embedding.transpose(1, 2), dropout, batch_statistics).transpose(1, 2)
+        self.cnn.forward_t(&embedding.transpose(1, 2), train).transpose(1, 2)
     }
 
     /// Inference form (BatchNorm folded).

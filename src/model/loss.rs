@@ -213,8 +213,6 @@ struct Scored {
     residual: Tensor,
     /// `[B, M, 3]`, 1 where scored.
     valid3: Tensor,
-    /// `[B, M·j]`, the sanitised dt of the samples the increments span.
-    dt: Tensor,
 }
 
 /// The scored increments of `j` samples (layout and mask of `increment_loss`), from sanitised
@@ -256,7 +254,7 @@ fn scored_increments(
     let valid = (gt_gap.maximum(&dt_gap) * -1.0 + 1.0) * not_skipped; // [B, M]
     let valid3 = valid.unsqueeze(-1).expand([b, m, 3], false);
     let residual = residual.where_self(&valid3.gt(0.5), &residual.zeros_like());
-    Some(Scored { residual, valid3, dt: dt.narrow(1, 0, m * j) })
+    Some(Scored { residual, valid3 })
 }
 
 /// Sanitised SO(3)-kind inputs of the increment terms: `(omega, dt, gt, sample_bad, dt_bad)`.
@@ -276,31 +274,6 @@ fn sanitised(cfg: &LossConfig, gyro_hat: &Tensor, dt: &Tensor, gt_attitude: &Ten
     let sample_bad = sample_ok.logical_not().to_kind(kind).unsqueeze(1); // [B, 1, T]
     let dt_bad = dt_ok.logical_not().to_kind(kind).unsqueeze(1);
     [omega, dt, gt, sample_bad, dt_bad]
-}
-
-/// Each window's mean gyro error `ω̂ − ω` over its scored increments of `j` samples, `[B, 3]`
-/// rad/s in the SO(3) kind: `−Σ_m r_m / Σ_m Δt_m` with `r_m` the residual rotation vectors
-/// (`r ≈ (ω − ω̂) Δt` for a small error); zero for a window with no scored increment. The
-/// recording-drift term (`train.recording_drift`) averages it over many steps.
-pub fn mean_rate_error(
-    cfg: &LossConfig,
-    j: i64,
-    gyro_hat: &Tensor,
-    dt: &Tensor,
-    gt_attitude: &Tensor,
-    gt_valid: Option<&Tensor>,
-) -> Tensor {
-    let [omega, dt, gt, sample_bad, dt_bad] = sanitised(cfg, gyro_hat, dt, gt_attitude, gt_valid);
-    let kind = omega.kind();
-    match scored_increments(cfg, j, &omega, &dt, &gt, &sample_bad, &dt_bad) {
-        Some(Scored { residual, valid3, dt }) => {
-            let (b, m) = (valid3.size()[0], valid3.size()[1]);
-            let seconds = dt.reshape([b, m, j]).sum_dim_intlist(-1, false, kind); // [B, M]
-            let time = (seconds * valid3.select(-1, 0)).sum_dim_intlist(-1, false, kind).clamp_min(1e-9).unsqueeze(-1);
-            residual.sum_dim_intlist(1, false, kind) / time * -1.0
-        }
-        None => Tensor::zeros([omega.size()[0], 3], (kind, omega.device())),
-    }
 }
 
 /// `L = w_R L^R + γ L^D` from a forward's output.
@@ -552,30 +525,5 @@ mod tests {
             let t = total(w_r, gamma).total.double_value(&[]);
             assert!((t - (w_r * r + gamma * d)).abs() < 1e-9 * (1.0 + t.abs()), "w_R {w_r} γ {gamma}: {t}");
         }
-    }
-
-    /// The mean gyro error of a window is the bias added to the true rate, over its scored
-    /// increments only: a gap in the ground truth and the skipped start do not bias it, and a
-    /// window with nothing scored gives zero.
-    #[test]
-    fn the_mean_rate_error_is_the_added_bias() {
-        let (omega, dt, gt) = random_motion(11, 0.3);
-        let bias = Tensor::from_slice(&[2e-3, -1e-3, 5e-4]).view([1, 1, 3]).to_kind(Kind::Double);
-        // A wild gyro where the ground truth has a gap: masked, it must not count.
-        let gap = Tensor::zeros([2, 65], F64);
-        let _ = gap.narrow(1, 20, 10).fill_(1.0);
-        let valid = gap.eq(0.0);
-        let hat = (&omega + &bias) + gap.unsqueeze(-1) * 5.0;
-        let cfg = LossConfig { skip_first_samples: 8, increments_from_skip: true, ..LossConfig::default() };
-        let e = mean_rate_error(&cfg, 8, &hat, &dt, &gt, Some(&valid));
-        assert_eq!(e.size(), [2, 3]);
-        let e: Vec<f64> = Vec::try_from(e.view(-1)).unwrap();
-        for (i, v) in e.iter().enumerate() {
-            let b = [2e-3, -1e-3, 5e-4][i % 3];
-            assert!((v - b).abs() < 1e-4, "window {} axis {}: {v} against {b}", i / 3, i % 3);
-        }
-        // Nothing scored: zero, not NaN.
-        let none = mean_rate_error(&cfg, 8, &hat, &dt, &gt, Some(&valid.zeros_like()));
-        assert_eq!(none.abs().sum(Kind::Double).double_value(&[]), 0.0);
     }
 }

@@ -75,9 +75,6 @@ pub struct ForwardOptions<'a> {
     /// The embedding `[B, T, E]`, computed elsewhere, in place of the Embedding's output (the
     /// batched MAML step: each task's windows through that task's fast weights). FSDA modes.
     pub embedding: Option<&'a Tensor>,
-    /// With `train`, the Generator's BatchNorm on its running statistics, not updated: the
-    /// deployed Generator, with dropout (`train.frozen_batch_norm_from`).
-    pub frozen_generator_batch_norm: bool,
 }
 
 /// Trainable scalars per module, as built.
@@ -300,8 +297,7 @@ impl Net {
                 };
                 let reconstruction = opts.reconstruct.then(|| restructor.forward_t(&e, opts.train));
                 let generator_input = generator_input(&e, &u_norm, self.cfg.generator_sees_imu);
-                let batch_statistics = opts.train && !opts.frozen_generator_batch_norm;
-                (generator.forward_with(&generator_input, opts.train, batch_statistics), Some(e), reconstruction)
+                (generator.forward_t(&generator_input, opts.train), Some(e), reconstruction)
             }
         };
         let omega = u.narrow(2, 0, 3);

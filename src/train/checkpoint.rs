@@ -36,9 +36,6 @@ pub struct CheckpointMeta {
     pub best: Option<(usize, f64)>,
     /// Seconds of training before this checkpoint (for the time per epoch).
     pub train_seconds: f64,
-    /// With `train.recording_drift`: the memory of each task's mean gyro error.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub recording_drift: Option<super::drift::DriftMemory>,
     /// A number drawn at each save and written into both files (`ckpt.pair` in the `.ot`), so
     /// that a `.ckpt.ot` of another run or another save is refused, not resumed from. Set by
     /// [`save`]; absent in older checkpoints (not checked).
@@ -65,7 +62,6 @@ impl CheckpointMeta {
             monitor: vec![],
             best: None,
             train_seconds: 0.0,
-            recording_drift: None,
             pair_token: None,
             data_fingerprints: BTreeMap::new(),
         }

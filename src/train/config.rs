@@ -3,12 +3,12 @@
 //! (where the recordings are and how they are split) and `train` (optimiser, schedule,
 //! windows, augmentation, loss, MAML). Unknown keys are errors.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::model::{Config as ModelConfig, HiddenNorm, LossConfig, Mode};
+use crate::model::{Config as ModelConfig, LossConfig, Mode};
 
 /// The whole file.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -242,13 +242,6 @@ impl Default for Augment {
     }
 }
 
-impl TrainSettings {
-    /// The augmentation of `imu`'s recordings: its `augment_per_imu` entry, else `augment`.
-    pub fn augment_for(&self, imu: &str) -> &Augment {
-        self.augment_per_imu.get(imu).unwrap_or(&self.augment)
-    }
-}
-
 /// The few-shot (MAML) strategy of FSDA-F.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -272,10 +265,6 @@ pub struct MamlConfig {
     /// statistics are that one task's (a domain's constant features are normalised away in
     /// training but not at test time).
     pub batch_tasks: bool,
-    /// λ: weight of the query loss at the meta weights θ_e themselves (before the inner
-    /// step), added to the outer loss. The deployed model is θ_e, not a task's θ_e', so this
-    /// trains what is shipped as well as its adaptability (0: the paper's outer loss only).
-    pub unadapted_query_weight: f64,
     /// λ_s: the same for the support windows (the first `support_seconds` of each task, which
     /// the paper's outer loss never scores; the shipped model runs over them too). Free: it
     /// reuses the inner step's forward at θ_e.
@@ -299,7 +288,6 @@ impl Default for MamlConfig {
             query_windows: 1,
             query_window_samples: 4000,
             batch_tasks: false,
-            unadapted_query_weight: 0.0,
             unadapted_support_weight: 0.0,
             shared_inner_step: false,
         }
@@ -341,12 +329,6 @@ pub struct TrainSettings {
     pub window_start_within: Option<usize>,
     #[serde(default)]
     pub augment: Augment,
-    /// An IMU's own augmentation in place of `augment`, keyed by `SourceConfig::imu_name`:
-    /// noise sized to one sensor need not suit another. Each entry is a whole `Augment` (a key
-    /// it leaves out takes DIGDL's default, not `augment`'s). Every key must name an IMU of
-    /// `dataset.train`.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub augment_per_imu: BTreeMap<String, Augment>,
     #[serde(default)]
     pub loss: LossConfig,
     #[serde(default)]
@@ -376,12 +358,6 @@ pub struct TrainSettings {
     /// initialised to 0), so the untrained model is the raw gyro through Ĉ_ω = I.
     #[serde(default)]
     pub zero_init_correction: bool,
-    /// Keep Ĉ_ω at its initial value (the identity with the FSDA defaults) instead of
-    /// learning it: one calibration matrix shared by every IMU of the training data cannot
-    /// fit two differently calibrated sensors, and the correction ω' then has to undo it on
-    /// one of them. The exported model still carries Ĉ_ω, so `imu-fsda adapt` can fit it.
-    #[serde(default)]
-    pub freeze_gyro_calibration: bool,
     /// IMUs whose data is already calibrated (TUM-VI's BMI160 is published corrected): their
     /// recordings train with Ĉ_ω = I, and with `model.imu_calibrations` their own Ĉ_ω stays I
     /// (it gets no gradient). Names as `SourceConfig::imu_name`.
@@ -399,12 +375,6 @@ pub struct TrainSettings {
     /// noise averages out of the slowly learned parts (the static bias, Ĉ_ω).
     #[serde(default)]
     pub ema_decay: f64,
-    /// The recording-drift term (absent: off): a memory, across steps, of each training
-    /// recording's mean gyro error, which pushes every window of that recording against it.
-    /// A bias of a few tenths of a mrad/s is lost in one window's noise but is what a whole
-    /// recording's AOE integrates; the memory averages the noise out. FSDA-F with batched tasks.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub recording_drift: Option<RecordingDrift>,
     /// After training, fit one correction gain per IMU of `dataset.validation`
     /// ([`crate::train::fit::fit_correction_gains`]) and export it with the model
     /// (`ModelMetadata::imu_correction_gains`); the test recordings are scored with their IMU's.
@@ -415,60 +385,6 @@ pub struct TrainSettings {
     /// config must equal `model`. Adam starts afresh; `zero_init_correction` is not applied.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub init_from: Option<PathBuf>,
-    /// From this epoch on, the Generator's BatchNorm uses its running statistics, held fixed,
-    /// in training as in deployment: the loss then scores the deployed network, whose output
-    /// constant otherwise hangs on statistics the loss never sees (docs/training.md). Absent:
-    /// batch statistics throughout. FSDA-F with batched tasks and BatchNorm.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub frozen_batch_norm_from: Option<usize>,
-}
-
-/// See [`TrainSettings::recording_drift`]. Each step, task i's query windows give their mean
-/// gyro error ē_i (rad/s, over the scored increments of `increment_samples`); the memory is
-/// b̄_i ← decay · b̄_i + (1 − decay) · ē_i (bias-corrected like Adam's moments), and the loss
-/// gains `weight · s · Σ_i w_i clamp(b̄_i, ±delta)ᵀ ē_i` (s the loss's scale, w_i the task
-/// weights, b̄ held constant): the gradient of a Huber function of each recording's mean error,
-/// `weight · s · Σ_i w_i ρ_delta(b̄_i)`, when b̄ tracks ē's mean. The clamp keeps the untrained
-/// model's 0.1-rad/s biases from swamping the other terms (and Adam's second moments). With s =
-/// 10⁶, weight 1 and delta 1 mrad/s, a recording 1 mrad/s off pushes each axis with 10³ per rad/s
-/// of ē, about four times what v9's long Huber terms push one window with in their linear part.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RecordingDrift {
-    pub weight: f64,
-    /// Where the push stops growing, rad/s.
-    #[serde(default = "default_drift_delta")]
-    pub delta: f64,
-    #[serde(default = "default_drift_decay")]
-    pub decay: f64,
-    #[serde(default = "default_drift_increment")]
-    pub increment_samples: i64,
-    /// Scale the weight by `1 − lr / train.lr`: off at each cosine cycle's high learning rates,
-    /// where the memory's lag of ~1/(1 − decay) steps makes the push overshoot (weight 1
-    /// without it: the training loss 4–6× v9's over the first 200 epochs), full as they fall.
-    #[serde(default)]
-    pub follow_schedule: bool,
-}
-
-impl RecordingDrift {
-    /// The weight at learning rate `lr` of a run whose peak is `peak`.
-    pub fn weight_at(&self, lr: f64, peak: f64) -> f64 {
-        if self.follow_schedule && peak > 0.0 {
-            self.weight * (1.0 - lr / peak).clamp(0.0, 1.0)
-        } else {
-            self.weight
-        }
-    }
-}
-
-fn default_drift_delta() -> f64 {
-    1e-3
-}
-fn default_drift_decay() -> f64 {
-    0.95
-}
-fn default_drift_increment() -> i64 {
-    16
 }
 
 /// See [`TrainSettings::task_weighting`].
@@ -691,14 +607,6 @@ impl TrainConfig {
         if !augment_ok(&t.augment) {
             return Err("train.augment: every noise std and offset must be finite and ≥ 0".into());
         }
-        if let Some(imu) = t.augment_per_imu.iter().find(|(_, a)| !augment_ok(a)).map(|(imu, _)| imu) {
-            return Err(format!("train.augment_per_imu.{imu}: every noise std and offset must be finite and ≥ 0"));
-        }
-        // Checked here, from the sources' names, so a misspelt IMU costs no data loading.
-        let train_imus: BTreeSet<String> = self.dataset.train.iter().map(SourceConfig::imu_name).collect();
-        if let Some(imu) = t.augment_per_imu.keys().find(|imu| !train_imus.contains(*imu)) {
-            return Err(format!("train.augment_per_imu: no training recording is from IMU {imu:?} (the training IMUs: {train_imus:?})"));
-        }
         let loss = &self.train.loss;
         loss.validate("train.loss")?;
         let min_window = loss.min_window_samples() as usize;
@@ -733,39 +641,14 @@ impl TrainConfig {
         if t.maml.shared_inner_step && (!t.maml.batch_tasks || t.maml.inner_steps != 1) {
             return Err("train.maml.shared_inner_step needs batch_tasks: true and inner_steps: 1".into());
         }
-        if !non_negative(t.maml.unadapted_query_weight) || !non_negative(t.maml.unadapted_support_weight) {
-            return Err("train.maml.unadapted_query_weight and unadapted_support_weight must be ≥ 0".into());
+        if !non_negative(t.maml.unadapted_support_weight) {
+            return Err("train.maml.unadapted_support_weight must be ≥ 0".into());
         }
         if t.select_best && self.dataset.validation.is_empty() {
             return Err("train.select_best chooses the epoch by dataset.validation, which is empty".into());
         }
         if t.correction_gains && self.dataset.validation.is_empty() {
             return Err("train.correction_gains fits on dataset.validation, which is empty".into());
-        }
-        if let Some(d) = &t.recording_drift {
-            if !non_negative(d.weight) || !positive(d.delta) || !(0.0..1.0).contains(&d.decay) || d.increment_samples < 1 {
-                return Err(format!(
-                    "train.recording_drift: weight must be ≥ 0, delta > 0, decay in [0, 1) and increment_samples ≥ 1, got {d:?}"
-                ));
-            }
-            if self.model.mode != Mode::FsdaF || !t.maml.batch_tasks {
-                return Err("train.recording_drift needs model.mode fsda_f with train.maml.batch_tasks: true".into());
-            }
-            let need = loss.min_window_samples_for(d.increment_samples);
-            if t.maml.query_window_samples as i64 <= need {
-                return Err(format!(
-                    "train.recording_drift.increment_samples = {}: a query window of {} samples holds none after the skip (needs > {need})",
-                    d.increment_samples, t.maml.query_window_samples
-                ));
-            }
-        }
-        if let Some(from) = t.frozen_batch_norm_from {
-            if self.model.mode != Mode::FsdaF || !t.maml.batch_tasks || self.model.generator_norm() != HiddenNorm::Batch {
-                return Err("train.frozen_batch_norm_from needs model.mode fsda_f with BatchNorm and train.maml.batch_tasks: true".into());
-            }
-            if from >= t.epochs {
-                return Err(format!("train.frozen_batch_norm_from = {from}: must be below train.epochs ({})", t.epochs));
-            }
         }
         if let Schedule::CosineWarmRestarts { t0, t_mult, eta_min } = t.schedule {
             if t0 < 1 || t_mult < 1 || !non_negative(eta_min) || eta_min > t.lr {
@@ -890,22 +773,6 @@ mod tests {
         assert!(with("fsda_f", "window_start_within: 32").unwrap_err().contains("digdl and fsda"));
         assert!(with("digdl", "augment: {gyro_offset: -1.0e-3}").unwrap_err().contains("augment"));
         assert!(with("digdl", "augment: {accel_offset: .nan}").unwrap_err().contains("augment"));
-        assert!(with("digdl", "augment_per_imu: {a: {gyro_noise_std: -1.0}}").unwrap_err().contains("augment_per_imu.a"));
-        assert!(with("digdl", "augment_per_imu: {a: {gyro_noise_std: 8.0e-4}}").is_ok());
-        // The training source `a` is IMU "a": a key naming any other IMU is refused.
-        let e = with("digdl", "augment_per_imu: {a: {}, euroc: {gyro_noise_std: 8.0e-4}}").unwrap_err();
-        assert!(e.contains("augment_per_imu") && e.contains("\"euroc\"") && e.contains("\"a\""), "{e}");
-    }
-
-    /// An IMU's own entry replaces `augment` whole; other IMUs keep `augment`.
-    #[test]
-    fn augment_per_imu_falls_back_to_augment() {
-        let text = "model: {mode: fsda_f}\ndataset: {train: [{sequence: a}]}\n\
-                    train: {epochs: 1, augment: {gyro_noise_std: 1.0e-4}, augment_per_imu: {euroc: {accel_noise_std: 2.0e-2}}}\n";
-        let t = TrainConfig::parse(text).unwrap().train;
-        assert_eq!(t.augment_for("tumvi").gyro_noise_std, 1.0e-4);
-        let euroc = t.augment_for("euroc");
-        assert_eq!((euroc.gyro_noise_std, euroc.accel_noise_std), (Augment::default().gyro_noise_std, 2.0e-2));
     }
 
     /// A bad value names its key and line (the merged document's error had neither).
@@ -1009,14 +876,13 @@ mod tests {
                 .unwrap()
                 .validate()
         };
-        assert!(maml("{unadapted_query_weight: 1.0}").is_ok());
-        assert!(maml("{unadapted_query_weight: -1.0}").unwrap_err().contains("unadapted_query_weight"));
+        let removed =
+            TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3, maml: {unadapted_query_weight: 1.0}}\n");
+        assert!(removed.unwrap_err().contains("unknown field"), "an experiment's key, removed");
         assert!(maml("{unadapted_support_weight: -1.0}").unwrap_err().contains("unadapted_support_weight"));
     }
 
-    /// A fine-tune's start (`init_from`) is read against the config's folder; the frozen
-    /// BatchNorm needs the batched FSDA-F step, BatchNorm in the Generator, and an epoch to
-    /// start at within the run.
+    /// A fine-tune's start (`init_from`) is read against the config's folder.
     #[test]
     fn fine_tune_settings_are_checked() {
         let dir = std::env::temp_dir().join(format!("imu-fsda-init-from-{}", std::process::id()));
@@ -1027,49 +893,10 @@ mod tests {
                 .unwrap();
             TrainConfig::load(&path).map_err(|e| e.to_string())
         };
-        let batched = "maml: {batch_tasks: true}";
-        let cfg = with("{mode: fsda_f}", &format!("init_from: ../m/fsda-f.json, frozen_batch_norm_from: 9, {batched}")).unwrap();
+        let cfg = with("{mode: fsda_f}", "init_from: ../m/fsda-f.json, maml: {batch_tasks: true}").unwrap();
         assert_eq!(cfg.train.init_from.as_deref(), Some(dir.join("../m/fsda-f.json").as_path()));
-        assert_eq!(cfg.train.frozen_batch_norm_from, Some(9));
         let abs = with("{mode: fsda_f}", "init_from: /m/x.json").unwrap();
         assert_eq!(abs.train.init_from.as_deref(), Some(Path::new("/m/x.json")));
-        assert!(with("{mode: fsda_f}", "frozen_batch_norm_from: 10, maml: {batch_tasks: true}")
-            .unwrap_err()
-            .contains("below train.epochs"));
-        for (model, train) in [
-            ("{mode: fsda_f}", "frozen_batch_norm_from: 0, maml: {batch_tasks: false}"),
-            ("{mode: digdl}", "frozen_batch_norm_from: 0"),
-            ("{mode: fsda_f, batch_norm: false}", "frozen_batch_norm_from: 0, maml: {batch_tasks: true}"),
-            ("{mode: fsda_f, batch_norm: false, layer_norm: true}", "frozen_batch_norm_from: 0, maml: {batch_tasks: true}"),
-        ] {
-            assert!(with(model, train).unwrap_err().contains("frozen_batch_norm_from needs"), "{model} {train}");
-        }
         std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    #[test]
-    fn recording_drift_settings_are_checked() {
-        let with = |model: &str, maml: &str, drift: &str| {
-            TrainConfig::parse(&format!(
-                "model: {{mode: {model}}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 3, maml: {maml}, recording_drift: {drift}}}\n"
-            ))
-            .map_err(|e| e.to_string())
-            .and_then(|c| c.validate().map(|_| c))
-        };
-        let batched = "{batch_tasks: true, query_window_samples: 700}";
-        let cfg = with("fsda_f", batched, "{weight: 1.0}").unwrap();
-        let d = cfg.train.recording_drift.unwrap();
-        assert_eq!((d.weight, d.delta, d.decay, d.increment_samples, d.follow_schedule), (1.0, 1e-3, 0.95, 16, false));
-        assert_eq!((d.weight_at(0.01, 0.01), d.weight_at(0.0, 0.01)), (1.0, 1.0));
-        let d = with("fsda_f", batched, "{weight: 2.0, follow_schedule: true}").unwrap().train.recording_drift.unwrap();
-        assert_eq!((d.weight_at(0.01, 0.01), d.weight_at(0.005, 0.01), d.weight_at(0.0, 0.01)), (0.0, 1.0, 2.0));
-        assert!(with("fsda_f", batched, "{weight: -1.0}").unwrap_err().contains("recording_drift"));
-        assert!(with("fsda_f", batched, "{weight: 1.0, delta: 0.0}").unwrap_err().contains("delta"));
-        assert!(with("fsda_f", batched, "{weight: 1.0, decay: 1.0}").unwrap_err().contains("decay"));
-        assert!(with("fsda_f", batched, "{weight: 1.0, increment_samples: 0}").unwrap_err().contains("increment_samples"));
-        assert!(with("fsda_f", batched, "{weight: 1.0, increment_samples: 4096}").unwrap_err().contains("holds none"));
-        assert!(with("fsda_f", batched, "{weight: 1.0, tau: 3}").unwrap_err().contains("unknown field"));
-        assert!(with("fsda_f", "{batch_tasks: false}", "{weight: 1.0}").unwrap_err().contains("batch_tasks"));
-        assert!(with("digdl", "{}", "{weight: 1.0}").unwrap_err().contains("fsda_f"));
     }
 }

@@ -4,16 +4,13 @@
 //!
 //! Files: [`config`] (the YAML), [`data`] (recordings → checked tasks, windows,
 //! normalisation), [`optim`] (Adam with saveable state), [`checkpoint`], [`report`] (the
-//! run's JSON), [`curves`] (its figure), [`drift`] (the recording-drift memory), [`fit`] (the
-//! loop), [`seeds`] (restarts: the best of several seeds by validation score), [`average`]
-//! (checkpoints averaged, an experiment: `examples/average_weights.rs`).
+//! run's JSON), [`curves`] (its figure), [`fit`] (the loop), [`seeds`] (restarts: the best of
+//! several seeds by validation score).
 
-pub mod average;
 pub mod checkpoint;
 pub mod config;
 pub mod curves;
 pub mod data;
-pub mod drift;
 pub mod fit;
 pub mod optim;
 pub mod report;

@@ -18,9 +18,6 @@ pub struct EpochRecord {
     pub reconstruction: Option<f64>,
     /// FSDA-F: mean support loss before adaptation.
     pub support_loss: Option<f64>,
-    /// With `train.recording_drift`: the task-weighted RMS of its memory, mrad/s.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub recording_drift_mrad_s: Option<f64>,
     pub grad_norm: f64,
     pub seconds: f64,
 }
