@@ -57,6 +57,14 @@ pub struct MotionBiasConfig {
     /// … or the accelerometer's bias estimate leaves this many prior σ (sustained accelerations
     /// taken for a bias: a car braking).
     pub max_accel_bias_sigmas: f64,
+    /// The gyro's error in proportion to its rate (scale and cross-axis errors left in it), as
+    /// a fraction of |ω|: a turn of θ within a block adds (this · θ)² to the attitude's
+    /// variance (a systematic error between two measurements, not a white one). 0: none.
+    pub rate_error_fraction: f64,
+    /// A block whose normalised innovation squared exceeds this is not used (a sustained
+    /// acceleration: a car braking, a launch); infinite: every block within
+    /// `max_gravity_error` is.
+    pub max_block_nis: f64,
 }
 
 impl Default for MotionBiasConfig {
@@ -80,6 +88,8 @@ impl Default for MotionBiasConfig {
             max_mean_nis: 6.0,
             fit_blocks: 30,
             max_accel_bias_sigmas: 2.0,
+            rate_error_fraction: 0.0,
+            max_block_nis: f64::INFINITY,
         }
     }
 }
@@ -103,6 +113,12 @@ impl MotionBiasConfig {
             if !(value.is_finite() && value > 0.0) {
                 return Err(format!("in_motion.{key} must be finite and > 0, not {value}"));
             }
+        }
+        if !(self.rate_error_fraction.is_finite() && self.rate_error_fraction >= 0.0) {
+            return Err(format!("in_motion.rate_error_fraction must be finite and ≥ 0, not {}", self.rate_error_fraction));
+        }
+        if self.max_block_nis.is_nan() || self.max_block_nis <= 0.0 {
+            return Err(format!("in_motion.max_block_nis must be > 0 (.inf: no gate), not {}", self.max_block_nis));
         }
         if self.fit_blocks == 0 {
             return Err("in_motion.fit_blocks must be ≥ 1".into());
@@ -141,6 +157,8 @@ pub enum BlockVerdict {
     Used,
     /// ‖mean specific force‖ was not g: free fall, a launch, a crash.
     NotGravity,
+    /// Its innovation was beyond `max_block_nis`: the platform's own acceleration.
+    Outlier,
 }
 
 /// The error state: attitude about world x, y, z (rad), gyro bias (rad/s), accelerometer bias
@@ -252,6 +270,57 @@ impl MotionBias {
         self.applied = (bias, variance.diagonal());
     }
 
+    /// The attitude (`world_from_body`, heading from where it started) once started.
+    pub fn world_from_body(&self) -> Option<UnitQuaternion<f64>> {
+        self.world_from_body
+    }
+
+    /// The attitude error's covariance, rad² about world x, y, z.
+    pub fn attitude_covariance(&self) -> Matrix3<f64> {
+        self.p.fixed_view::<3, 3>(0, 0).into_owned()
+    }
+
+    /// Starts the attitude at `world_from_body` with its error covariance (rad², about world
+    /// axes), from sample `at_ns` (whose rate `gyro` turns it next): an attitude set otherwise
+    /// (a gravity start-up averaged over a rest) instead of one sample's specific force.
+    pub fn start_at(&mut self, world_from_body: UnitQuaternion<f64>, covariance: Matrix3<f64>, at_ns: i64, gyro: Vector3<f64>) {
+        self.world_from_body = Some(world_from_body);
+        let mut p = self.p;
+        p.fixed_view_mut::<3, 9>(0, 0).fill(0.0);
+        p.fixed_view_mut::<9, 3>(0, 0).fill(0.0);
+        // A tilt found from the specific force carries the accelerometer's bias: level in the
+        // estimate means R̂ (f) ∥ z, so δθ_x = (R̂ b_a)_y / g and δθ_y = −(R̂ b_a)_x / g. Its
+        // variance and its correlation with b_a are part of the start (without them, the error
+        // a bias put into the start is never owned).
+        let r = *world_from_body.to_rotation_matrix().matrix();
+        let swap = Matrix3::new(0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let j = swap * r / STANDARD_GRAVITY;
+        let p_ab: Matrix3<f64> = p.fixed_view::<3, 3>(6, 6).into_owned();
+        let cross = j * p_ab;
+        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&(covariance + cross * j.transpose()));
+        p.fixed_view_mut::<3, 3>(0, 6).copy_from(&cross);
+        p.fixed_view_mut::<3, 3>(6, 0).copy_from(&cross.transpose());
+        self.p = p;
+        self.block = Block::empty(at_ns);
+        self.last = Some((at_ns, gyro));
+    }
+
+    /// Holds the attitude over a hole in the input that ends at `at_ns` (integrating a stale
+    /// rate across it would invent motion): nothing is propagated, `added_variance` rad² goes
+    /// on each attitude axis, and the block in progress starts again.
+    pub fn hold(&mut self, at_ns: i64, added_variance: f64) {
+        if self.world_from_body.is_none() {
+            return;
+        }
+        if let Some((_, w)) = self.last {
+            self.last = Some((at_ns, w));
+        }
+        for i in 0..3 {
+            self.p[(i, i)] += added_variance;
+        }
+        self.block = Block::empty(at_ns);
+    }
+
     /// Blocks used as measurements, and blocks left out.
     pub fn blocks(&self) -> (u64, u64) {
         (self.used_blocks, self.skipped_blocks)
@@ -279,7 +348,8 @@ impl MotionBias {
     pub fn push(&mut self, s: &ImuSample) -> Option<BlockVerdict> {
         let mut verdict = None;
         match (self.last, self.world_from_body) {
-            (Some((t, w)), Some(q)) if s.stamp_ns > t && (s.stamp_ns - t) as f64 * 1e-9 <= self.cfg.max_sample_gap_s => {
+            // A stamp equal to the last: the end of a hold ([`Self::hold`]), nothing to turn.
+            (Some((t, w)), Some(q)) if s.stamp_ns >= t && (s.stamp_ns - t) as f64 * 1e-9 <= self.cfg.max_sample_gap_s => {
                 let dt = (s.stamp_ns - t) as f64 * 1e-9;
                 self.propagate(q, &w, dt);
                 if (s.stamp_ns - self.block.start_ns) as f64 * 1e-9 >= self.cfg.block_s {
@@ -337,7 +407,10 @@ impl MotionBias {
         let mut corner = p.fixed_view_mut::<3, 3>(0, 0);
         corner += epe;
         self.p = p;
-        let (ng, nb) = (self.cfg.gyro_noise_density.powi(2) * dt, self.cfg.bias_random_walk.powi(2) * dt);
+        // The rate-proportional error: (f |ω| dt)² per step summed over a block of n steps is
+        // (f θ)² / n; times n (the steps of a block, block_s / dt) it is the block's (f θ)².
+        let rate_error = (self.cfg.rate_error_fraction * (w - self.bias).norm()).powi(2) * dt * self.cfg.block_s;
+        let (ng, nb) = (self.cfg.gyro_noise_density.powi(2) * dt + rate_error, self.cfg.bias_random_walk.powi(2) * dt);
         for i in 0..3 {
             self.p[(i, i)] += ng;
             self.p[(i + 3, i + 3)] += nb;
@@ -372,6 +445,10 @@ impl MotionBias {
             return BlockVerdict::NotGravity;
         };
         let nis = (residual.transpose() * s_inv * residual)[0];
+        if nis > self.cfg.max_block_nis {
+            self.skipped_blocks += 1;
+            return BlockVerdict::Outlier;
+        }
         self.nis += (nis - self.nis) / f64::from(self.cfg.fit_blocks);
         let k = self.p * h.transpose() * s_inv;
         let dx: SVector<f64, 9> = k * residual;

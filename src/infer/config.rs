@@ -43,6 +43,11 @@ pub struct PipelineConfig {
     /// rest calibration there: docs/poweron.md). Off: the power-on bias instead, said on
     /// /diagnostics.
     pub model_on_new_imu: bool,
+    /// The published orientation: `open_loop` (the corrected gyro integrated) or
+    /// `gravity_aided` (its tilt corrected by the accelerometer's gravity, [`super::gravity_aided`]).
+    pub orientation: super::OrientationMode,
+    /// The gravity-aided filter's settings.
+    pub gravity_aided: super::GravityAidedConfig,
 }
 
 impl Default for PipelineConfig {
@@ -62,6 +67,8 @@ impl Default for PipelineConfig {
             power_on_bias: true,
             standstill: crate::standstill::StandstillConfig::default(),
             model_on_new_imu: false,
+            orientation: super::OrientationMode::OpenLoop,
+            gravity_aided: super::GravityAidedConfig::default(),
         }
     }
 }
@@ -86,6 +93,7 @@ impl PipelineConfig {
             }
         }
         self.standstill.validate().map_err(|e| format!("pipeline.{e}"))?;
+        self.gravity_aided.validate().map_err(|e| format!("pipeline.{e}"))?;
         if !(self.gap_periods.is_finite() && self.gap_periods > 1.0) {
             return Err(format!("pipeline.gap_periods must be finite and > 1 (nominal periods), not {}", self.gap_periods));
         }

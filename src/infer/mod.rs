@@ -8,6 +8,7 @@ mod choice;
 mod config;
 mod corrector;
 mod counters;
+mod gravity_aided;
 mod pipeline;
 mod stamps;
 
@@ -16,5 +17,6 @@ pub use choice::{choose, Correction, ModelDomain};
 pub use config::PipelineConfig;
 pub use corrector::{BiasCorrector, FullWindowCorrector, GyroCorrector, ModelCorrector, PassThrough};
 pub use counters::{Counters, Dropped};
+pub use gravity_aided::{GravityAidedConfig, OrientationMode, CHI2_3DOF_999};
 pub use pipeline::{CorrectedImu, Pipeline};
 pub use stamps::{BackwardsRun, CLOCK_JUMP_SAMPLES, RATE_FROM_GAPS};

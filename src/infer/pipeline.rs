@@ -3,8 +3,9 @@
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use super::attitude::Attitude;
+use super::gravity_aided::GravityAided;
 use super::stamps::{BackwardsRun, StreamRate};
-use super::{choose, Correction, Counters, Dropped, GyroCorrector, PipelineConfig};
+use super::{choose, Correction, Counters, Dropped, GyroCorrector, OrientationMode, PipelineConfig};
 use crate::core::{ClipDetector, ImuSample};
 use crate::resample::PeriodMeans;
 use crate::so3::{exp, renormalize};
@@ -28,8 +29,8 @@ pub struct CorrectedImu {
     /// No model ran on the gyro: the input's own covariance, where it gives one, stands for
     /// its noise.
     pub passed_through: bool,
-    /// Integrated `world_from_body` and its covariance (rad², about world x, y, z); `None`
-    /// until the initial attitude is known.
+    /// `world_from_body` and its covariance (rad², about world x, y, z), integrated or
+    /// gravity aided (`PipelineConfig::orientation`); `None` until the initial attitude is known.
     pub orientation: Option<(UnitQuaternion<f64>, Matrix3<f64>)>,
     /// The corrector has seen fewer than N samples since the start or the last reset.
     pub warming_up: bool,
@@ -59,6 +60,8 @@ pub struct Pipeline {
     /// The attitude at the start of the standstill window in progress: held there if the window
     /// turns out still (the body did not turn).
     hold_from: Option<(i64, UnitQuaternion<f64>)>,
+    /// The gravity-aided attitude (`orientation: gravity_aided`), from the first sample on.
+    gravity_aided: Option<GravityAided>,
 }
 
 impl Pipeline {
@@ -84,6 +87,7 @@ impl Pipeline {
             period_correction: Vector3::zeros(),
             standstill,
             hold_from: None,
+            gravity_aided: None,
         }
     }
 
@@ -171,6 +175,11 @@ impl Pipeline {
 
     pub fn standstill_counters(&self) -> &StandstillCounters {
         self.standstill.counters()
+    }
+
+    /// The gravity-aided attitude's blocks used and left out (`orientation: gravity_aided`).
+    pub fn gravity_aided_blocks(&self) -> Option<(u64, u64)> {
+        (self.cfg.orientation == OrientationMode::GravityAided).then(|| self.gravity_aided.as_ref().map_or((0, 0), GravityAided::blocks))
     }
 
     /// True while the platform is standing still (the last window judged was still).
@@ -269,6 +278,9 @@ impl Pipeline {
                 if !jumped_back && self.attitude.world_from_body.is_some() {
                     self.attitude.grow(held_s, 0.0, self.bias_stddev());
                 }
+                if let Some(g) = self.gravity_aided.as_mut() {
+                    g.hold(s.stamp_ns, self.cfg.gap_variance_per_second * held_s);
+                }
             } else {
                 self.rate.count_missed(dt_ns, period_before_ns, &mut self.counters);
                 let dt = dt_ns as f64 * 1e-9;
@@ -322,7 +334,24 @@ impl Pipeline {
         if let (None, Some(q), Some(w)) = (self.hold_from, self.attitude.world_from_body, self.standstill.window_start_ns()) {
             self.hold_from = Some((w, q));
         }
-        let orientation = self.attitude.world_from_body.map(|q| (q, self.attitude.covariance));
+        let orientation = match self.cfg.orientation {
+            OrientationMode::OpenLoop => self.attitude.world_from_body.map(|q| (q, self.attitude.covariance)),
+            // From the open loop's gravity start-up on (a mean over a rest, turns allowed for).
+            OrientationMode::GravityAided => match (self.gravity_aided.as_mut(), self.attitude.world_from_body) {
+                (Some(g), _) => {
+                    g.push(s.stamp_ns, &gyro, &s.accel);
+                    g.orientation()
+                }
+                (None, Some(q)) => {
+                    let mut g = GravityAided::new(&self.cfg.gravity_aided, self.bias_stddev(), correction.runs_model());
+                    g.start_at(q, self.attitude.covariance, s.stamp_ns, &gyro);
+                    let o = g.orientation();
+                    self.gravity_aided = Some(g);
+                    o
+                }
+                (None, None) => None,
+            },
+        };
         Ok(CorrectedImu {
             stamp_ns: s.stamp_ns,
             gyro,

@@ -476,6 +476,7 @@ async fn process_loop(
                 }
             }
             s.resampling = pipeline.resampling();
+            s.gravity_aided_blocks = pipeline.gravity_aided_blocks();
             s.take_power_on(&pipeline);
             if pipeline.rate_off_nominal() && !s.rate_off_nominal && !pipeline.resampling() {
                 tracing::warn!(

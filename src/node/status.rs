@@ -12,6 +12,9 @@ pub const MAX_DIAGNOSTICS_PERIOD_S: f64 = 86_400.0;
 #[derive(Debug, Default)]
 pub struct NodeStats {
     pub counters: Counters,
+    /// The gravity-aided attitude's blocks used and left out (`orientation: gravity_aided`);
+    /// `None`: the orientation is integrated open loop.
+    pub gravity_aided_blocks: Option<(u64, u64)>,
     pub latency: LatencyHistogram,
     pub frame_changes: u64,
     pub decode_errors: u64,
@@ -175,6 +178,13 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("resampled_to_model_rate", stats.resampling.to_string()),
         kv("correction", stats.correction.to_string()),
         kv("correction_reason", stats.correction_reason.to_string()),
+        kv(
+            "orientation",
+            match stats.gravity_aided_blocks {
+                None => "open loop".to_string(),
+                Some((used, left_out)) => format!("gravity aided: {used} blocks of gravity used, {left_out} left out"),
+            },
+        ),
         kv(
             "power_on_bias_rad_s",
             stats.power_on_bias.map_or(String::new(), |e| format!("{:.6} {:.6} {:.6}", e.bias.x, e.bias.y, e.bias.z)),

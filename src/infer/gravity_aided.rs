@@ -1,0 +1,267 @@
+//! The orientation fused with gravity (`pipeline.orientation: gravity_aided`): the corrected
+//! gyro integrated as in the open loop, its tilt pulled back by the accelerometer's gravity
+//! direction, so the tilt stays bounded where an open-loop attitude drifts without end.
+//!
+//! The filter is [`crate::motion_bias::MotionBias`], the one that sees the gyro bias in motion,
+//! run here on the *corrected* gyro: each block's specific force averaged in the world frame of
+//! the integrated attitude (a platform's own accelerations average out there) against gravity,
+//! with the corrected gyro's residual bias and the accelerometer's bias as states. A block
+//! whose innovation is beyond `max_block_nis` (a car braking for seconds, a launch) is not used.
+//! Heading is not observed: its variance grows as only the gyro holds it.
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+use crate::core::ImuSample;
+use crate::motion_bias::{MotionBias, MotionBiasConfig};
+
+/// χ² with 3 degrees of freedom at 99.9 %: a block beyond is the platform's acceleration.
+pub const CHI2_3DOF_999: f64 = 16.27;
+
+/// How [`crate::infer::CorrectedImu::orientation`] is made.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OrientationMode {
+    /// The corrected gyro integrated from the gravity start-up (the paper's output).
+    #[default]
+    OpenLoop,
+    /// The same, its tilt corrected by gravity (this module).
+    GravityAided,
+}
+
+/// The gravity-aided filter's noise model and gate (`pipeline.gravity_aided`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GravityAidedConfig {
+    /// Specific force averaged in the world frame over this long per measurement, s.
+    pub block_s: f64,
+    /// The platform's own acceleration left in a block's world-frame mean, m/s² (1 σ).
+    pub accel_stddev: f64,
+    /// A block whose ‖mean specific force‖ is farther than this from g is not used, m/s².
+    pub max_gravity_error: f64,
+    /// A block whose normalised innovation squared exceeds this is not used.
+    pub max_block_nis: f64,
+    /// The corrected gyro's white noise, rad/s/√Hz.
+    pub gyro_noise_density: f64,
+    /// The gyro's error in proportion to its rate where a model corrects it (the scale and
+    /// cross-axis its Ĉ_ω leaves), a fraction of |ω| ([`MotionBiasConfig::rate_error_fraction`]).
+    pub rate_error_fraction: f64,
+    /// The same where no model runs (the gyro's own scale and cross-axis errors).
+    pub uncorrected_rate_error_fraction: f64,
+    /// How fast the corrected gyro's residual bias wanders, rad/s/√s.
+    pub bias_random_walk: f64,
+    /// The accelerometer's bias before anything is measured: 0 ± this, m/s².
+    pub accel_bias_stddev: f64,
+}
+
+impl Default for GravityAidedConfig {
+    fn default() -> Self {
+        // The motion filter's noise model (src/motion_bias.rs), a gate at χ²₃ 99.9 %.
+        let m = MotionBiasConfig::default();
+        GravityAidedConfig {
+            block_s: m.block_s,
+            accel_stddev: m.accel_stddev,
+            max_gravity_error: m.max_gravity_error,
+            max_block_nis: CHI2_3DOF_999,
+            gyro_noise_density: m.gyro_noise_density,
+            // A consumer gyro's scale and cross-axis errors uncalibrated: 1–3 % (the MPU-9250
+            // unit of docs/poweron.md: +2.1 / −2.7 / +1.4 %); what a fitted Ĉ_ω leaves: a few
+            // tenths of a per cent (the ADIS16448's lasting errors, docs/poweron.md).
+            rate_error_fraction: 0.005,
+            uncorrected_rate_error_fraction: 0.02,
+            bias_random_walk: m.bias_random_walk,
+            accel_bias_stddev: m.accel_bias_stddev,
+        }
+    }
+}
+
+impl GravityAidedConfig {
+    /// Refuses settings the filter cannot run with, naming the key.
+    pub fn validate(&self) -> Result<(), String> {
+        for fraction in [self.rate_error_fraction, self.uncorrected_rate_error_fraction] {
+            self.filter_config(1e-3, fraction).validate().map_err(|e| e.replace("in_motion.", "gravity_aided."))?;
+        }
+        Ok(())
+    }
+
+    /// The motion filter's settings: this module's, the residual bias's prior σ (rad/s) and
+    /// the rate-proportional error's fraction.
+    fn filter_config(&self, bias_stddev: f64, rate_error_fraction: f64) -> MotionBiasConfig {
+        MotionBiasConfig {
+            block_s: self.block_s,
+            accel_stddev: self.accel_stddev,
+            max_gravity_error: self.max_gravity_error,
+            max_block_nis: self.max_block_nis,
+            gyro_noise_density: self.gyro_noise_density,
+            rate_error_fraction,
+            bias_random_walk: self.bias_random_walk,
+            accel_bias_stddev: self.accel_bias_stddev,
+            prior_stddev: bias_stddev,
+            // The pipeline's gaps are held (`hold`), never integrated: no sample gap restarts it.
+            max_sample_gap_s: 1e9,
+            ..MotionBiasConfig::default()
+        }
+    }
+}
+
+/// The running gravity-aided attitude.
+pub(super) struct GravityAided {
+    filter: MotionBias,
+}
+
+impl GravityAided {
+    /// `bias_stddev`: the bias left in the corrected gyro (the pipeline's, when it starts);
+    /// `model_runs`: a model corrects it (its Ĉ_ω the scale and cross-axis).
+    pub(super) fn new(cfg: &GravityAidedConfig, bias_stddev: f64, model_runs: bool) -> Self {
+        let fraction = if model_runs { cfg.rate_error_fraction } else { cfg.uncorrected_rate_error_fraction };
+        GravityAided { filter: MotionBias::new(cfg.filter_config(bias_stddev, fraction)) }
+    }
+
+    /// Starts at an attitude already known (the pipeline's gravity start-up) at sample
+    /// `stamp_ns`, whose corrected rate is `gyro`.
+    pub(super) fn start_at(&mut self, world_from_body: UnitQuaternion<f64>, covariance: Matrix3<f64>, stamp_ns: i64, gyro: &Vector3<f64>) {
+        self.filter.start_at(world_from_body, covariance, stamp_ns, *gyro);
+    }
+
+    /// One corrected sample (stamps after the last, gaps held first).
+    pub(super) fn push(&mut self, stamp_ns: i64, gyro: &Vector3<f64>, accel: &Vector3<f64>) {
+        self.filter.push(&ImuSample { stamp_ns, gyro: *gyro, accel: *accel });
+    }
+
+    /// Over a hole in the input that ends at `at_ns`: the attitude is held, `added_variance`
+    /// rad² on each axis.
+    pub(super) fn hold(&mut self, at_ns: i64, added_variance: f64) {
+        self.filter.hold(at_ns, added_variance);
+    }
+
+    pub(super) fn orientation(&self) -> Option<(UnitQuaternion<f64>, Matrix3<f64>)> {
+        self.filter.world_from_body().map(|q| (q, self.filter.attitude_covariance()))
+    }
+
+    /// Blocks used, and left out (not gravity, or beyond the gate).
+    pub(super) fn blocks(&self) -> (u64, u64) {
+        self.filter.blocks()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::STANDARD_GRAVITY;
+    use crate::infer::{PassThrough, Pipeline, PipelineConfig};
+    use crate::so3::{exp, renormalize};
+
+    fn config(orientation: OrientationMode) -> PipelineConfig {
+        // The gyro as measured, its bias left in (no standstill, nothing seen in motion).
+        PipelineConfig { orientation, gravity_init_seconds: 0.2, power_on_bias: false, ..Default::default() }
+    }
+
+    /// The angle between the true and the estimated gravity direction in the body, and the
+    /// tilt NEES (the error about world x, y against the stated 2×2 covariance).
+    fn tilt(truth: &UnitQuaternion<f64>, (q, p): &(UnitQuaternion<f64>, Matrix3<f64>)) -> (f64, f64) {
+        let angle = (q.inverse() * Vector3::z()).angle(&(truth.inverse() * Vector3::z()));
+        let e = (q * truth.inverse()).scaled_axis();
+        let cov = p.fixed_view::<2, 2>(0, 0).into_owned();
+        let nees = cov.try_inverse().map_or(f64::NAN, |c| (e.xy().transpose() * c * e.xy())[0]);
+        (angle, nees)
+    }
+
+    /// Ten minutes of a body turning about every axis with a 10 mrad/s gyro bias left in: the
+    /// open-loop tilt drifts by tens of degrees, the gravity-aided one stays within a degree,
+    /// its stated covariance covering it, and the heading is the gyro's alone.
+    #[test]
+    fn the_tilt_stays_bounded_where_the_open_loop_drifts() {
+        let bias = Vector3::new(0.01, -0.01, 0.005);
+        let imu = crate::motion_bias::tumbling(bias, 600.0, 0.5);
+        let mut truth = UnitQuaternion::identity();
+        let mut truths = Vec::with_capacity(imu.len());
+        for (k, s) in imu.iter().enumerate() {
+            truths.push(truth);
+            if let Some(next) = imu.get(k + 1) {
+                truth = renormalize(truth * exp(&((s.gyro - bias) * ((next.stamp_ns - s.stamp_ns) as f64 * 1e-9))));
+            }
+        }
+        let run = |mode| {
+            let mut p = Pipeline::new(Box::new(PassThrough), config(mode));
+            let out: Vec<_> = imu.iter().map(|s| p.push(s).unwrap().orientation).collect();
+            (out, p.gravity_aided_blocks())
+        };
+        let (open, none) = run(OrientationMode::OpenLoop);
+        let (aided, blocks) = run(OrientationMode::GravityAided);
+        assert!(none.is_none(), "open loop: no blocks");
+        let (used, left_out) = blocks.expect("the filter ran");
+        assert!(used >= 590 && left_out == 0, "{used} blocks used, {left_out} left out");
+        let after_1_min = 60 * 200;
+        let worst = |o: &[Option<(UnitQuaternion<f64>, Matrix3<f64>)>]| {
+            (after_1_min..imu.len()).map(|k| tilt(&truths[k], o[k].as_ref().unwrap()).0.to_degrees()).fold(0.0, f64::max)
+        };
+        let (open_worst, aided_worst) = (worst(&open), worst(&aided));
+        assert!(open_worst > 20.0, "the open loop drifts: {open_worst:.1}°");
+        let rms = |o: &[Option<(UnitQuaternion<f64>, Matrix3<f64>)>]| {
+            let n = imu.len() - after_1_min;
+            ((after_1_min..imu.len()).map(|k| tilt(&truths[k], o[k].as_ref().unwrap()).0.powi(2)).sum::<f64>() / n as f64)
+                .sqrt()
+                .to_degrees()
+        };
+        eprintln!(
+            "tumbling, after the first minute: open loop {:.2}° RMS ({open_worst:.2}° worst), gravity aided {:.2}° ({aided_worst:.2}°)",
+            rms(&open),
+            rms(&aided)
+        );
+        assert!(rms(&aided) < 1.0 && aided_worst < 3.0, "gravity aided: {aided_worst:.2}° at worst after the first minute");
+        let nees: Vec<f64> = (after_1_min..imu.len()).step_by(200).map(|k| tilt(&truths[k], aided[k].as_ref().unwrap()).1).collect();
+        let within = nees.iter().filter(|n| **n < crate::eval::CHI2_2DOF_95).count() as f64 / nees.len() as f64;
+        assert!(within >= 0.95, "{:.0} % of the tilt errors within the stated 95 % bound", 100.0 * within);
+        // Heading: gravity says nothing of it; it keeps the start's π² (yaw unknown).
+        let (_, p_end) = aided[imu.len() - 1].unwrap();
+        // The tilt's σ stays at a degree or two (the open loop's grows past 10° here).
+        assert!(
+            p_end[(2, 2)] > 0.99 * PipelineConfig::default().initial_yaw_variance && p_end[(0, 0)] < 3f64.to_radians().powi(2),
+            "{p_end}"
+        );
+    }
+
+    /// A level body braking at 5 m/s² for 3 s: the blocks wholly inside it are left out (their
+    /// specific force is not g); those it straddles pull the tilt, within the stated 3 σ (on a
+    /// still body the accelerometer's unknown bias keeps that σ at degrees), and it returns.
+    #[test]
+    fn a_sustained_acceleration_is_covered_and_forgotten() {
+        let dt_ns = 5_000_000;
+        let imu: Vec<ImuSample> = (0..200 * 60)
+            .map(|k| {
+                let t = k as f64 * 0.005;
+                let braking = (20.0..23.0).contains(&t);
+                let accel = Vector3::new(if braking { -5.0 } else { 0.0 }, 0.0, STANDARD_GRAVITY);
+                ImuSample { stamp_ns: 1_000_000 + k as i64 * dt_ns, gyro: Vector3::zeros(), accel }
+            })
+            .collect();
+        let mut p = Pipeline::new(Box::new(PassThrough), config(OrientationMode::GravityAided));
+        let out: Vec<_> = imu.iter().filter_map(|s| p.push(s).unwrap().orientation).collect();
+        let (_, left_out) = p.gravity_aided_blocks().unwrap();
+        assert!(left_out >= 2, "{left_out} blocks left out");
+        let tilt_and_sigma = |(q, p): &(UnitQuaternion<f64>, Matrix3<f64>)| {
+            ((q.inverse() * Vector3::z()).angle(&Vector3::z()), p[(0, 0)].max(p[(1, 1)]).sqrt())
+        };
+        for (k, o) in out.iter().enumerate() {
+            let (tilt, sigma) = tilt_and_sigma(o);
+            assert!(tilt < 3.0 * sigma, "sample {k}: tilt {:.2}° against σ {:.2}°", tilt.to_degrees(), sigma.to_degrees());
+        }
+        let (last, _) = tilt_and_sigma(out.last().unwrap());
+        assert!(last.to_degrees() < 1.0, "{:.2}° 37 s after the braking", last.to_degrees());
+    }
+
+    /// Over a hole in the input the attitude is held and its variance grows.
+    #[test]
+    fn a_gap_holds_the_gravity_aided_attitude() {
+        let mut imu = crate::motion_bias::tumbling(Vector3::zeros(), 20.0, 0.0);
+        for s in &mut imu[2000..] {
+            s.stamp_ns += 2_000_000_000;
+        }
+        let mut p = Pipeline::new(Box::new(PassThrough), config(OrientationMode::GravityAided));
+        let out: Vec<_> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        let (before, after) = (out[1999].orientation.unwrap(), out[2000].orientation.unwrap());
+        assert!(out[2000].after_gap);
+        // The last sample's rate turns it over one period only (not over the two seconds).
+        assert!(before.0.angle_to(&after.0) < 0.01, "{}", before.0.angle_to(&after.0));
+        assert!(after.1.trace() > before.1.trace() + 1.0, "{} → {}", before.1.trace(), after.1.trace());
+    }
+}
