@@ -232,6 +232,39 @@ pub(super) async fn respond(
     }
 }
 
+/// Why an adaptation job ended without a model (the reply says it, then "the current model
+/// keeps running").
+#[derive(Debug, thiserror::Error)]
+enum JobError {
+    #[error("loading {path}: {source}")]
+    Load {
+        path: String,
+        #[source]
+        source: crate::model::ModelError,
+    },
+    #[error(transparent)]
+    Model(#[from] crate::model::ModelError),
+    #[error(transparent)]
+    Adapt(#[from] crate::adapt::AdaptError),
+    /// The buffers cannot support an adaptation (nothing yet, too short).
+    #[error("{0}")]
+    NotEnoughData(String),
+}
+
+/// An error and its causes, each once ("loading m.json: m.ot: file not found").
+fn with_causes(e: &dyn std::error::Error) -> String {
+    let mut said = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        let text = c.to_string();
+        if !said.contains(&text) {
+            said = format!("{said}: {text}");
+        }
+        cause = c.source();
+    }
+    said
+}
+
 struct Job {
     model: PathBuf,
     imu_calibration: Option<String>,
@@ -258,7 +291,7 @@ impl Job {
         &self,
         start: &crate::model::export::LoadedNet,
         mut outcome: crate::adapt::AdaptOutcome,
-    ) -> anyhow::Result<(crate::adapt::AdaptOutcome, String)> {
+    ) -> Result<(crate::adapt::AdaptOutcome, String), JobError> {
         let earlier = match &self.archive {
             Some(a) if outcome.adapted.is_some() => a.read_earlier(),
             _ => super::support_archive::EarlierPowerOns { recordings: Vec::new(), skipped: Vec::new() },
@@ -290,27 +323,33 @@ impl Job {
     fn run(self) -> JobResult {
         match self.run_inner() {
             Ok(r) => r,
-            Err(e) => {
-                JobResult { success: false, message: format!("{e:#}; the current model keeps running"), report: None, model_name: None }
-            }
+            Err(e) => JobResult {
+                success: false,
+                message: format!("{}; the current model keeps running", with_causes(&e)),
+                report: None,
+                model_name: None,
+            },
         }
     }
 
-    fn run_inner(&self) -> anyhow::Result<JobResult> {
-        use anyhow::Context;
+    fn run_inner(&self) -> Result<JobResult, JobError> {
         // Off the real-time path, one intra-op thread (the node's setting).
         tch::set_num_threads(1);
         let t0 = Instant::now();
         let meta = crate::model::predict::metadata_path(&self.model);
-        let loaded = crate::model::export::load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading {}", meta.display()))?;
+        let loaded = crate::model::export::load_net(&meta, tch::Device::Cpu)
+            .map_err(|source| JobError::Load { path: meta.display().to_string(), source })?;
         loaded.select_imu(self.imu_calibration.as_deref())?;
-        anyhow::ensure!(!self.imu.is_empty(), "no input buffered yet");
+        if self.imu.is_empty() {
+            return Err(JobError::NotEnoughData("no input buffered yet".into()));
+        }
         // A publisher of another type on the topic is not matched by DDS, and nothing else says so.
-        anyhow::ensure!(
-            !self.gt.is_empty(),
-            "no ground truth received yet on {} (a publisher of another type there is not matched: set ground_truth_type)",
-            self.ground_truth
-        );
+        if self.gt.is_empty() {
+            return Err(JobError::NotEnoughData(format!(
+                "no ground truth received yet on {} (a publisher of another type there is not matched: set ground_truth_type)",
+                self.ground_truth
+            )));
+        }
         let rec = crate::core::Recording {
             name: "node buffer".into(),
             imu: self.imu.iter().map(|s| s.sample).collect(),
@@ -318,12 +357,13 @@ impl Job {
             temperature: Vec::new(),
         };
         let (support, query) = crate::adapt::split_recording(&rec, self.support_seconds, None, &self.cfg);
-        anyhow::ensure!(
-            !query.imu.is_empty(),
-            "only {:.1} s buffered: nothing after the {} s support set to judge the adaptation on",
-            rec.imu_seconds(),
-            self.support_seconds
-        );
+        if query.imu.is_empty() {
+            return Err(JobError::NotEnoughData(format!(
+                "only {:.1} s buffered: nothing after the {} s support set to judge the adaptation on",
+                rec.imu_seconds(),
+                self.support_seconds
+            )));
+        }
         // Kept before adapting: a later power-on judges on it whatever this one decides.
         let kept_as = self.archive.as_ref().map(|a| match a.save(&rec) {
             Ok(path) => format!("support kept as {}", path.display()),
@@ -401,5 +441,20 @@ impl Job {
             report: Some(r),
             model_name: Some(name),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The reply names the cause under the error, once, as the log would.
+    #[test]
+    fn a_failed_job_says_its_causes_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "m.ot: no such file");
+        let e = JobError::Load { path: "m.json".into(), source: crate::model::ModelError::Io { path: "m.ot".into(), source: io } };
+        let said = with_causes(&e);
+        assert!(said.starts_with("loading m.json: "), "{said}");
+        assert_eq!(said.matches("no such file").count(), 1, "{said}");
     }
 }
