@@ -82,9 +82,9 @@ pub enum AdaptError {
     Other(String),
 }
 
-impl From<anyhow::Error> for AdaptError {
-    fn from(e: anyhow::Error) -> Self {
-        AdaptError::Other(format!("{e:#}"))
+impl From<crate::train::error::TrainError> for AdaptError {
+    fn from(e: crate::train::error::TrainError) -> Self {
+        AdaptError::Other(e.to_string())
     }
 }
 

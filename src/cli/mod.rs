@@ -174,7 +174,12 @@ pub mod interrupts {
 
     /// Whether a command ended at a signal (exit 130), by its own word or a training run's.
     pub fn is_interruption(e: &anyhow::Error) -> bool {
-        e.chain().any(|c| c.is::<Interrupted>() || c.is::<imu_fsda::train::Stopped>())
+        e.chain().any(|c| {
+            c.is::<Interrupted>()
+                || c.is::<imu_fsda::train::Stopped>()
+                || c.downcast_ref::<imu_fsda::train::error::TrainError>()
+                    .is_some_and(|t| matches!(t, imu_fsda::train::error::TrainError::Stopped(_)))
+        })
     }
 }
 

@@ -9,6 +9,7 @@
 //! windows, noise and dropout masks whether or not the run was interrupted before it. Not
 //! bit-exact: libtorch's multi-threaded reductions may sum in another order.
 
+use super::error::{refuse, TrainError};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -89,8 +90,12 @@ pub fn save(
     best: Option<&BTreeMap<String, Tensor>>,
     ema: Option<&BTreeMap<String, Tensor>>,
     meta: &CheckpointMeta,
-) -> anyhow::Result<PathBuf> {
-    anyhow::Context::with_context(crate::core::create_dir_all(out_dir), || format!("creating {}", out_dir.display()))?;
+) -> Result<PathBuf, TrainError> {
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| TrainError::Io { path, source }
+    };
+    crate::core::create_dir_all(out_dir).map_err(io(out_dir))?;
     let (ot, json) = paths(out_dir, name);
     let token = rand::random::<i64>();
     let meta = CheckpointMeta { pair_token: Some(token), ..meta.clone() };
@@ -103,14 +108,14 @@ pub fn save(
         named.extend(ema.iter().map(|(n, t)| (format!("ema.{n}"), t.shallow_clone())));
     }
     named.push((PAIR_KEY.to_string(), Tensor::from_slice(&[token])));
-    let text = serde_json::to_string_pretty(&meta)?;
+    let text = serde_json::to_string_pretty(&meta).map_err(|e| TrainError::refused("the checkpoint's record", e))?;
     named.push((META_KEY.to_string(), Tensor::from_slice(text.as_bytes())));
     let tmp = ot.with_extension("ot.tmp");
-    Tensor::save_multi(&named, &tmp)?;
-    std::fs::rename(&tmp, &ot)?;
+    Tensor::save_multi(&named, &tmp).map_err(|e| TrainError::Torch(format!("{}: {}", tmp.display(), crate::model::torch_message(&e))))?;
+    std::fs::rename(&tmp, &ot).map_err(io(&ot))?;
     let tmp = json.with_extension("json.tmp");
-    std::fs::write(&tmp, text)?;
-    std::fs::rename(&tmp, &json)?;
+    std::fs::write(&tmp, text).map_err(io(&tmp))?;
+    std::fs::rename(&tmp, &json).map_err(io(&json))?;
     Ok(json)
 }
 
@@ -121,33 +126,33 @@ pub struct Loaded {
 }
 
 /// Reads a checkpoint given its `.ckpt.json` or `.ckpt.ot` path.
-pub fn load(path: &Path) -> anyhow::Result<Loaded> {
+pub fn load(path: &Path) -> Result<Loaded, TrainError> {
     let s = path.to_string_lossy();
     let stem = s.trim_end_matches(".json").trim_end_matches(".ot").to_string();
     let json = PathBuf::from(format!("{stem}.json"));
     let ot = PathBuf::from(format!("{stem}.ot"));
-    let read_json = || -> anyhow::Result<CheckpointMeta> {
-        let text =
-            std::fs::read_to_string(&json).map_err(|e| anyhow::anyhow!("{}: {e} (resume takes the .ckpt.json path)", json.display()))?;
-        serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: not a checkpoint: {e}", json.display()))
+    let read_json = || -> Result<CheckpointMeta, TrainError> {
+        let text = std::fs::read_to_string(&json)
+            .map_err(|e| TrainError::Refused(format!("{}: {e} (resume takes the .ckpt.json path)", json.display())))?;
+        serde_json::from_str(&text).map_err(|e| TrainError::Refused(format!("{}: not a checkpoint: {e}", json.display())))
     };
     // The `.json` is read first where the `.ot` cannot be: its error names what is wrong.
     if !ot.is_file() {
         read_json()?;
     }
     let mut tensors: BTreeMap<String, Tensor> = Tensor::load_multi(&ot)
-        .map_err(|e| anyhow::anyhow!("{}: {}", ot.display(), crate::model::torch_message(&e)))?
+        .map_err(|e| TrainError::Torch(format!("{}: {}", ot.display(), crate::model::torch_message(&e))))?
         .into_iter()
         .collect();
     let in_ot = tensors.remove(PAIR_KEY).and_then(|t| Vec::<i64>::try_from(&t).ok()).and_then(|v| v.first().copied());
     if let Some(embedded) = tensors.remove(META_KEY) {
         // The `.ot` carries its own metadata (saves since session 38): a `.json` left behind by
         // an interrupted save does not matter.
-        let bytes = Vec::<u8>::try_from(&embedded).map_err(|e| anyhow::anyhow!("{}: {META_KEY}: {e}", ot.display()))?;
-        let meta: CheckpointMeta =
-            serde_json::from_slice(&bytes).map_err(|e| anyhow::anyhow!("{}: its metadata is not a checkpoint's: {e}", ot.display()))?;
+        let bytes = Vec::<u8>::try_from(&embedded).map_err(|e| TrainError::Torch(format!("{}: {META_KEY}: {e}", ot.display())))?;
+        let meta: CheckpointMeta = serde_json::from_slice(&bytes)
+            .map_err(|e| TrainError::Refused(format!("{}: its metadata is not a checkpoint's: {e}", ot.display())))?;
         if meta.format_version != 1 {
-            anyhow::bail!("{}: checkpoint format {} (expected 1)", ot.display(), meta.format_version);
+            refuse!("{}: checkpoint format {} (expected 1)", ot.display(), meta.format_version);
         }
         if read_json().ok().and_then(|j| j.pair_token) != meta.pair_token {
             tracing::warn!(
@@ -161,11 +166,11 @@ pub fn load(path: &Path) -> anyhow::Result<Loaded> {
     }
     let meta = read_json()?;
     if meta.format_version != 1 {
-        anyhow::bail!("{}: checkpoint format {} (expected 1)", json.display(), meta.format_version);
+        refuse!("{}: checkpoint format {} (expected 1)", json.display(), meta.format_version);
     }
     if let Some(token) = meta.pair_token {
         if in_ot != Some(token) {
-            anyhow::bail!(
+            refuse!(
                 "{} was not saved with {} (another run's, or an older or newer save of this one): the two files of a checkpoint go together",
                 ot.display(),
                 json.display()
@@ -176,12 +181,12 @@ pub fn load(path: &Path) -> anyhow::Result<Loaded> {
 }
 
 /// Copies the `prefix.`-named tensors into `vs`; every variable must be present.
-pub fn restore_vars(vs: &VarStore, tensors: &BTreeMap<String, Tensor>, prefix: &str) -> anyhow::Result<()> {
+pub fn restore_vars(vs: &VarStore, tensors: &BTreeMap<String, Tensor>, prefix: &str) -> Result<(), TrainError> {
     for (n, mut t) in vs.variables() {
         let key = format!("{prefix}.{n}");
-        let src = tensors.get(&key).ok_or_else(|| anyhow::anyhow!("checkpoint lacks {key}"))?;
+        let src = tensors.get(&key).ok_or_else(|| TrainError::Refused(format!("checkpoint lacks {key}")))?;
         if src.size() != t.size() {
-            anyhow::bail!("{key}: shape {:?} in the checkpoint, {:?} in the model", src.size(), t.size());
+            refuse!("{key}: shape {:?} in the checkpoint, {:?} in the model", src.size(), t.size());
         }
         tch::no_grad(|| t.copy_(src));
     }
@@ -194,7 +199,7 @@ pub fn snapshot(vs: &VarStore) -> BTreeMap<String, Tensor> {
 }
 
 /// Puts a snapshot back.
-pub fn restore_snapshot(vs: &VarStore, snap: &BTreeMap<String, Tensor>) -> anyhow::Result<()> {
+pub fn restore_snapshot(vs: &VarStore, snap: &BTreeMap<String, Tensor>) -> Result<(), TrainError> {
     let prefixed: BTreeMap<String, Tensor> = snap.iter().map(|(n, t)| (format!("s.{n}"), t.shallow_clone())).collect();
     restore_vars(vs, &prefixed, "s")
 }
@@ -241,7 +246,7 @@ impl Ema {
     }
 
     /// Runs `f` with the averaged weights in `vs`, then puts the trained ones back.
-    pub fn with_average<T>(&self, vs: &VarStore, f: impl FnOnce() -> T) -> anyhow::Result<T> {
+    pub fn with_average<T>(&self, vs: &VarStore, f: impl FnOnce() -> T) -> Result<T, TrainError> {
         let current = snapshot(vs);
         restore_snapshot(vs, &self.avg)?;
         let out = f();

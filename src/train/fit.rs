@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::Context;
+use super::error::{refuse, Context, TrainError};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -66,7 +66,7 @@ pub struct Datasets {
 }
 
 /// Loads every source and runs every check that can fail, before anything is trained.
-pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
+pub fn load_datasets(cfg: &TrainConfig) -> Result<Datasets, TrainError> {
     let d = &cfg.dataset;
     let t = &cfg.train;
     let maml = cfg.model.mode == Mode::FsdaF;
@@ -92,7 +92,7 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
         // exported rate_hz (what the node checks its input against) would be wrong for it.
         let window = cfg.model.receptive_field();
         if let Some(why) = crate::model::rate_mismatch(cfg.model.rate_hz, task.rec.nominal_imu_rate_hz(), window) {
-            anyhow::bail!("{}: {why}; resample it to model.rate_hz or train a model for its rate", task.name);
+            refuse!("{}: {why}; resample it to model.rate_hz or train a model for its rate", task.name);
         }
         // Without one scored increment the run would train the reconstruction alone (L_D = 0).
         let shortest = t.loss.increments.iter().map(|i| i.samples).min().unwrap_or(1);
@@ -120,11 +120,11 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
     // Evaluation recordings at another rate would be scored, and chosen on (select_best,
     // train.seeds), with a model that cannot run them.
     let window = cfg.model.receptive_field();
-    let load_eval = |list: &[super::config::SourceConfig], what: &str| -> anyhow::Result<Vec<Task>> {
-        let tasks = list.iter().map(|src| Ok(data::load_task(&d.root, src, d, None)?)).collect::<anyhow::Result<Vec<Task>>>()?;
+    let load_eval = |list: &[super::config::SourceConfig], what: &str| -> Result<Vec<Task>, TrainError> {
+        let tasks = list.iter().map(|src| Ok(data::load_task(&d.root, src, d, None)?)).collect::<Result<Vec<Task>, TrainError>>()?;
         for task in &tasks {
             if let Some(why) = crate::model::rate_mismatch(cfg.model.rate_hz, task.rec.nominal_imu_rate_hz(), window) {
-                anyhow::bail!("{what} {}: {why}; resample it to model.rate_hz or leave it out", task.name);
+                refuse!("{what} {}: {why}; resample it to model.rate_hz or leave it out", task.name);
             }
             // Shorter than one window, its AOE is the warm-up's alone (near 0°, whatever the
             // network does), and a validation score of it would pull the choice of seed and epoch.
@@ -134,7 +134,7 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
                 &format!("the model's window, as a {what} recording"),
                 task.len(),
             )
-            .map_err(|e| anyhow::anyhow!("dataset.{what}: {e}"))?;
+            .map_err(|e| TrainError::Refused(format!("dataset.{what}: {e}")))?;
         }
         Ok(tasks)
     };
@@ -150,11 +150,7 @@ pub fn load_datasets(cfg: &TrainConfig) -> anyhow::Result<Datasets> {
         let mut seen = std::collections::BTreeMap::new();
         for t in list.iter() {
             if let Some(other) = seen.insert(t.name.clone(), t.source.clone()) {
-                anyhow::bail!(
-                    "dataset.{what}: two recordings are named {} ({other} and {}): give one a `name:` of its own",
-                    t.name,
-                    t.source
-                );
+                refuse!("dataset.{what}: two recordings are named {} ({other} and {}): give one a `name:` of its own", t.name, t.source);
             }
         }
     }
@@ -177,25 +173,25 @@ pub fn eval_opts(cfg: &TrainConfig) -> EvalOptions {
 }
 
 /// Raw-gyro errors of a recording.
-pub fn evaluate_raw(task: &Task, opts: &EvalOptions) -> anyhow::Result<OrientationErrors> {
+pub fn evaluate_raw(task: &Task, opts: &EvalOptions) -> Result<OrientationErrors, TrainError> {
     let gyro: Vec<_> = task.rec.imu.iter().map(|s| s.gyro).collect();
     Ok(evaluate(&task.rec, &gyro, opts)?)
 }
 
 /// Errors of the model (eval mode, BatchNorm folded, the meta-learned θ_e as exported).
-pub fn evaluate_net(net: &Net, task: &Task, opts: &EvalOptions) -> anyhow::Result<OrientationErrors> {
+pub fn evaluate_net(net: &Net, task: &Task, opts: &EvalOptions) -> Result<OrientationErrors, TrainError> {
     evaluate_net_with_gain(net, task, opts, 1.0)
 }
 
 /// [`evaluate_net`] with the share `gain` of the model's correction applied (as deployed on an
 /// IMU with a correction gain, `ModelMetadata::imu_correction_gains`).
-pub fn evaluate_net_with_gain(net: &Net, task: &Task, opts: &EvalOptions, gain: f64) -> anyhow::Result<OrientationErrors> {
+pub fn evaluate_net_with_gain(net: &Net, task: &Task, opts: &EvalOptions, gain: f64) -> Result<OrientationErrors, TrainError> {
     let gyro = corrected_gyro(net, task)?;
     Ok(evaluate(&task.rec, &with_correction_gain(&task.rec.imu, gyro, gain), opts)?)
 }
 
 /// The model's corrected gyro over `task` (its IMU's Ĉ_ω row where it names one).
-pub fn corrected_gyro(net: &Net, task: &Task) -> anyhow::Result<Vec<nalgebra::Vector3<f64>>> {
+pub fn corrected_gyro(net: &Net, task: &Task) -> Result<Vec<nalgebra::Vector3<f64>>, TrainError> {
     let inf = match task.calibration_row {
         Some(row) => net.inference_for_row(row),
         None => net.inference(),
@@ -212,7 +208,7 @@ pub fn corrected_gyro(net: &Net, task: &Task) -> anyhow::Result<Vec<nalgebra::Ve
 /// increments of at most a few seconds; the AOE integrates the whole recording: on a
 /// calibrated IMU with mocap ground truth a correction that fits the short increments can add
 /// more drift than it removes (docs/training.md).
-pub fn fit_correction_gains(net: &Net, tasks: &[Task], opts: &EvalOptions) -> anyhow::Result<BTreeMap<String, f64>> {
+pub fn fit_correction_gains(net: &Net, tasks: &[Task], opts: &EvalOptions) -> Result<BTreeMap<String, f64>, TrainError> {
     // Each recording with its corrected gyro (gain 1), computed once, grouped by IMU.
     type Corrected<'a> = (&'a Task, Vec<nalgebra::Vector3<f64>>);
     let mut by_imu: BTreeMap<&str, Vec<Corrected>> = BTreeMap::new();
@@ -221,7 +217,7 @@ pub fn fit_correction_gains(net: &Net, tasks: &[Task], opts: &EvalOptions) -> an
     }
     let mut gains = BTreeMap::new();
     for (imu, runs) in by_imu {
-        let mean_aoe = |g: f64| -> anyhow::Result<f64> {
+        let mean_aoe = |g: f64| -> Result<f64, TrainError> {
             let mut sum = 0.0;
             for (task, gyro) in &runs {
                 sum += evaluate(&task.rec, &with_correction_gain(&task.rec.imu, gyro.clone(), g), opts)?.aoe_deg;
@@ -394,14 +390,14 @@ pub fn domain_weights(domains: &[String], how: TaskWeighting) -> Vec<f64> {
 }
 
 /// Zeroes the last conv of the correction CNN (Generator or DIGDL's), so ω' starts at 0.
-fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
+fn zero_init_correction(vs: &VarStore, net: &Net) -> Result<(), TrainError> {
     let prefix = if net.config().mode == Mode::Digdl { "digdl" } else { "generator" };
     let layers =
         if net.config().mode == Mode::Digdl { net.config().digdl.kernel_sizes.len() } else { net.config().generator.kernel_sizes.len() };
     let vars = vs.variables();
     for leaf in ["weight", "bias"] {
         let name = format!("{prefix}.conv{}.{leaf}", layers - 1);
-        let v = vars.get(&name).ok_or_else(|| anyhow::anyhow!("zero_init_correction: no variable {name}"))?;
+        let v = vars.get(&name).ok_or_else(|| TrainError::Refused(format!("zero_init_correction: no variable {name}")))?;
         tch::no_grad(|| {
             let _ = v.shallow_clone().zero_();
         });
@@ -413,7 +409,7 @@ fn zero_init_correction(vs: &VarStore, net: &Net) -> anyhow::Result<()> {
 /// the model has no Ĉ_ω for and not declared calibrated is an error (a misspelt name would
 /// silently train with I); an evaluation one gets I, as a new IMU would in the node.
 /// Recordings of `calibrated` IMUs get I (the last row) in training and evaluation.
-pub fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[String]) -> anyhow::Result<()> {
+pub fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[String]) -> Result<(), TrainError> {
     let names = &net.config().imu_calibrations;
     if names.is_empty() && calibrated.is_empty() {
         // One shared Ĉ_ω: the plain forward, as the models before per-IMU Ĉ_ω were trained
@@ -424,7 +420,7 @@ pub fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[Str
     let row = |imu: &String| if calibrated.contains(imu) { identity_row } else { net.calibration_row(imu) };
     for task in &mut data.train {
         if !names.is_empty() && !names.contains(&task.imu_name) && !calibrated.contains(&task.imu_name) {
-            anyhow::bail!(
+            refuse!(
                 "training recording {} is from IMU {:?}, which model.imu_calibrations {:?} does not list (set the source's imu: or add it)",
                 task.source,
                 task.imu_name,
@@ -448,25 +444,28 @@ pub fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[Str
 
 /// Copies a trained model's variables (`TrainSettings::init_from`) into `vs`, normalisation
 /// included; its config must be `cfg.model`.
-fn init_from_model(vs: &mut VarStore, cfg: &TrainConfig, model_path: &std::path::Path) -> anyhow::Result<()> {
+fn init_from_model(vs: &mut VarStore, cfg: &TrainConfig, model_path: &std::path::Path) -> Result<(), TrainError> {
     // The model may be named by any of its three files, as everywhere else.
     let metadata_path = &crate::model::predict::metadata_path(model_path);
     let loaded = crate::model::export::load_net(metadata_path, Device::Cpu)
-        .map_err(|e| anyhow::anyhow!("train.init_from {}: {e}", metadata_path.display()))?;
+        .map_err(|e| TrainError::Refused(format!("train.init_from {}: {e}", metadata_path.display())))?;
     if loaded.metadata.config != cfg.model {
-        let (a, b) = (serde_json::to_value(&loaded.metadata.config)?, serde_json::to_value(&cfg.model)?);
+        let (a, b) = (
+            serde_json::to_value(&loaded.metadata.config).context("model config")?,
+            serde_json::to_value(&cfg.model).context("model config")?,
+        );
         let differing: std::collections::BTreeSet<String> = match (a.as_object(), b.as_object()) {
             (Some(a), Some(b)) => a.keys().chain(b.keys()).filter(|k| a.get(*k) != b.get(*k)).map(|k| format!("model.{k}")).collect(),
             _ => Default::default(),
         };
         let differing: Vec<String> = differing.into_iter().collect();
-        anyhow::bail!(
+        refuse!(
             "train.init_from {}: the model's config differs from this config's `model` in {}",
             metadata_path.display(),
             differing.join(", ")
         );
     }
-    vs.copy(&loaded.vs).map_err(|e| anyhow::anyhow!("train.init_from {}: {e}", metadata_path.display()))?;
+    vs.copy(&loaded.vs).map_err(|e| TrainError::Refused(format!("train.init_from {}: {e}", metadata_path.display())))?;
     tracing::info!(
         "weights and normalisation from {} (trained at {})",
         metadata_path.display(),
@@ -649,14 +648,14 @@ pub fn flush_denormals_to_zero() {
 /// it: after "stopped after epoch 116 of 300", the same command without `--resume` started
 /// again from epoch 0 and the 116 epochs were gone. A finished run's checkpoint is replaced
 /// (training a model again under its name).
-fn refuse_to_restart_over_unfinished(out_dir: &Path, name: &str) -> anyhow::Result<()> {
+fn refuse_to_restart_over_unfinished(out_dir: &Path, name: &str) -> Result<(), TrainError> {
     let (ot, json) = checkpoint::paths(out_dir, name);
     if !ot.exists() && !json.exists() {
         return Ok(());
     }
     match checkpoint::load(&json) {
         // A run stopped by its time budget is finished as asked.
-        Ok(c) if c.meta.epoch < c.meta.config.train.epochs && !budget_spent(&c.meta) => anyhow::bail!(
+        Ok(c) if c.meta.epoch < c.meta.config.train.epochs && !budget_spent(&c.meta) => refuse!(
             "{} holds an unfinished run of {name} (epoch {} of {}): continue it with --resume {}, or delete it (or give another --name) to start over",
             json.display(),
             c.meta.epoch,
@@ -677,7 +676,7 @@ fn budget_spent(meta: &CheckpointMeta) -> bool {
 }
 
 /// The config with the command line's `--seed` / `--epochs` applied, checked again.
-pub fn with_overrides(cfg: &TrainConfig, seed: Option<u64>, epochs: Option<usize>) -> anyhow::Result<TrainConfig> {
+pub fn with_overrides(cfg: &TrainConfig, seed: Option<u64>, epochs: Option<usize>) -> Result<TrainConfig, TrainError> {
     let mut cfg = cfg.clone();
     if let Some(s) = seed {
         cfg.train.seed = s;
@@ -685,12 +684,12 @@ pub fn with_overrides(cfg: &TrainConfig, seed: Option<u64>, epochs: Option<usize
     if let Some(e) = epochs {
         cfg.train.epochs = e;
     }
-    cfg.validate().map_err(|e| anyhow::anyhow!("config: {e}"))?;
+    cfg.validate().map_err(|e| TrainError::Refused(format!("config: {e}")))?;
     Ok(cfg)
 }
 
 /// Trains, evaluates and exports; returns the summary (also written to `<out>/<name>.train.json`).
-pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummary> {
+pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> Result<TrainSummary, TrainError> {
     let cfg = with_overrides(cfg, opts.seed, opts.epochs)?;
     let seed = cfg.train.seed;
     // Read now: the checkout can move (a commit, a checkout) during an hour of training, and
@@ -715,13 +714,13 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         // of two runs and a summary that describes neither (train.init_from fine-tunes).
         let changed = r.meta.config.run_differences(&cfg);
         if !changed.is_empty() {
-            anyhow::bail!(
+            refuse!(
                 "--resume continues the run the checkpoint holds, and the config now differs in {}: start a new run (train.init_from fine-tunes from a model)",
                 changed.join(", ")
             );
         }
         if cfg.train.epochs < r.meta.epoch {
-            anyhow::bail!(
+            refuse!(
                 "--resume: the checkpoint has {} epochs done, more than the {} asked for; a run cannot be shortened (its checkpoint and model are kept as they are)",
                 r.meta.epoch,
                 cfg.train.epochs
@@ -743,7 +742,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             .map(|(k, _)| k.as_str())
             .collect();
         if !changed.is_empty() {
-            anyhow::bail!(
+            refuse!(
                 "--resume: the data of {} changed since the checkpoint (same paths and config, other samples): the run would continue on other data; restore the recordings, or delete the checkpoint to start a new run",
                 changed.join(", ")
             );
@@ -779,15 +778,11 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     let mut prior_seconds = 0.0;
     if let Some(r) = &resume {
         checkpoint::restore_vars(&vs, &r.tensors, "vs")?;
-        adam.load_state(r.meta.adam_step, &r.tensors).map_err(|e| anyhow::anyhow!("--resume: {e}"))?;
+        adam.load_state(r.meta.adam_step, &r.tensors).map_err(|e| TrainError::Refused(format!("--resume: {e}")))?;
         if r.meta.seed != seed {
             // The rest of the run would draw another seed's windows and be recorded as that
             // seed's run throughout.
-            anyhow::bail!(
-                "--resume: the checkpoint was trained with seed {}, not {seed}: resume it with --seed {}",
-                r.meta.seed,
-                r.meta.seed
-            );
+            refuse!("--resume: the checkpoint was trained with seed {}, not {seed}: resume it with --seed {}", r.meta.seed, r.meta.seed);
         }
         start_epoch = r.meta.epoch;
         history = r.meta.history.clone();
@@ -803,19 +798,19 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
     }
     let mut ema = (cfg.train.ema_decay > 0.0)
         .then(|| checkpoint::Ema::new(&vs, cfg.train.ema_decay, resume.as_ref().map(|r| &r.tensors), adam.step.max(0) as u64));
-    let fresh = |t: &Task| -> anyhow::Result<SequenceEvals> {
+    let fresh = |t: &Task| -> Result<SequenceEvals, TrainError> {
         Ok(SequenceEvals { name: t.name.clone(), source: t.source.clone(), raw: evaluate_raw(t, &eopts)?, evals: vec![] })
     };
     // A resume may change the evaluation lists: the checkpoint's evaluations are kept for the
     // recordings still listed (by name and source), the others start empty. Before, they were
     // paired by position, and a new recording's figures were filed under the old one's name.
-    let carry = |old: Vec<SequenceEvals>, tasks: &[Task]| -> anyhow::Result<(Vec<SequenceEvals>, bool)> {
+    let carry = |old: Vec<SequenceEvals>, tasks: &[Task]| -> Result<(Vec<SequenceEvals>, bool), TrainError> {
         let same = old.len() == tasks.len() && old.iter().zip(tasks).all(|(o, t)| o.name == t.name && o.source == t.source);
         let mut old: BTreeMap<(String, String), SequenceEvals> = old.into_iter().map(|o| ((o.name.clone(), o.source.clone()), o)).collect();
         let list = tasks
             .iter()
             .map(|t| old.remove(&(t.name.clone(), t.source.clone())).map_or_else(|| fresh(t), Ok))
-            .collect::<anyhow::Result<Vec<_>>>()?;
+            .collect::<Result<Vec<_>, TrainError>>()?;
         Ok((list, same))
     };
     let (carried, same_validation) = carry(std::mem::take(&mut validation), &data.validation)?;
@@ -858,7 +853,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
                      best_vars: Option<&BTreeMap<String, Tensor>>,
                      ema: Option<&checkpoint::Ema>,
                      seconds: f64|
-     -> anyhow::Result<PathBuf> {
+     -> Result<PathBuf, TrainError> {
         let meta = CheckpointMeta {
             format_version: 1,
             epoch,
@@ -894,7 +889,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
             Mode::Fsda | Mode::Digdl => plain_step(&net, &cfg, &data.train, &mut rng),
         };
         if !l.loss.is_finite() {
-            anyhow::bail!("epoch {epoch}: the loss is {} — lower train.lr (or train.maml.inner_lr)", l.loss);
+            refuse!("epoch {epoch}: the loss is {} — lower train.lr (or train.maml.inner_lr)", l.loss);
         }
         let grad_norm = adam.grad_norm();
         adam.step(lr, cfg.train.weight_decay);
@@ -935,7 +930,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         }
         let eval_now = cfg.train.eval_every > 0 && done % cfg.train.eval_every == 0 || done == epochs || over_budget;
         if eval_now && !(data.validation.is_empty() && data.monitor.is_empty()) {
-            let evals = |v: &mut Vec<SequenceEvals>, m: &mut Vec<SequenceEvals>| -> anyhow::Result<()> {
+            let evals = |v: &mut Vec<SequenceEvals>, m: &mut Vec<SequenceEvals>| -> Result<(), TrainError> {
                 for (v, task) in v.iter_mut().zip(&data.validation).chain(m.iter_mut().zip(&data.monitor)) {
                     v.evals.push((done, evaluate_net(&net, task, &eopts)?));
                 }
@@ -1169,7 +1164,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> anyhow::Result<TrainSummar
         return Err(Stopped { epoch: last_epoch, epochs, checkpoint: ckpt.clone() }.into());
     }
     // The summary is written with the model, as one set: a failure leaves the earlier pair whole.
-    let summary_json = serde_json::to_string_pretty(&summary)?;
+    let summary_json = serde_json::to_string_pretty(&summary).context("the run's summary")?;
     export_model(
         &opts.out_dir,
         &opts.name,

@@ -5,12 +5,13 @@
 //! Files: [`config`] (the YAML), [`data`] (recordings → checked tasks, windows,
 //! normalisation), [`optim`] (Adam with saveable state), [`checkpoint`], [`report`] (the
 //! run's JSON), [`curves`] (its figure), [`fit`] (the loop), [`seeds`] (restarts: the best of
-//! several seeds by validation score).
+//! several seeds by validation score), [`error`].
 
 pub mod checkpoint;
 pub mod config;
 pub mod curves;
 pub mod data;
+pub mod error;
 pub mod fit;
 pub mod optim;
 pub mod report;

@@ -11,7 +11,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
+use super::error::{refuse, Context, TrainError};
 use serde::{Deserialize, Serialize};
 
 use super::config::TrainConfig;
@@ -33,7 +33,7 @@ pub fn runs_dir(out_dir: &Path, name: &str) -> PathBuf {
 /// model is there), so a restarted `train.seeds` command reuses it instead of training again.
 /// A complete run trained under another config is an error naming the keys: reused, it would
 /// export a model the config does not describe; retrained, its results would be lost.
-pub fn finished(runs: &Path, run: &str, epochs: usize, cfg: &TrainConfig) -> anyhow::Result<bool> {
+pub fn finished(runs: &Path, run: &str, epochs: usize, cfg: &TrainConfig) -> Result<bool, TrainError> {
     let Some(summary) =
         std::fs::read_to_string(summary_path(runs, run)).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
     else {
@@ -45,7 +45,7 @@ pub fn finished(runs: &Path, run: &str, epochs: usize, cfg: &TrainConfig) -> any
     if let Some(trained) = summary.get("config").and_then(|c| serde_json::from_value::<TrainConfig>(c.clone()).ok()) {
         let changed = trained.run_differences(cfg);
         if !changed.is_empty() {
-            anyhow::bail!(
+            refuse!(
                 "{}: {run} was trained under a config that differs in {}: move {} away (or use another --name or --out-dir) to train anew",
                 runs.display(),
                 changed.join(", "),
@@ -80,7 +80,7 @@ pub struct SeedSelection {
 }
 
 /// Reads and scores a finished run's summary.
-pub fn candidate(out_dir: &Path, name: &str, seed: u64) -> anyhow::Result<Candidate> {
+pub fn candidate(out_dir: &Path, name: &str, seed: u64) -> Result<Candidate, TrainError> {
     let run = run_name(name, seed);
     let path = summary_path(&runs_dir(out_dir, name), &run);
     let text = std::fs::read_to_string(&path).with_context(|| format!("run {run}: reading {}", path.display()))?;
@@ -111,8 +111,8 @@ pub fn choose(candidates: &[Candidate]) -> Option<&Candidate> {
 
 /// Scores the runs of `seeds`, promotes the winner to `<name>.{pt,ot,json,train.json,curves.png}`
 /// and writes `<name>.seeds.json`. Returns the selection and the promoted metadata's path.
-pub fn select_and_promote(out_dir: &Path, name: &str, seeds: &[u64]) -> anyhow::Result<(SeedSelection, PathBuf)> {
-    let candidates = seeds.iter().map(|&s| candidate(out_dir, name, s)).collect::<anyhow::Result<Vec<_>>>()?;
+pub fn select_and_promote(out_dir: &Path, name: &str, seeds: &[u64]) -> Result<(SeedSelection, PathBuf), TrainError> {
+    let candidates = seeds.iter().map(|&s| candidate(out_dir, name, s)).collect::<Result<Vec<_>, TrainError>>()?;
     let chosen = choose(&candidates).context("no runs to choose from")?.clone();
     let selection = SeedSelection {
         name: name.to_string(),
@@ -125,13 +125,14 @@ pub fn select_and_promote(out_dir: &Path, name: &str, seeds: &[u64]) -> anyhow::
     };
     let json = promote(out_dir, &chosen.name, name, &selection)?;
     let path = out_dir.join(format!("{name}.seeds.json"));
-    std::fs::write(&path, serde_json::to_string_pretty(&selection)?).with_context(|| format!("writing {}", path.display()))?;
+    let text = serde_json::to_string_pretty(&selection).context("the seed selection")?;
+    std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
     Ok((selection, json))
 }
 
 /// Copies run `from`'s model files (in the runs folder) to `to` (in `out_dir`), renaming them in
 /// its metadata and summary.
-fn promote(out_dir: &Path, from: &str, to: &str, selection: &SeedSelection) -> anyhow::Result<PathBuf> {
+fn promote(out_dir: &Path, from: &str, to: &str, selection: &SeedSelection) -> Result<PathBuf, TrainError> {
     let runs = runs_dir(out_dir, to);
     let src = |ext: &str| runs.join(format!("{from}.{ext}"));
     let file = |n: &str, ext: &str| out_dir.join(format!("{n}.{ext}"));
@@ -149,15 +150,17 @@ fn promote(out_dir: &Path, from: &str, to: &str, selection: &SeedSelection) -> a
     write_metadata(&json, &meta)?;
 
     let summary_from = summary_path(&runs, from);
-    let mut summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&summary_from).with_context(|| format!("reading {}", summary_from.display()))?)?;
+    let text = std::fs::read_to_string(&summary_from).with_context(|| format!("reading {}", summary_from.display()))?;
+    let mut summary: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("parsing {}", summary_from.display()))?;
     summary["name"] = to.into();
     summary["model_json"] = json.display().to_string().into();
-    summary["seed_selection"] = serde_json::to_value(selection)?;
-    std::fs::write(summary_path(out_dir, to), serde_json::to_string_pretty(&summary)?)?;
+    summary["seed_selection"] = serde_json::to_value(selection).context("the seed selection")?;
+    let to_summary = summary_path(out_dir, to);
+    let text = serde_json::to_string_pretty(&summary).context("the run's summary")?;
+    std::fs::write(&to_summary, text).with_context(|| format!("writing {}", to_summary.display()))?;
     let curves = src("curves.png");
     if curves.exists() {
-        std::fs::copy(&curves, file(to, "curves.png"))?;
+        std::fs::copy(&curves, file(to, "curves.png")).with_context(|| format!("copying {}", curves.display()))?;
     }
     Ok(json)
 }
