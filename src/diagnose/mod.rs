@@ -32,6 +32,7 @@ pub mod catalogue;
 pub mod figures;
 pub mod fit;
 pub mod frame;
+pub mod golden;
 pub mod kinematics;
 pub mod locate;
 pub mod psd;

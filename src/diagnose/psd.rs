@@ -211,7 +211,7 @@ pub fn periodogram_peak(chans: &[Vec<f64>], dt: f64, alpha: f64, excluded: impl 
     let df = 1.0 / (m as f64 * dt);
     let k = peaks.into_iter().find(|&k| !excluded(k as f64 * df))?;
     let f0 = k as f64 * df;
-    let (f, _) = super::select::golden(f0 - df, f0 + df, 30, |f| line_power(chans, dt, f));
+    let (f, _) = super::golden::golden(f0 - df, f0 + df, 30, |f| line_power(chans, dt, f));
     Some(f)
 }
 

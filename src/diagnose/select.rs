@@ -25,6 +25,7 @@ use nalgebra::DMatrix;
 
 use super::catalogue::{atom_map, Catalogue};
 use super::fit::{evaluate_fixed, Fit};
+use super::golden::golden;
 use super::psd::{periodogram_peak, MotionLines};
 use super::residual::{block_stats, blocks, whitened, BlockStats, Column, NoiseModel};
 use super::DiagnoseError;
@@ -284,33 +285,6 @@ fn refit_reference(p: &Problem, y: &[Vec<f64>; 6], m: &mut [Chosen], noise: &Noi
     let (t, best) = golden(lo - 40.0, hi + 40.0, 30, ll);
     if best > ll(m[j].nonlinear) {
         m[j].nonlinear = t;
-    }
-}
-
-/// Golden-section maximisation of f on [lo, hi].
-pub fn golden(mut lo: f64, mut hi: f64, iters: usize, mut f: impl FnMut(f64) -> f64) -> (f64, f64) {
-    let r = (5f64.sqrt() - 1.0) / 2.0;
-    let (mut x1, mut x2) = (hi - r * (hi - lo), lo + r * (hi - lo));
-    let (mut f1, mut f2) = (f(x1), f(x2));
-    for _ in 0..iters {
-        if f1 > f2 {
-            hi = x2;
-            x2 = x1;
-            f2 = f1;
-            x1 = hi - r * (hi - lo);
-            f1 = f(x1);
-        } else {
-            lo = x1;
-            x1 = x2;
-            f1 = f2;
-            x2 = lo + r * (hi - lo);
-            f2 = f(x2);
-        }
-    }
-    if f1 > f2 {
-        (x1, f1)
-    } else {
-        (x2, f2)
     }
 }
 
