@@ -256,25 +256,16 @@ fn wahba_with_mirror(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> Option<(UnitQuat
     for (g, i) in pairs {
         b += g * i.transpose();
     }
-    let svd = b.svd(true, true);
-    let (u, v_t) = (svd.u?, svd.v_t?);
-    // nalgebra does not sort singular values: order them.
-    let mut idx = [0usize, 1, 2];
-    idx.sort_by(|&x, &y| svd.singular_values[y].total_cmp(&svd.singular_values[x]));
-    let s = svd.singular_values;
-    let fully_observable = s[idx[1]] > 0.05 * s[idx[0]];
+    let w = crate::so3::wahba(&b)?;
+    let s = w.singular_values;
+    let fully_observable = s[1] > 0.05 * s[0];
     // The unconstrained optimum is a mirror image where det(U Vᵀ) < 0; on weakly observable
     // motion (a car) too, where only the weak axes can tell it from a half turn.
-    let d = (u.determinant() * v_t.determinant()).signum();
-    let mirror = (d < 0.0).then(|| u * v_t);
+    let mirror = w.mirrored.then_some(w.orthogonal);
     let rot = if fully_observable {
-        // Put the sign on the smallest singular direction.
-        let mut fix = Matrix3::identity();
-        fix[(idx[2], idx[2])] = d;
-        Rotation3::from_matrix_unchecked(u * fix * v_t)
+        Rotation3::from_matrix_unchecked(w.rotation)
     } else {
-        let ug = u.column(idx[0]).into_owned();
-        let vi = v_t.row(idx[0]).transpose();
+        let (ug, vi) = w.dominant;
         // Opposite axes (a frame flipped upside down) have no unique smallest rotation: a half
         // turn about an axis across them.
         let base = Rotation3::rotation_between(&vi, &ug).unwrap_or_else(|| {

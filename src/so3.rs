@@ -129,6 +129,38 @@ pub fn slerp(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>, s: f64) -> UnitQu
     a * exp(&(log(&delta) * s))
 }
 
+/// Wahba's problem for a correlation `B = Σ a bᵀ`: the rotation `R` minimising `Σ ‖a − R b‖²`
+/// (`U diag(1, 1, d) Vᵀ` of `B = U S Vᵀ`, the sign `d` on the smallest singular direction), the
+/// orthogonal map of either sign that does (`U Vᵀ`: a mirror image where `d` < 0), the
+/// singular values largest first, and the dominant singular pair (`a`-side, `b`-side).
+#[derive(Debug, Clone, Copy)]
+pub struct Wahba {
+    pub rotation: Matrix3<f64>,
+    pub orthogonal: Matrix3<f64>,
+    pub mirrored: bool,
+    pub singular_values: [f64; 3],
+    pub dominant: (Vector3<f64>, Vector3<f64>),
+}
+
+/// [`Wahba`] of `b`; `None` where the SVD fails.
+pub fn wahba(b: &Matrix3<f64>) -> Option<Wahba> {
+    let svd = b.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    // nalgebra does not sort singular values: order them.
+    let mut idx = [0usize, 1, 2];
+    idx.sort_by(|&x, &y| svd.singular_values[y].total_cmp(&svd.singular_values[x]));
+    let d = (u.determinant() * v_t.determinant()).signum();
+    let mut fix = Matrix3::identity();
+    fix[(idx[2], idx[2])] = d;
+    Some(Wahba {
+        rotation: u * fix * v_t,
+        orthogonal: u * v_t,
+        mirrored: d < 0.0,
+        singular_values: idx.map(|k| svd.singular_values[k]),
+        dominant: (u.column(idx[0]).into_owned(), v_t.row(idx[0]).transpose()),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -221,5 +253,19 @@ mod tests {
         assert!(out[4].is_none(), "gap of 990 ns > 100 ns must not be bridged");
         assert!(out[5].is_some());
         assert!(out[6].is_none());
+    }
+
+    /// A known rotation comes back from noiseless pairs; a mirrored set is said to be one.
+    #[test]
+    fn wahba_finds_the_rotation_and_a_mirror() {
+        let r = UnitQuaternion::from_euler_angles(0.3, -0.2, 1.1).to_rotation_matrix().into_inner();
+        let bs = [Vector3::new(1.0, 0.2, -0.3), Vector3::new(-0.4, 1.0, 0.5), Vector3::new(0.1, -0.6, 1.0), Vector3::new(0.7, 0.7, 0.1)];
+        let corr = |m: &Matrix3<f64>| bs.iter().fold(Matrix3::zeros(), |acc, b| acc + (m * b) * b.transpose());
+        let w = wahba(&corr(&r)).unwrap();
+        assert!((w.rotation - r).amax() < 1e-12 && !w.mirrored);
+        assert!(w.singular_values[0] >= w.singular_values[1] && w.singular_values[1] >= w.singular_values[2]);
+        let flip = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -1.0));
+        let m = wahba(&corr(&(r * flip))).unwrap();
+        assert!(m.mirrored && (m.orthogonal - r * flip).amax() < 1e-12 && (m.rotation.determinant() - 1.0).abs() < 1e-12);
     }
 }

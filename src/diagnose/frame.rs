@@ -51,23 +51,18 @@ impl GrossRotation {
 /// judged sensors' channels count.
 pub fn gross_rotation(a: &Aligned, sensors: Sensors) -> Result<Option<GrossRotation>, DiagnoseError> {
     let (h, energy) = correlation(a, sensors);
-    let svd = h.svd(true, true);
-    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else { return Ok(None) };
-    let mut order: Vec<usize> = (0..3).collect();
-    order.sort_by(|&i, &j| svd.singular_values[j].total_cmp(&svd.singular_values[i]));
-    let s: Vec<f64> = order.iter().map(|&i| svd.singular_values[i]).collect();
+    // H = Σ real simᵀ: Wahba's R takes sim onto real; its transpose maps real onto sim.
+    let Some(w) = crate::so3::wahba(&h) else { return Ok(None) };
+    let s = w.singular_values;
     // No signal, or samples along one direction only: the rotation about it is free.
     if s[0].is_nan() || s[0] <= 0.0 || s[1] < MIN_SPREAD * s[0] {
         return Ok(None);
     }
     // Misfit of R: energy − 2 tr(R H); the identity's, the best rotation's, the best mirror's.
     let cost = |r: &Matrix3<f64>| misfit(&h, energy, r);
-    let free = v_t.transpose() * u.transpose(); // the best orthogonal matrix, either sign
-    let mirrored = free.determinant() < 0.0;
-    let smallest = order[2];
-    let mut d = Matrix3::identity();
-    d[(smallest, smallest)] = if mirrored { -1.0 } else { 1.0 };
-    let rotation = v_t.transpose() * d * u.transpose();
+    let free = w.orthogonal.transpose(); // the best orthogonal matrix, either sign
+    let mirrored = w.mirrored;
+    let rotation = w.rotation.transpose();
     let none = cost(&Matrix3::identity());
     if mirrored && cost(&free) < MISFIT_KEPT * cost(&rotation).min(none) {
         return Err(DiagnoseError::Input(format!(
