@@ -201,7 +201,7 @@ pub fn evaluate_with_path(
 pub fn imu_gap_limit_ns(imu: &[ImuSample]) -> i64 {
     let rate = crate::core::nominal_rate_hz(imu);
     if rate > 0.0 {
-        (crate::infer::PipelineConfig::default().gap_periods * 1e9 / rate) as i64
+        (crate::resample::GAP_PERIODS * 1e9 / rate) as i64
     } else {
         i64::MAX
     }

@@ -533,7 +533,7 @@ pub fn task_from_recording(
     // A hole in the IMU stream (a dropout of more than the node's gap rule) is no interval to
     // integrate over: the samples either side are masked like a ground-truth gap, and said.
     let period_ns = 1e9 / crate::core::nominal_rate_hz(&imu).max(1e-9);
-    let limit_ns = (crate::infer::PipelineConfig::default().gap_periods * period_ns) as i64;
+    let limit_ns = (crate::resample::GAP_PERIODS * period_ns) as i64;
     let holes: Vec<usize> = (1..n).filter(|&k| imu[k].stamp_ns - imu[k - 1].stamp_ns > limit_ns).collect();
     if let Some(longest) = holes.iter().map(|&k| imu[k].stamp_ns - imu[k - 1].stamp_ns).max() {
         tracing::warn!(
