@@ -17,12 +17,7 @@ import sys
 
 import numpy as np
 import vqf
-from mcap.reader import make_reader
-from mcap_ros2.decoder import DecoderFactory
-from mcap_ros2.writer import Writer
-
-from rotate_imu_bag import plain
-from vqf_bias import IMU, fail, read_imu
+from vqf_bias import IMU, fail, read_imu, rewrite_bag
 
 OUT_TOPIC = '/imu/denoised'
 
@@ -46,31 +41,13 @@ def main():
     for i in range(len(gyr)):
         f.update(np.ascontiguousarray(gyr[i]), np.ascontiguousarray(acc[i]))
         quats[i] = f.getQuat6D()
-    part = a.dst + '.part'
-    try:
-        with open(a.src, 'rb') as fi, open(part, 'wb') as g:
-            writer = Writer(g)
-            schemas = {}
-            i = 0
-            for schema, channel, message, decoded in make_reader(fi, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
-                if schema.name not in schemas:
-                    schemas[schema.name] = writer.register_msgdef(schema.name, schema.data.decode())
-                d = plain(decoded)
-                writer.write_message(channel.topic, schemas[schema.name], d, log_time=message.log_time, publish_time=message.publish_time)
-                if channel.topic == IMU:
-                    w, x, y, z = map(float, quats[i])
-                    d['orientation'] = {'x': x, 'y': y, 'z': z, 'w': w}
-                    d['orientation_covariance'] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-                    writer.write_message(OUT_TOPIC, schemas[schema.name], d, log_time=message.log_time, publish_time=message.publish_time)
-                    i += 1
-            writer.finish()
-        os.replace(part, a.dst)
-    except BaseException as e:
-        if os.path.exists(part):
-            os.remove(part)
-        if isinstance(e, OSError):
-            fail(f'cannot write {a.dst}: {e}')
-        raise
+    def with_orientation(i, d):
+        w, x, y, z = map(float, quats[i])
+        denoised = dict(d, orientation={'x': x, 'y': y, 'z': z, 'w': w},
+                        orientation_covariance=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
+        return [(IMU, d), (OUT_TOPIC, denoised)]
+
+    rewrite_bag(a.src, a.dst, with_orientation, len(stamps))
     print(f'vqf_attitude: {len(gyr)} samples, dt {dt:.6g} s', file=sys.stderr)
 
 

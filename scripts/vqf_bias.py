@@ -46,6 +46,37 @@ def read_imu(path):
     return np.array(stamps, np.int64), np.array(gyr).reshape(-1, 3), np.array(acc).reshape(-1, 3)
 
 
+def rewrite_bag(src, dst, on_imu, n_imu):
+    """Copies every message of `src` to `dst`, each /imu/data one (the i-th, as a plain dict)
+    replaced by the (topic, message) pairs `on_imu(i, d)` returns (same schema, same times).
+    Written to DST.part and renamed at the end; an error removes the part file."""
+    part = dst + '.part'
+    try:
+        with open(src, 'rb') as fi, open(part, 'wb') as g:
+            writer = Writer(g)
+            schemas = {}
+            i = 0
+            for schema, channel, message, decoded in make_reader(fi, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+                if schema.name not in schemas:
+                    schemas[schema.name] = writer.register_msgdef(schema.name, schema.data.decode())
+                d = plain(decoded)
+                out = [(channel.topic, d)]
+                if channel.topic == IMU:
+                    out = on_imu(i, d)
+                    i += 1
+                for topic, m in out:
+                    writer.write_message(topic, schemas[schema.name], m, log_time=message.log_time, publish_time=message.publish_time)
+            writer.finish()
+        assert i == n_imu
+        os.replace(part, dst)
+    except BaseException as e:
+        if os.path.exists(part):
+            os.remove(part)
+        if isinstance(e, OSError):
+            fail(f'cannot write {dst}: {e}')
+        raise
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('src', metavar='IN.mcap')
@@ -77,31 +108,13 @@ def main():
         out[i] = gyr[i] - bias
         rest[i] = f.getRestDetected()
 
-    part = a.dst + '.part'
-    try:
-        with open(a.src, 'rb') as fi, open(part, 'wb') as g:
-            writer = Writer(g)
-            schemas = {}
-            i = 0
-            for schema, channel, message, decoded in make_reader(fi, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
-                if schema.name not in schemas:
-                    schemas[schema.name] = writer.register_msgdef(schema.name, schema.data.decode())
-                d = plain(decoded)
-                if channel.topic == IMU:
-                    st = d['header']['stamp']
-                    assert st['sec'] * 10**9 + st['nanosec'] == stamps[i], 'IMU messages out of step between the two passes'
-                    d['angular_velocity'] = dict(zip('xyz', map(float, out[i])))
-                    i += 1
-                writer.write_message(channel.topic, schemas[schema.name], d, log_time=message.log_time, publish_time=message.publish_time)
-            writer.finish()
-        assert i == len(stamps)
-        os.replace(part, a.dst)
-    except BaseException as e:
-        if os.path.exists(part):
-            os.remove(part)
-        if isinstance(e, OSError):
-            fail(f'cannot write {a.dst}: {e}')
-        raise
+    def with_bias_removed(i, d):
+        st = d['header']['stamp']
+        assert st['sec'] * 10**9 + st['nanosec'] == stamps[i], 'IMU messages out of step between the two passes'
+        d['angular_velocity'] = dict(zip('xyz', map(float, out[i])))
+        return [(IMU, d)]
+
+    rewrite_bag(a.src, a.dst, with_bias_removed, len(stamps))
 
     print(f'vqf_bias: {len(gyr)} samples, dt {dt:.6g} s, final bias [{bias[0]:.6e}, {bias[1]:.6e}, {bias[2]:.6e}] rad/s, '
           f'sigma {sigma:.3e} rad/s, rest detected: {"yes" if rest.any() else "no"} ({rest.mean():.3f} of samples at rest)',
