@@ -32,6 +32,7 @@ mkdir -p "$work/adapted"
 cat >"$work/params.yaml" <<EOF
 imu_fsda:
   ros__parameters:
+    adapt_enabled: true
     ground_truth_topic: /ground_truth/pose
     adapt_support_seconds: ${SUPPORT_S:-30}
     adapted_model_dir: $work/adapted

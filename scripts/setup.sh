@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Idempotent set-up for a fresh machine: the torch venv (libtorch for tch, and the Python
-# test peers: mcap, rosbags, cyclonedds), then a release build of imu-fsda.
+# test peers: mcap, rosbags, cyclonedds), Debian's Fast DDS for the C++ peer, then a release
+# build of imu-fsda.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$here/scripts/env.sh"
@@ -19,6 +20,10 @@ fi
 if [ ! -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ] && [ -z "${IMU_FSDA_FONT:-}" ]; then
   echo "[setup] installing fonts-dejavu-core (the text of the PNG figures)"
   (apt-get update -qq && apt-get install -y -qq fonts-dejavu-core) >/dev/null 2>&1 || echo "[setup] could not install fonts-dejavu-core; figures will fail with a clear error (set IMU_FSDA_FONT to a .ttf)"
+fi
+if [ ! -f /usr/include/fastdds/dds/domain/DomainParticipant.hpp ] || ! command -v g++ >/dev/null; then
+  echo "[setup] installing Fast DDS 2.9 (libfastrtps-dev) and g++: the Fast DDS peer of tests/dds_fastdds.rs"
+  (apt-get update -qq && apt-get install -y -qq --no-install-recommends libfastrtps-dev libfastcdr-dev g++) >/dev/null 2>&1 || echo "[setup] could not install libfastrtps-dev; the Fast DDS test will skip loudly (fail under CI)"
 fi
 cd "$here"
 # IMU_FSDA_NO_BUILD=1: venv and system packages only (scripts given a prebuilt IMU_FSDA_BIN).

@@ -61,7 +61,7 @@ fn write_params(dir: &Path, adapted_dir: &Path) -> PathBuf {
 fn write_params_with(dir: &Path, adapted_dir: &Path, file: &str, steps: usize, max_seconds: f64) -> PathBuf {
     let p = dir.join(file);
     let yaml = format!(
-        "{NODE_NAME}:\n  ros__parameters:\n    ground_truth_topic: /ground_truth/pose\n    ground_truth_type: geometry_msgs/msg/PoseStamped\n    \
+        "{NODE_NAME}:\n  ros__parameters:\n    adapt_enabled: true\n    ground_truth_topic: /ground_truth/pose\n    ground_truth_type: geometry_msgs/msg/PoseStamped\n    \
          adapt_buffer_seconds: 120.0\n    adapt_support_seconds: 60.0\n    adapted_model_dir: {}\n    adapt:\n      power_on_bias: false\n      steps: {steps}\n      inner_lr: 0.001\n      max_seconds: {max_seconds:?}\n",
         adapted_dir.display()
     );
@@ -434,6 +434,7 @@ fn power_on_bias_is_retaken_on_demand_over_dds() {
             "1000",
             "--count",
             "6000",
+            "--no-ground-truth-reader",
             "--service",
             "retake_power_on_bias",
             "--requests",
@@ -504,6 +505,7 @@ fn a_power_on_bias_is_remembered_for_the_next_power_on_over_dds() {
             "6000",
             "--rate-fast",
             "400",
+            "--no-ground-truth-reader",
         ],
         RESTART_RUN_TIMEOUT,
     );
@@ -514,6 +516,9 @@ fn a_power_on_bias_is_remembered_for_the_next_power_on_over_dds() {
     let first = values.first().unwrap_or_else(|| panic!("no /diagnostics\n{logs}"));
     let said = value(first, "power_on_bias_memory");
     assert!(said.starts_with("3 earlier power-ons predict") && said.contains("z 0.0"), "{said}");
+    // Not turned on in this parameter file: no `~/adapt`, and /diagnostics says so.
+    let adaptation = value(first, "adaptation");
+    assert!(adaptation.starts_with("off: adapt_enabled is false"), "/diagnostics adaptation = {adaptation:?}");
     let file: Value = serde_json::from_str(&std::fs::read_to_string(&memory).unwrap()).unwrap();
     let power_ons = file["power_ons"].as_array().unwrap();
     assert_eq!(power_ons.len(), 4, "{file}\n{logs}");
@@ -554,7 +559,7 @@ fn an_adaptation_is_judged_on_the_earlier_power_ons_the_node_kept_over_dds() {
     std::fs::write(
         &params,
         format!(
-            "{NODE_NAME}:\n  ros__parameters:\n    adapt_support_archive: supports/imu0\n    adapted_model_dir: adapted\n    adapt_support_seconds: 60.0\n"
+            "{NODE_NAME}:\n  ros__parameters:\n    adapt_enabled: true\n    adapt_support_archive: supports/imu0\n    adapted_model_dir: adapted\n    adapt_support_seconds: 60.0\n"
         ),
     )
     .unwrap();
@@ -625,6 +630,12 @@ fn an_adaptation_is_judged_on_the_earlier_power_ons_the_node_kept_over_dds() {
     let adapted = d.join("config/adapted");
     let pt = std::fs::read_dir(&adapted).unwrap().map(|e| e.unwrap().path()).find(|p| p.extension().is_some_and(|e| e == "pt"));
     let pt = pt.unwrap_or_else(|| panic!("no model saved in {}: {said}", adapted.display()));
+    // Who asked for the model is in its metadata, as the node logged and said it.
+    let caller = second.node_stats["adapt_requested_by"].as_str().unwrap_or_default().to_string();
+    assert!(caller.starts_with("client ") && caller.contains(" request "), "{}", second.node_stats);
+    let meta: Value = serde_json::from_str(&std::fs::read_to_string(pt.with_extension("json")).unwrap()).unwrap();
+    let provenance = meta["training_data"].as_array().unwrap().last().and_then(Value::as_str).unwrap_or_default();
+    assert!(provenance.ends_with(&format!("requested by {caller}")), "{provenance}");
     let csv = data.join("euroc/V1_02_medium/mav0/imu0/data.csv");
     let r = run(
         &pre,

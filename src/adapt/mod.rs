@@ -290,6 +290,7 @@ pub fn adapt_knowing(
         query_calibrated_with_offset: with_offset.as_ref().map(|c| c.query.clone()),
         calibration_refused,
         kind: None,
+        requested_by: None,
         config: cfg.clone(),
     };
     let network = network_passes.then(|| {
@@ -377,8 +378,9 @@ pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name:
         }
         _ => format!("{} steps", report.steps),
     };
+    let requested = report.requested_by.as_ref().map_or(String::new(), |who| format!("; requested by {who}"));
     training_data.push(format!(
-        "few-shot adapted from {} on {} ({:.1} s support, {what}); judged on {} ({:.1} s)",
+        "few-shot adapted from {} on {} ({:.1} s support, {what}); judged on {} ({:.1} s){requested}",
         report.model, report.support, report.support_seconds, report.query, report.query_seconds
     ));
     // The starting model's figures (its test scores, its per-IMU gains) do not describe the

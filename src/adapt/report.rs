@@ -78,6 +78,10 @@ pub struct AdaptReport {
     /// Which candidate was kept (`None`: rejected).
     #[serde(default)]
     pub kind: Option<AdaptedKind>,
+    /// Who asked for it, where someone else than the command line did: the `~/adapt`
+    /// caller's DDS identity (accountability for the model a node runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub requested_by: Option<String>,
     pub config: AdaptConfig,
 }
 

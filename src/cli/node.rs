@@ -99,10 +99,10 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     } else {
         load_corrector(&params.model, &params.imu_calibration)?
     };
-    // `~/adapt`: off without a ground-truth topic, refusing (with the reason) without a model.
-    let (corrector, adapt) = if params.ground_truth_topic.is_empty() {
+    // `~/adapt`: opt-in, refusing (with the reason) without a model.
+    let (corrector, adapt) = if !params.adapt_enabled {
         // Said at start: a client calling a service that is not there waits without an answer.
-        tracing::warn!("the ~/adapt service is not offered: ground_truth_topic is empty");
+        tracing::info!("the ~/adapt service is not offered: adapt_enabled is false (the parameter file turns it on)");
         (corrector, AdaptService::Off)
     } else if params.model.is_empty() || args.naive_full_window {
         // Offered all the same, so that a call gets this answer instead of no answer.
@@ -149,7 +149,9 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
             serde_json::json!({
                 "counters": c, "latency_p50_us": stats.latency.quantile_us(0.5), "latency_p99_us": stats.latency.quantile_us(0.99),
                 "latency_max_us": stats.latency.max_us(), "latency_samples": stats.latency.count(), "frame_changes": stats.frame_changes, "decode_errors": stats.decode_errors,
-                "model": stats.model, "adaptation": stats.adapt_status, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
+                "input_writers": stats.input_sequences.writers(), "input_published_before_first": stats.input_sequences.before_first,
+                "input_lost": stats.input_sequences.lost, "input_out_of_order": stats.input_sequences.out_of_order,
+                "model": stats.model, "adaptation": stats.adapt_status, "adapt_requested_by": stats.adapt_requested_by, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
                 "latency_by_adaptation_state": stats.split_latency.summary_json(),
                 "latency_by_stage": stats.stage_latency.summary_json(),
                 "correction": stats.correction, "power_on_bias": stats.power_on_bias, "power_on_bias_from": stats.power_on_bias_from, "power_on_bias_retakes": stats.power_on_bias_retakes, "power_on_bias_memory": stats.power_on_bias_memory,

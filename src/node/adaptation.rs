@@ -112,6 +112,10 @@ pub(super) async fn service_loop(
                         continue;
                     }
                 };
+                let caller = caller_of(&id);
+                // At the default level: a call may change the model the node runs.
+                tracing::warn!("~/adapt called by {caller}");
+                stats.lock().expect("stats lock").adapt_requested_by.clone_from(&caller);
                 if let Some((_, _, started)) = &running {
                     let msg = format!("an adaptation is already running (started {:.1} s ago); the current model keeps running — call again when it ends", started.elapsed().as_secs_f64());
                     respond(server, id, false, msg).await;
@@ -136,6 +140,7 @@ pub(super) async fn service_loop(
                     cfg: crate::adapt::AdaptConfig { cancel: cancel.clone(), ..params.adapt.clone() },
                     known_power_on_bias: stats.lock().ok().and_then(|s| s.standstill_bias),
                     archive: archive.clone(),
+                    requested_by: caller,
                 };
                 adapting.store(true, Ordering::Relaxed);
                 let flag = adapting.clone();
@@ -192,13 +197,29 @@ pub(super) async fn service_loop(
 }
 
 /// `~/adapt` with nothing to adapt: every call is answered at once with the reason.
-pub(super) async fn refusing_service_loop(server: &ros2_client::service::Server<TriggerRequest, TriggerResponse>, why: &str) {
+pub(super) async fn refusing_service_loop(
+    server: &ros2_client::service::Server<TriggerRequest, TriggerResponse>,
+    why: &str,
+    stats: &Mutex<NodeStats>,
+) {
     loop {
         match server.async_receive_request().await {
-            Ok((id, _)) => respond(server, id, false, format!("cannot adapt: {why}")).await,
+            Ok((id, _)) => {
+                let caller = caller_of(&id);
+                tracing::warn!("~/adapt called by {caller} (refused: {why})");
+                stats.lock().expect("stats lock").adapt_requested_by = caller;
+                respond(server, id, false, format!("cannot adapt: {why}")).await
+            }
             Err(e) => tracing::warn!("~/adapt request: {e:?}"),
         }
     }
+}
+
+/// Who called: the request writer's DDS GUID (its participant's prefix, then the entity) and
+/// the request's sequence number. Logged with every call and kept in the adapted model's
+/// metadata (`requested_by`): the model a node runs can be traced to whoever asked for it.
+pub(super) fn caller_of(id: &ros2_client::RmwRequestId) -> String {
+    format!("client {:?} request {}", id.writer_gid, id.sequence_number)
 }
 
 /// Lowers the calling thread's scheduling priority to `nice` (Linux: `setpriority` on the
@@ -281,6 +302,8 @@ struct Job {
     known_power_on_bias: Option<crate::standstill::BiasEstimate>,
     /// Where supports are kept and earlier power-ons' read from.
     archive: Option<Arc<SupportArchive>>,
+    /// [`caller_of`] the request.
+    requested_by: String,
 }
 
 impl Job {
@@ -378,7 +401,8 @@ impl Job {
         if self.cfg.cancel.is_cancelled() {
             return Err(crate::adapt::AdaptError::Cancelled.into());
         }
-        let r = outcome.report;
+        let mut r = outcome.report;
+        r.requested_by = Some(self.requested_by.clone());
         let figures = format!(
             "query AOE {:.3}° → {:.3}° (raw gyro {:.3}°), support {:.1} s, query {:.1} s, {} steps in {:.1} s",
             r.query_before.aoe_deg,

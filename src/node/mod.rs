@@ -6,6 +6,7 @@
 
 mod adaptation;
 mod environment;
+mod input_sequence;
 mod latency;
 mod messages;
 mod params;
@@ -15,6 +16,7 @@ mod support_archive;
 
 use adaptation::{ground_truth_loop, refusing_service_loop, respond, service_loop, GroundTruthSub, RunningJob};
 pub use environment::{sensor_data_qos, RosEnvironment};
+pub use input_sequence::InputSequences;
 pub use latency::{LatencyHistogram, SplitLatency, StageLatency};
 pub use messages::{ros_type_name, TriggerRequest, TriggerResponse};
 use messages::{topic_name, type_name};
@@ -129,9 +131,12 @@ pub enum AdaptService {
 /// How long the end of the run waits for an adaptation to stop at its next step.
 const ADAPTATION_STOP_WAIT: Duration = Duration::from_secs(15);
 
+/// /diagnostics `adaptation` of a node that does not offer `~/adapt`.
+pub const ADAPTATION_OFF: &str = "off: adapt_enabled is false (the parameter file turns it on)";
+
 const ABANDONED_REPLY: &str = "the node is shutting down: the adaptation was abandoned; no model was saved or swapped in";
 
-/// [`run_node`] with the `~/adapt` service (see [`AdaptService`]; nothing without `ground_truth_topic`).
+/// [`run_node`] with the `~/adapt` service (see [`AdaptService`]; nothing without `adapt_enabled`).
 pub async fn run_node_with_adaptation(
     node_name: &str,
     params: NodeParams,
@@ -172,7 +177,7 @@ pub async fn run_node_with_adaptation(
     let corr_pub = node.create_publisher::<Vector3Stamped>(&correction_topic, Some(reliable_qos.clone())).map_err(dds)?;
     let diag_pub = node.create_publisher::<DiagnosticArray>(&diag_topic, Some(reliable_qos)).map_err(dds)?;
     let (adapt, unavailable) = match adapt {
-        _ if params.ground_truth_topic.is_empty() => (None, None),
+        _ if !params.adapt_enabled => (None, None),
         AdaptService::Off => (None, None),
         AdaptService::Unavailable(why) => (None, Some(why)),
         AdaptService::On(setup) => (Some(setup), None),
@@ -228,7 +233,7 @@ pub async fn run_node_with_adaptation(
         adapt_status: match (&adapt, &unavailable) {
             (Some(_), _) => "idle".into(),
             (None, Some(why)) => format!("unavailable: {why}"),
-            (None, None) => String::new(),
+            (None, None) => ADAPTATION_OFF.into(),
         },
         ..Default::default()
     }));
@@ -265,7 +270,7 @@ pub async fn run_node_with_adaptation(
     let service_task = async {
         match (&server, &buffers, &adapt, &unavailable) {
             (Some(srv), Some(b), Some(a), _) => service_loop(srv, b, a, &params, stats.clone(), adapting.clone(), &job).await,
-            (Some(srv), _, None, Some(why)) => refusing_service_loop(srv, why).await,
+            (Some(srv), _, None, Some(why)) => refusing_service_loop(srv, why, &stats).await,
             _ => std::future::pending().await,
         }
     };
@@ -371,6 +376,7 @@ async fn process_loop(
     let mut received_any = false;
     let mut last_frame: Option<String> = None;
     let mut frame_warnings = FrameWarnings::default();
+    let mut sequences = input_sequence::InputSequences::default();
     loop {
         // Idle counts from the first input, published or dropped (an all-NaN stream ends too).
         let next = match limits.idle_exit {
@@ -385,7 +391,10 @@ async fn process_loop(
         let arrived = Instant::now();
         let state = tap.as_ref().map(|t| usize::from(t.adapting.load(Ordering::Relaxed)));
         let (mut msg, source_ns) = match item {
-            Ok((m, info)) => (m, info.source_timestamp().map(|t| t.to_nanos())),
+            Ok((m, info)) => {
+                sequences.observe(info.publisher_gid(), info.sequence_number());
+                (m, info.source_timestamp().map(|t| t.to_nanos()))
+            }
             Err(e) => {
                 tracing::warn!("input decode error: {e:?}");
                 stats.lock().expect("stats lock").decode_errors += 1;
@@ -449,6 +458,7 @@ async fn process_loop(
                 }
             }
             s.counters = pipeline.counters().clone();
+            s.input_sequences.clone_from(&sequences);
             if frame_changed {
                 s.frame_changes += 1;
             }

@@ -39,9 +39,13 @@ pub struct NodeParams {
     pub use_sim_time: bool,
     /// The per-sample pipeline: gaps, rate checks, covariances, initial attitude.
     pub pipeline: PipelineConfig,
+    /// On-demand adaptation (`~/adapt` and the ground-truth subscription): off unless the
+    /// parameter file turns it on. Whoever publishes the ground truth and calls `~/adapt`
+    /// chooses the model the node runs, so a node does not offer it by default.
+    pub adapt_enabled: bool,
     /// Ground truth for on-demand adaptation (`~/adapt`, std_srvs/srv/Trigger), buffered with
     /// the input; its type is `ground_truth_type` (geometry_msgs/msg/PoseStamped or
-    /// nav_msgs/msg/Odometry). Empty: no adaptation service.
+    /// nav_msgs/msg/Odometry). Read only with `adapt_enabled`.
     pub ground_truth_topic: String,
     pub ground_truth_type: String,
     /// Newest seconds of input and ground truth kept for adaptation (bounded ring buffers).
@@ -83,6 +87,7 @@ impl Default for NodeParams {
             diagnostics_period: 1.0,
             use_sim_time: false,
             pipeline: PipelineConfig::default(),
+            adapt_enabled: false,
             ground_truth_topic: "/ground_truth/pose".into(),
             ground_truth_type: "geometry_msgs/msg/PoseStamped".into(),
             adapt_buffer_seconds: 120.0,
@@ -201,6 +206,9 @@ impl NodeParams {
                 return Err(format!("{a} and {b} are both {ta}: each stream needs its own topic"));
             }
         }
+        if self.adapt_enabled && self.ground_truth_topic.trim_matches('/').is_empty() {
+            return Err("adapt_enabled is true but ground_truth_topic is empty: adaptation needs the ground truth's topic".into());
+        }
         if self.adapt_support_seconds >= self.adapt_buffer_seconds {
             return Err(format!(
                 "adapt_support_seconds ({}) must be below adapt_buffer_seconds ({}): the rest of the buffer judges the adapted model",
@@ -288,12 +296,14 @@ mod tests {
             ("    adapt_thread_nice: -5\n", "adapt_thread_nice"),
             ("    adapt_judge_power_ons: 0\n", "adapt_judge_power_ons"),
             ("    adapt_support_seconds: 120.0\n", "adapt_support_seconds"),
+            ("    adapt_enabled: true\n    ground_truth_topic: \"\"\n", "ground_truth_topic"),
         ] {
             let err = with(body).unwrap_err().to_string();
             assert!(err.contains(key), "{body}: {err}");
         }
         assert!(with("    pipeline:\n      gap_periods: 1.5\n      gravity_init_seconds: 0.0\n").is_ok());
         NodeParams::default().validate().unwrap();
+        assert!(!NodeParams::default().adapt_enabled, "adaptation is opt-in");
     }
 
     #[test]

@@ -48,10 +48,14 @@ pub struct NodeStats {
     pub model_status: String,
     /// Adaptation (empty when the service is off): idle / running / the last result.
     pub adapt_status: String,
+    /// The input writers' sequence numbers: what DDS lost before and after the first sample.
+    pub input_sequences: super::InputSequences,
     pub adaptations: u64,
     pub adapt_query_aoe_before_deg: Option<f64>,
     pub adapt_query_aoe_after_deg: Option<f64>,
     pub adapt_seconds: Option<f64>,
+    /// The DDS identity of the last `~/adapt` caller ([`super::adaptation::caller_of`]).
+    pub adapt_requested_by: String,
     /// Latencies split by adaptation state (recorded only when the service is on).
     pub split_latency: SplitLatency,
     /// The in-node latency by stage, and DDS receive before it.
@@ -205,6 +209,10 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("dropped_duplicate_stamp", c.dropped_duplicate_stamp.to_string()),
         kv("dropped_backwards_stamp", c.dropped_backwards_stamp.to_string()),
         kv("decode_errors", stats.decode_errors.to_string()),
+        kv("input_writers", stats.input_sequences.writers().to_string()),
+        kv("input_published_before_first", stats.input_sequences.before_first.to_string()),
+        kv("input_lost", stats.input_sequences.lost.to_string()),
+        kv("input_out_of_order", stats.input_sequences.out_of_order.to_string()),
         kv("gaps_reset", c.gaps.to_string()),
         kv("clock_jumps", c.clock_jumps.to_string()),
         kv("rate_changes", c.rate_changes.to_string()),
@@ -214,13 +222,16 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("saturated_samples", c.saturated_samples.to_string()),
     ];
     let mut values = values;
-    if !stats.adapt_status.is_empty() {
+    if stats.adapt_status == super::ADAPTATION_OFF {
+        values.push(kv("adaptation", stats.adapt_status.clone()));
+    } else if !stats.adapt_status.is_empty() {
         let f = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x:.3}"));
         values.push(kv("adaptation", stats.adapt_status.clone()));
         values.push(kv("adaptations", stats.adaptations.to_string()));
         values.push(kv("adapt_query_aoe_before_deg", f(stats.adapt_query_aoe_before_deg)));
         values.push(kv("adapt_query_aoe_after_deg", f(stats.adapt_query_aoe_after_deg)));
         values.push(kv("adapt_seconds", f(stats.adapt_seconds)));
+        values.push(kv("adapt_requested_by", stats.adapt_requested_by.clone()));
         for (i, state) in ["idle", "adapting"].iter().enumerate() {
             let h = &stats.split_latency.in_node[i];
             values.push(kv(&format!("latency_{state}_p99_us"), format!("{:.0}", h.quantile_us(0.99))));

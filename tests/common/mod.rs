@@ -12,6 +12,8 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+pub mod replay_reference;
+
 pub fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_imu-fsda")
 }
