@@ -345,7 +345,7 @@ fn adapt_service_over_dds() {
 }
 
 /// `~/adapt` answers every call, also when it cannot adapt: with no model loaded (at once,
-/// saying why), and when the node is stopped while an adaptation runs (the open call is
+/// saying why; also to a client on rmw_cyclonedds's mapping, `service_mapping: cyclone`), and when the node is stopped while an adaptation runs (the open call is
 /// answered as abandoned before the node leaves, its thread stopped and joined; nothing is
 /// saved).
 #[test]
@@ -377,6 +377,29 @@ fn adapt_service_answers_when_it_cannot_adapt() {
     assert!(replies[0]["success"] == false && no_model_msg.contains("no model is loaded"), "no model: reply {}\n{logs}", replies[0]);
     let status = o.node_stats["adaptation"].as_str().unwrap_or("");
     assert!(status.starts_with("unavailable: no model"), "no model: stats adaptation = {status:?}");
+
+    // ---- the same call as rmw_cyclonedds makes it (request id in a header in the payload),
+    // to a node set to that mapping: answered, the header echoed (the peer takes only a reply
+    // that names its call).
+    let cyclone = dir.path().join("params_cyclone.yaml");
+    std::fs::write(&cyclone, format!("{NODE_NAME}:\n  ros__parameters:\n    adapt_enabled: true\n    service_mapping: cyclone\n")).unwrap();
+    let mut peer_args = csv_args.to_vec();
+    peer_args.extend(["--count", "2000", "--requests", "3", "--after-s", "1", "--no-ground-truth-reader", "--service-mapping", "cyclone"]);
+    let o = run(
+        &pre,
+        dir.path(),
+        "cyclone_mapping",
+        &["--params", cyclone.to_str().unwrap(), "--model", ""],
+        "adapt_peer.py",
+        &peer_args,
+        RESTART_RUN_TIMEOUT,
+    );
+    let logs = &o.logs;
+    assert_eq!(o.rc, vec![0, 0], "cyclone mapping: peer / node exit codes\n{logs}");
+    let replies = o.peer["replies"].as_array().unwrap();
+    assert_eq!(replies.len(), 1, "cyclone mapping: one call, one reply that names it\n{logs}");
+    let msg = replies[0]["message"].as_str().unwrap_or("");
+    assert!(replies[0]["success"] == false && msg.contains("no model is loaded"), "cyclone mapping: reply {}\n{logs}", replies[0]);
 
     // ---- stopped while adapting: a long inner loop, SIGTERM 2 s after the call.
     let params = write_params_with(dir.path(), &adapted_dir, "params_long.yaml", 1_000_000, 60.0);

@@ -343,6 +343,24 @@ fn numeric_options_out_of_range_are_refused_by_name() {
     assert!(out.status.code() == Some(1) && err.contains("--start-s 1000000 is past the ground truth"), "{err}");
 }
 
+/// A robot whose graph enforces SROS2 security: the node, which does not implement DDS
+/// Security, refuses to start instead of running on plain DDS (it fails before it creates a
+/// participant: nothing is sent). The Permissive strategy: `node::environment`'s unit test.
+#[test]
+fn a_node_under_enforced_security_refuses_to_start_on_plain_dds() {
+    let out = Command::new(bin())
+        .args(["node", "--params", "params/imu_fsda.yaml"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("ROS_SECURITY_ENABLE", "true")
+        .env("ROS_SECURITY_STRATEGY", "Enforce")
+        .env("ROS_SECURITY_KEYSTORE", "/nonexistent/keystore")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("ROS_SECURITY_STRATEGY=Enforce") && err.contains("does not start on plain DDS"), "{err}");
+}
+
 /// eval drops a value no IMU measures, as the node does, and says so in the row: one 1e30
 /// rad/s sample would otherwise decide the score.
 #[test]

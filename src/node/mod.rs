@@ -20,7 +20,7 @@ pub use input_sequence::InputSequences;
 pub use latency::{LatencyHistogram, SplitLatency, StageLatency};
 pub use messages::{ros_type_name, TriggerRequest, TriggerResponse};
 use messages::{topic_name, type_name};
-pub use params::NodeParams;
+pub use params::{NodeParams, ServiceMapping};
 pub use status::*;
 
 use std::path::PathBuf;
@@ -211,7 +211,7 @@ pub async fn run_node_with_adaptation(
         let srv_name = topic_name(&format!("/{node_name}/adapt"))?;
         server = Some(
             node.create_server::<TriggerRequest, TriggerResponse>(
-                ros2_client::service::ServiceMapping::Enhanced,
+                params.service_mapping.ros2(),
                 &srv_name,
                 &ros2_client::ServiceTypeName::new("std_srvs", "Trigger"),
                 service_qos.clone(),
@@ -220,13 +220,15 @@ pub async fn run_node_with_adaptation(
             .map_err(dds)?,
         );
     }
-    let retake_server = if params.pipeline.power_on_bias { Some(power_on::retake_server(&mut node, node_name)?) } else { None };
+    let retake_server =
+        if params.pipeline.power_on_bias { Some(power_on::retake_server(&mut node, node_name, params.service_mapping)?) } else { None };
     let spinner = node.spinner().map_err(dds)?;
 
     let memory_writer = power_on::BiasMemoryWriter::new(&params.power_on_bias_memory, &pipeline);
     let stats = Arc::new(Mutex::new(NodeStats {
         power_on_bias_memory: memory_writer.as_ref().map_or(String::new(), power_on::BiasMemoryWriter::started),
         model: pipeline.corrector_name().to_string(),
+        security: env.security.clone(),
         window: pipeline.window(),
         model_status,
         warming_up: true,

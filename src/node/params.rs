@@ -10,6 +10,27 @@ use super::status::MAX_DIAGNOSTICS_PERIOD_S;
 use super::NodeError;
 use crate::infer::PipelineConfig;
 
+/// How the node's services (`~/adapt`, `~/retake_power_on_bias`) sit on DDS: the request id
+/// as the related sample identity (`enhanced`: rmw_fastrtps, rmw_connextdds) or in a header in
+/// the payload (`cyclone`: rmw_cyclonedds). One per node: a client of the other mapping gets no
+/// answer (docs/interop.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ServiceMapping {
+    #[default]
+    Enhanced,
+    Cyclone,
+}
+
+impl ServiceMapping {
+    pub fn ros2(self) -> ros2_client::service::ServiceMapping {
+        match self {
+            ServiceMapping::Enhanced => ros2_client::service::ServiceMapping::Enhanced,
+            ServiceMapping::Cyclone => ros2_client::service::ServiceMapping::Cyclone,
+        }
+    }
+}
+
 /// The node's parameters, as in `params/imu_fsda.yaml` (`imu_fsda: ros__parameters: …`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -37,6 +58,8 @@ pub struct NodeParams {
     pub diagnostics_period: f64,
     /// Take time from /clock (replays); ROS's standard parameter.
     pub use_sim_time: bool,
+    /// The services' DDS mapping: that of the clients' middleware.
+    pub service_mapping: ServiceMapping,
     /// The per-sample pipeline: gaps, rate checks, covariances, initial attitude.
     pub pipeline: PipelineConfig,
     /// On-demand adaptation (`~/adapt` and the ground-truth subscription): off unless the
@@ -86,6 +109,7 @@ impl Default for NodeParams {
             queue_depth: 100,
             diagnostics_period: 1.0,
             use_sim_time: false,
+            service_mapping: ServiceMapping::Enhanced,
             pipeline: PipelineConfig::default(),
             adapt_enabled: false,
             ground_truth_topic: "/ground_truth/pose".into(),

@@ -6,7 +6,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
-use super::{topic_name, NodeError, NodeStats, TriggerRequest, TriggerResponse};
+use super::{topic_name, NodeError, NodeStats, ServiceMapping, TriggerRequest, TriggerResponse};
 use crate::infer::Pipeline;
 
 /// The reply to a re-take.
@@ -15,11 +15,11 @@ pub const RETAKE_REPLY: &str =
 
 type Server = ros2_client::service::Server<TriggerRequest, TriggerResponse>;
 
-/// The `~/retake_power_on_bias` server (the Enhanced mapping, as `~/adapt`).
-pub(super) fn retake_server(node: &mut ros2_client::Node, node_name: &str) -> Result<Server, NodeError> {
+/// The `~/retake_power_on_bias` server (the `service_mapping` of `~/adapt`).
+pub(super) fn retake_server(node: &mut ros2_client::Node, node_name: &str, mapping: ServiceMapping) -> Result<Server, NodeError> {
     let qos = ros2_client::QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 10 });
     node.create_server::<TriggerRequest, TriggerResponse>(
-        ros2_client::service::ServiceMapping::Enhanced,
+        mapping.ros2(),
         &topic_name(&format!("/{node_name}/retake_power_on_bias"))?,
         &ros2_client::ServiceTypeName::new("std_srvs", "Trigger"),
         qos.clone(),

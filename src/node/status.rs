@@ -48,6 +48,8 @@ pub struct NodeStats {
     pub model_status: String,
     /// Adaptation (empty when the service is off): idle / running / the last result.
     pub adapt_status: String,
+    /// DDS Security asked for by the environment and not run ([`super::RosEnvironment`]).
+    pub security: String,
     /// The input writers' sequence numbers: what DDS lost before and after the first sample.
     pub input_sequences: super::InputSequences,
     pub adaptations: u64,
@@ -222,6 +224,9 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("saturated_samples", c.saturated_samples.to_string()),
     ];
     let mut values = values;
+    if !stats.security.is_empty() {
+        values.push(kv("security", stats.security.clone()));
+    }
     if stats.adapt_status == super::ADAPTATION_OFF {
         values.push(kv("adaptation", stats.adapt_status.clone()));
     } else if !stats.adapt_status.is_empty() {

@@ -44,7 +44,7 @@ from cyclonedds.core import Qos, Policy
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
 import cyclonedds.idl.annotations as annotate
-from cyclonedds.idl.types import float64, uint8
+from cyclonedds.idl.types import float64, int64, uint8, uint64
 from cyclonedds.pub import DataWriter, Publisher
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
@@ -88,6 +88,29 @@ class TriggerRequest(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Request_"
 class TriggerResponse(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Response_"):
     success: bool
     message: str
+
+
+# rmw_cyclonedds's service mapping (`--service-mapping cyclone`): the same DDS type names, the
+# payload led by a request header (rmw_cyclonedds_cpp serdata.hpp, cdds_request_header_t:
+# uint64 guid, int64 seq), which the server echoes in its reply.
+@annotate.final
+@dataclass
+class CycloneTriggerRequest(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Request_"):
+    guid: uint64
+    seq: int64
+    structure_needs_at_least_one_member: uint8
+
+
+@annotate.final
+@dataclass
+class CycloneTriggerResponse(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Response_"):
+    guid: uint64
+    seq: int64
+    success: bool
+    message: str
+
+
+CYCLONE_CLIENT_GUID = 0x1122334455667788
 
 
 def read_ground_truth(path: str, t0: int, t1: int) -> list[tuple[int, list[float], list[float]]]:
@@ -143,6 +166,9 @@ def main() -> int:
     ap.add_argument("--match-timeout-s", type=float, default=15.0)
     ap.add_argument("--reply-timeout-s", type=float, default=60.0, help="wall time a request may stay unanswered")
     ap.add_argument("--drain-timeout-s", type=float, default=8.0)
+    ap.add_argument("--service-mapping", choices=["enhanced", "cyclone"], default="enhanced",
+                    help="enhanced: no header in the payload (rmw_fastrtps's, without the inline QoS Cyclone's "
+                         "API cannot set); cyclone: rmw_cyclonedds's request header in the payload")
     ap.add_argument("--no-ground-truth-reader", action="store_true",
                     help="do not wait for a reader of the ground truth (a node with nothing to adapt has none)")
     ap.add_argument("--term-node-after-s", type=float, default=None,
@@ -165,8 +191,11 @@ def main() -> int:
     reliable_qos = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.Durability.Volatile, Policy.History.KeepAll)
     w_imu = DataWriter(pub, Topic(dp, "rt/imu/data_raw", Imu), qos=sensor_qos)
     w_gt = DataWriter(pub, Topic(dp, "rt/ground_truth/pose", PoseStamped), qos=sensor_qos)
-    w_req = DataWriter(pub, Topic(dp, f"rq/{args.node_name}/{args.service}Request", TriggerRequest), qos=reliable_qos)
-    r_rep = DataReader(sub, Topic(dp, f"rr/{args.node_name}/{args.service}Reply", TriggerResponse), qos=reliable_qos)
+    cyclone = args.service_mapping == "cyclone"
+    req_type, rep_type = (CycloneTriggerRequest, CycloneTriggerResponse) if cyclone else (TriggerRequest, TriggerResponse)
+    w_req = DataWriter(pub, Topic(dp, f"rq/{args.node_name}/{args.service}Request", req_type), qos=reliable_qos)
+    r_rep = DataReader(sub, Topic(dp, f"rr/{args.node_name}/{args.service}Reply", rep_type), qos=reliable_qos)
+    cyclone_seq = {"next": 1, "open": set()}
     r_den = DataReader(sub, Topic(dp, "rt/imu/denoised", Imu), qos=reliable_qos)
     r_diag = DataReader(sub, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=reliable_qos)
 
@@ -194,6 +223,11 @@ def main() -> int:
                 })
         for m in r_rep.take(N=100):
             if not isinstance(m, InvalidSample):
+                if cyclone:
+                    # rmw_cyclonedds takes a reply only when its header names this client's call.
+                    if m.guid != CYCLONE_CLIENT_GUID or m.seq not in cyclone_seq["open"]:
+                        continue
+                    cyclone_seq["open"].discard(m.seq)
                 replies.append({"t": now(), "success": bool(m.success), "message": m.message,
                                 "n_sent": len(sent), "n_denoised": len(denoised)})
 
@@ -257,7 +291,13 @@ def main() -> int:
         if next_group < len(groups) and data_t >= groups[next_group][0] and outstanding == 0:
             for _ in range(groups[next_group][1]):
                 requests.append({"t": now(), "data_t": data_t, "n_sent": len(sent), "n_denoised": len(denoised)})
-                w_req.write(TriggerRequest(structure_needs_at_least_one_member=0))
+                if cyclone:
+                    seq = cyclone_seq["next"]
+                    cyclone_seq["next"] += 1
+                    cyclone_seq["open"].add(seq)
+                    w_req.write(CycloneTriggerRequest(guid=CYCLONE_CLIENT_GUID, seq=seq, structure_needs_at_least_one_member=0))
+                else:
+                    w_req.write(TriggerRequest(structure_needs_at_least_one_member=0))
             next_group += 1
             outstanding = len(requests) - len(replies)
             if next_group == len(groups):
