@@ -20,7 +20,7 @@ pub struct RosEnvironment {
 /// without a word; under `Permissive` (rcl's default strategy: security where its files are
 /// found) it runs unsecured and says so at start and on /diagnostics.
 fn security(get: &impl Fn(&str) -> Option<String>) -> Result<String, NodeError> {
-    if !get("ROS_SECURITY_ENABLE").is_some_and(|v| v.trim() == "true") {
+    if get("ROS_SECURITY_ENABLE").is_none_or(|v| v.trim() != "true") {
         return Ok(String::new());
     }
     let keystore = get("ROS_SECURITY_KEYSTORE").unwrap_or_default();
