@@ -185,6 +185,51 @@ fn a_reference_half_a_second_late_is_lined_up_and_said() {
     assert!((said.unwrap() - remainder_ms - 500.0).abs() < 1.0, "lag {said:?} ms and remainder {remainder_ms} ms make 500 ms");
 }
 
+/// The ppm a report says the reference's clock drifts by (its recording artefact), if it does.
+fn drift_ppm(r: &serde_json::Value) -> Option<(f64, f64)> {
+    let artefacts = r["recording_artefacts"].to_string();
+    let after = artefacts.split("changes by ").nth(1)?;
+    let ppm = after.split(" ppm").next()?.parse().ok()?;
+    let sigma = after.split("(± ").nth(1)?.split(',').next()?.parse().ok()?;
+    Some((ppm, sigma))
+}
+
+/// A reference whose clock drifts: room2's motion capture as recorded drifts against its IMU
+/// (≈ −13 ppm, found and taken out), and with another 60 ppm put into its stamps the
+/// difference between the two reports is the 60 ppm (the recording's own drift cancels), and
+/// the drift becomes no sensor term: the terms fitted are those of the recording as stamped.
+#[test]
+fn a_drifting_reference_clock_is_found_and_taken_out() {
+    let Some(seq) = room2() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("room2.mcap");
+    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag));
+    let (mut rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
+    const INJECTED_PPM: f64 = 60.0;
+    // A pose stamped later by 60 ppm of its time from the recording's middle (its clock runs
+    // fast; about the middle, so that no constant offset comes with it, which is time_offset's).
+    let middle = (rec.ground_truth[0].stamp_ns + rec.ground_truth[rec.ground_truth.len() - 1].stamp_ns) / 2;
+    rec.ground_truth.iter_mut().for_each(|p| p.stamp_ns += ((p.stamp_ns - middle) as f64 * INJECTED_PPM * 1e-6).round() as i64);
+    let drifting = dir.path().join("drifting.mcap");
+    write_recording(&drifting, &rec).unwrap();
+    let own = diagnose(dir.path(), &bag, "own");
+    let r = diagnose(dir.path(), &drifting, "drifting");
+    let (Some((own_ppm, own_sigma)), Some((ppm, sigma))) = (drift_ppm(&own), drift_ppm(&r)) else {
+        panic!("no drift said: {} / {}", own["recording_artefacts"], r["recording_artefacts"])
+    };
+    eprintln!("room2's own drift {own_ppm} ± {own_sigma} ppm; with {INJECTED_PPM} ppm injected {ppm} ± {sigma} ppm");
+    // The IMU's lag behind a reference stamped late grows: the lag falls by what was injected.
+    let found = own_ppm - ppm;
+    let sigma = own_sigma.hypot(sigma);
+    assert!((found - INJECTED_PPM).abs() < 3.0 * sigma.max(1.0), "found {found} ± {sigma} ppm of {INJECTED_PPM}");
+    let names = |r: &serde_json::Value| {
+        let mut n: Vec<String> = fitted(r).iter().map(|f| f["term"].as_str().unwrap().to_string()).collect();
+        n.sort();
+        n
+    };
+    assert_eq!(names(&r), names(&own), "the drift taken out leaves the recording's own terms: {} / {}", r["findings"], own["findings"]);
+}
+
 /// A coarse or a short reference: the same recording with its motion capture kept at 20 Hz
 /// (every sixth pose), and its first 20 s alone. The coarse one gives nothing (the smoother
 /// widens to hold its poses; before, it read as gyro scales of +0.2 to +1.6 %). The short

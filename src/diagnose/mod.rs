@@ -36,6 +36,7 @@ pub mod golden;
 pub mod kinematics;
 pub mod locate;
 pub mod psd;
+pub mod reference_clock;
 pub mod report;
 pub mod residual;
 pub mod select;

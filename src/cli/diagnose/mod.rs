@@ -288,19 +288,35 @@ pub(super) fn over_windows(a: align::Aligned, window: f64) -> align::Aligned {
 const MAX_REFERENCE_LAG_S: f64 = 2.0;
 
 /// A ground truth stamped on another clock than the IMU's (a motion-capture system's own):
-/// its lag in whole IMU samples is found from the gyro's norm and taken out of its stamps,
-/// and said as an artefact of the recording; what is left below a sample is `time_offset`'s.
-pub(super) fn align_reference_clock(real: &mut imu_fsda::core::Recording, smoothing: Option<f64>) -> anyhow::Result<Option<String>> {
+/// its lag in whole IMU samples is found from the gyro's norm and taken out of its stamps; a
+/// lag that drifts along the recording is taken out about its middle
+/// ([`imu_fsda::diagnose::reference_clock`]); each said as an artefact of the recording. What is
+/// left, constant and below a sample, is `time_offset`'s.
+pub(super) fn align_reference_clock(real: &mut imu_fsda::core::Recording, smoothing: Option<f64>) -> anyhow::Result<Vec<String>> {
+    let mut said = Vec::new();
     let lag = imu_fsda::diagnose::kinematics::reference_lag_s(real, smoothing, MAX_REFERENCE_LAG_S)?;
-    if lag == 0.0 {
-        return Ok(None);
+    if lag != 0.0 {
+        let shift = (lag * 1e9).round() as i64;
+        real.ground_truth.iter_mut().for_each(|p| p.stamp_ns -= shift);
+        said.push(format!(
+            "the ground truth's stamps lag the IMU's by {:.1} ms (whole IMU samples, from the gyro's norm against the rate differentiated from the poses; searched within ±{MAX_REFERENCE_LAG_S} s): taken out of its stamps before the comparison; a remainder below one sample is left to time_offset",
+            lag * 1e3
+        ));
     }
-    let shift = (lag * 1e9).round() as i64;
-    real.ground_truth.iter_mut().for_each(|p| p.stamp_ns -= shift);
-    Ok(Some(format!(
-        "the ground truth's stamps lag the IMU's by {:.1} ms (whole IMU samples, from the gyro's norm against the rate differentiated from the poses; searched within ±{MAX_REFERENCE_LAG_S} s): taken out of its stamps before the comparison; a remainder below one sample is left to time_offset",
-        lag * 1e3
-    )))
+    if let Some(drift) = imu_fsda::diagnose::reference_clock::reference_clock_drift(real, smoothing)? {
+        if drift.significant(1.0 / real.nominal_imu_rate_hz()) {
+            drift.take_out(real);
+            said.push(drift.sentence());
+        } else {
+            tracing::info!(
+                "reference clock: {:+.1} ± {:.1} ppm over {} pieces, not taken out",
+                drift.rate * 1e6,
+                drift.rate_sigma * 1e6,
+                drift.pieces.len()
+            );
+        }
+    }
+    Ok(said)
 }
 
 /// Where the ground truth lost tracking, the sim made from it is interpolated across the hole
