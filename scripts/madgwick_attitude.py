@@ -17,9 +17,7 @@ import os
 import sys
 
 import numpy as np
-from vqf_bias import IMU, fail, read_imu, rewrite_bag
-
-OUT_TOPIC = '/imu/denoised'
+from vqf_bias import IMU, fail, read_imu, write_orientations
 
 
 def quat_mul(p, q):
@@ -86,13 +84,7 @@ def main():
             q = madgwick_step(q, np.asarray(gyr[i], dtype=float), np.asarray(acc[i], dtype=float), a.gain, dt)
         quats[i] = q
 
-    def with_orientation(i, d):
-        w, x, y, z = map(float, quats[i])
-        denoised = dict(d, orientation={'x': x, 'y': y, 'z': z, 'w': w},
-                        orientation_covariance=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
-        return [(IMU, d), (OUT_TOPIC, denoised)]
-
-    rewrite_bag(a.src, a.dst, with_orientation, len(stamps))
+    write_orientations(a.src, a.dst, quats)
     print(f'madgwick_attitude: {len(gyr)} samples, gain {a.gain}', file=sys.stderr)
 
 

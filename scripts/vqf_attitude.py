@@ -17,9 +17,7 @@ import sys
 
 import numpy as np
 import vqf
-from vqf_bias import IMU, fail, read_imu, rewrite_bag
-
-OUT_TOPIC = '/imu/denoised'
+from vqf_bias import IMU, fail, read_imu, write_orientations
 
 
 def main():
@@ -41,13 +39,7 @@ def main():
     for i in range(len(gyr)):
         f.update(np.ascontiguousarray(gyr[i]), np.ascontiguousarray(acc[i]))
         quats[i] = f.getQuat6D()
-    def with_orientation(i, d):
-        w, x, y, z = map(float, quats[i])
-        denoised = dict(d, orientation={'x': x, 'y': y, 'z': z, 'w': w},
-                        orientation_covariance=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
-        return [(IMU, d), (OUT_TOPIC, denoised)]
-
-    rewrite_bag(a.src, a.dst, with_orientation, len(stamps))
+    write_orientations(a.src, a.dst, quats)
     print(f'vqf_attitude: {len(gyr)} samples, dt {dt:.6g} s', file=sys.stderr)
 
 

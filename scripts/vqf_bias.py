@@ -46,6 +46,19 @@ def read_imu(path):
     return np.array(stamps, np.int64), np.array(gyr).reshape(-1, 3), np.array(acc).reshape(-1, 3)
 
 
+def write_orientations(src, dst, quats):
+    """`src` to `dst` with one /imu/denoised per /imu/data message: the same sample and an
+    estimator's quaternion quats[i] (w, x, y, z; world from body). The estimators compared this
+    way state no covariance: 1 rad² on each axis is written (no NEES to read from it)."""
+    def with_orientation(i, d):
+        w, x, y, z = map(float, quats[i])
+        denoised = dict(d, orientation={'x': x, 'y': y, 'z': z, 'w': w},
+                        orientation_covariance=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
+        return [(IMU, d), ('/imu/denoised', denoised)]
+
+    rewrite_bag(src, dst, with_orientation, len(quats))
+
+
 def rewrite_bag(src, dst, on_imu, n_imu):
     """Copies every message of `src` to `dst`, each /imu/data one (the i-th, as a plain dict)
     replaced by the (topic, message) pairs `on_imu(i, d)` returns (same schema, same times).

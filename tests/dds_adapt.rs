@@ -356,25 +356,31 @@ fn adapt_service_answers_when_it_cannot_adapt() {
     let gt_csv = seq.join("state_groundtruth_estimate0/data.csv");
     let csv_args = ["--csv", imu_csv.to_str().unwrap(), "--gt-csv", gt_csv.to_str().unwrap(), "--gt-from-s", "1"];
 
+    // One `~/adapt` call to a node without a model: it exits cleanly and answers once, saying why.
+    let call_without_model = |tag: &str, params: &Path, extra: &[&str]| {
+        let mut peer_args = csv_args.to_vec();
+        peer_args.extend(["--count", "2000", "--requests", "3", "--after-s", "1", "--no-ground-truth-reader"]);
+        peer_args.extend_from_slice(extra);
+        let o = run(
+            &pre,
+            dir.path(),
+            tag,
+            &["--params", params.to_str().unwrap(), "--model", ""],
+            "adapt_peer.py",
+            &peer_args,
+            RESTART_RUN_TIMEOUT,
+        );
+        let logs = &o.logs;
+        assert_eq!(o.rc, vec![0, 0], "{tag}: peer / node exit codes\n{logs}");
+        let replies = o.peer["replies"].as_array().unwrap();
+        assert_eq!(replies.len(), 1, "{tag}: one call, one reply that names it\n{logs}");
+        let msg = replies[0]["message"].as_str().unwrap_or("").to_string();
+        assert!(replies[0]["success"] == false && msg.contains("no model is loaded"), "{tag}: reply {}\n{logs}", replies[0]);
+        (o, msg)
+    };
+
     // ---- no model: a ground-truth topic, so the service is there, and it says why it cannot.
-    let params = write_params(dir.path(), &adapted_dir);
-    let mut peer_args = csv_args.to_vec();
-    peer_args.extend(["--count", "2000", "--requests", "3", "--after-s", "1", "--no-ground-truth-reader"]);
-    let o = run(
-        &pre,
-        dir.path(),
-        "no_model",
-        &["--params", params.to_str().unwrap(), "--model", ""],
-        "adapt_peer.py",
-        &peer_args,
-        RESTART_RUN_TIMEOUT,
-    );
-    let logs = &o.logs;
-    assert_eq!(o.rc, vec![0, 0], "no model: peer / node exit codes\n{logs}");
-    let replies = o.peer["replies"].as_array().unwrap();
-    assert_eq!(replies.len(), 1, "no model: one call, one reply\n{logs}");
-    let no_model_msg = replies[0]["message"].as_str().unwrap_or("").to_string();
-    assert!(replies[0]["success"] == false && no_model_msg.contains("no model is loaded"), "no model: reply {}\n{logs}", replies[0]);
+    let (o, no_model_msg) = call_without_model("no_model", &write_params(dir.path(), &adapted_dir), &[]);
     let status = o.node_stats["adaptation"].as_str().unwrap_or("");
     assert!(status.starts_with("unavailable: no model"), "no model: stats adaptation = {status:?}");
 
@@ -383,23 +389,7 @@ fn adapt_service_answers_when_it_cannot_adapt() {
     // that names its call).
     let cyclone = dir.path().join("params_cyclone.yaml");
     std::fs::write(&cyclone, format!("{NODE_NAME}:\n  ros__parameters:\n    adapt_enabled: true\n    service_mapping: cyclone\n")).unwrap();
-    let mut peer_args = csv_args.to_vec();
-    peer_args.extend(["--count", "2000", "--requests", "3", "--after-s", "1", "--no-ground-truth-reader", "--service-mapping", "cyclone"]);
-    let o = run(
-        &pre,
-        dir.path(),
-        "cyclone_mapping",
-        &["--params", cyclone.to_str().unwrap(), "--model", ""],
-        "adapt_peer.py",
-        &peer_args,
-        RESTART_RUN_TIMEOUT,
-    );
-    let logs = &o.logs;
-    assert_eq!(o.rc, vec![0, 0], "cyclone mapping: peer / node exit codes\n{logs}");
-    let replies = o.peer["replies"].as_array().unwrap();
-    assert_eq!(replies.len(), 1, "cyclone mapping: one call, one reply that names it\n{logs}");
-    let msg = replies[0]["message"].as_str().unwrap_or("");
-    assert!(replies[0]["success"] == false && msg.contains("no model is loaded"), "cyclone mapping: reply {}\n{logs}", replies[0]);
+    call_without_model("cyclone_mapping", &cyclone, &["--service-mapping", "cyclone"]);
 
     // ---- stopped while adapting: a long inner loop, SIGTERM 2 s after the call.
     let params = write_params_with(dir.path(), &adapted_dir, "params_long.yaml", 1_000_000, 60.0);
