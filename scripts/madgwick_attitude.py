@@ -13,11 +13,10 @@ of IN, and on /imu/denoised one sensor_msgs/Imu per IMU sample with the filter's
 written, so `attitude`'s NEES columns say nothing for these rows. Run with the project's venv.
 """
 import argparse
-import os
 import sys
 
 import numpy as np
-from vqf_bias import IMU, fail, read_imu, write_orientations
+from vqf_bias import read_input, write_orientations
 
 
 def quat_mul(p, q):
@@ -68,13 +67,7 @@ def main():
     p.add_argument('dst', metavar='OUT.mcap')
     p.add_argument('--gain', type=float, default=0.1, help="β (imu_filter_madgwick's `gain`, default 0.1)")
     a = p.parse_args()
-    if not os.path.isfile(a.src):
-        fail(f'{a.src}: no such file')
-    if os.path.realpath(a.src) == os.path.realpath(a.dst):
-        fail('the output must not be the input')
-    stamps, gyr, acc = read_imu(a.src)
-    if len(stamps) < 2:
-        fail(f'{a.src}: fewer than two {IMU} messages')
+    stamps, gyr, acc = read_input(a.src, a.dst)
     quats = np.empty((len(gyr), 4))
     q = from_gravity(np.asarray(acc[0], dtype=float))
     quats[0] = q

@@ -12,12 +12,11 @@ is 1 rad² on each axis, so `attitude`'s NEES columns say nothing for these rows
 heading figures do). Run with the project's venv ($PYTHON from scripts/env.sh).
 """
 import argparse
-import os
 import sys
 
 import numpy as np
 import vqf
-from vqf_bias import IMU, fail, read_imu, write_orientations
+from vqf_bias import read_input, write_orientations
 
 
 def main():
@@ -26,13 +25,7 @@ def main():
     p.add_argument('dst', metavar='OUT.mcap')
     p.add_argument('--bias-clip', type=float, default=2.0, metavar='DEG_PER_S', help="VQF's biasClip in °/s (default 2)")
     a = p.parse_args()
-    if not os.path.isfile(a.src):
-        fail(f'{a.src}: no such file')
-    if os.path.realpath(a.src) == os.path.realpath(a.dst):
-        fail('the output must not be the input')
-    stamps, gyr, acc = read_imu(a.src)
-    if len(stamps) < 2:
-        fail(f'{a.src}: fewer than two {IMU} messages')
+    stamps, gyr, acc = read_input(a.src, a.dst)
     dt = float(np.median(np.diff(stamps))) * 1e-9
     f = vqf.VQF(dt, dt, biasClip=a.bias_clip)
     quats = np.empty((len(gyr), 4))

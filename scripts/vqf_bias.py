@@ -46,6 +46,22 @@ def read_imu(path):
     return np.array(stamps, np.int64), np.array(gyr).reshape(-1, 3), np.array(acc).reshape(-1, 3)
 
 
+def read_input(src, dst):
+    """The IMU of `src` for a script that writes `dst`: a clear error (and exit 2) for a missing or
+    unreadable bag, fewer than two samples, or an output that would overwrite the input."""
+    if not os.path.isfile(src):
+        fail(f'{src}: no such file')
+    if os.path.realpath(src) == os.path.realpath(dst):
+        fail('the output must not be the input')
+    try:
+        stamps, gyr, acc = read_imu(src)
+    except Exception as e:  # not an MCAP bag, or an undecodable one
+        fail(f'{src}: cannot read as an MCAP ros2 bag ({type(e).__name__}: {e})')
+    if len(stamps) < 2:
+        fail(f'{src}: no {IMU} topic' if len(stamps) == 0 else f'{src}: only one {IMU} message')
+    return stamps, gyr, acc
+
+
 def write_orientations(src, dst, quats):
     """`src` to `dst` with one /imu/denoised per /imu/data message: the same sample and an
     estimator's quaternion quats[i] (w, x, y, z; world from body). The estimators compared this
@@ -97,17 +113,7 @@ def main():
     p.add_argument('--bias-clip', type=float, default=2.0, metavar='DEG_PER_S', help="VQF's biasClip in °/s (default 2)")
     p.add_argument('--rest-only', action='store_true', help='disable bias estimation during motion')
     a = p.parse_args()
-    if not os.path.isfile(a.src):
-        fail(f'{a.src}: no such file')
-    if os.path.realpath(a.src) == os.path.realpath(a.dst):
-        fail('the output must not be the input')
-
-    try:
-        stamps, gyr, acc = read_imu(a.src)
-    except Exception as e:  # not an MCAP bag, or an undecodable one
-        fail(f'{a.src}: cannot read as an MCAP ros2 bag ({type(e).__name__}: {e})')
-    if len(stamps) < 2:
-        fail(f'{a.src}: no {IMU} topic' if len(stamps) == 0 else f'{a.src}: only one {IMU} message')
+    stamps, gyr, acc = read_input(a.src, a.dst)
     dt = float(np.median(np.diff(stamps))) * 1e-9
     if dt <= 0:
         fail(f'{a.src}: {IMU} stamps do not increase (median interval {dt} s)')
