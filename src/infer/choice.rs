@@ -17,10 +17,6 @@ pub enum ModelDomain {
     /// The model was trained on this IMU (named by `imu_calibration`), on its raw stream: its
     /// correction covers this IMU's bias as in training, so a rest is not subtracted before it.
     Trained,
-    /// Trained on this IMU after each training recording's power-on bias was removed
-    /// (`dataset.power_on_bias`): it learned the lasting errors, so this power-on's bias is
-    /// removed before it.
-    TrainedAfterPowerOnBias,
     /// Adapted on this IMU after the support's power-on bias was removed.
     AdaptedAfterPowerOnBias,
     /// The same, with the gyro calibration alone kept (Ĉ_ω, the networks' correction off).
@@ -45,7 +41,6 @@ impl ModelDomain {
             }
             (Some(_), _) if meta.power_on_bias_removed => ModelDomain::AdaptedAfterPowerOnBias,
             (Some(_), _) => ModelDomain::AdaptedWithBias,
-            (None, Some(name)) if meta.imu_names().contains(&name) && meta.power_on_bias_removed => ModelDomain::TrainedAfterPowerOnBias,
             (None, Some(name)) if meta.imu_names().contains(&name) => ModelDomain::Trained,
             _ => ModelDomain::NewImu,
         }
@@ -95,13 +90,6 @@ pub fn choose(domain: ModelDomain, power_on_bias: bool, model_on_new_imu: bool) 
         ModelDomain::NoModel if power_on_bias => (Correction::PowerOnBias, "no model: the power-on bias measured at standstills"),
         ModelDomain::NoModel => (Correction::Raw, "no model and power_on_bias off: the gyro as measured"),
         ModelDomain::Trained => (Correction::Model, "the model was trained on this IMU (imu_calibration)"),
-        ModelDomain::TrainedAfterPowerOnBias if power_on_bias => (
-            Correction::PowerOnBiasThenModel,
-            "the model was trained on this IMU after each recording's power-on bias was removed (imu_calibration)",
-        ),
-        ModelDomain::TrainedAfterPowerOnBias => {
-            (Correction::Model, "power_on_bias off: the model runs on the raw gyro (it was trained without each recording's power-on bias)")
-        }
         ModelDomain::AdaptedWithBias => {
             (Correction::Model, "the model was adapted on this IMU with its support's constant inside (no power-on rule)")
         }
@@ -151,18 +139,5 @@ mod tests {
         assert_eq!(choose(ModelDomain::CalibratedWithOffsetAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
         assert!(choose(ModelDomain::CalibratedWithOffsetAfterPowerOnBias, true, false).1.contains("bias offset in motion"));
         assert_eq!(choose(ModelDomain::NoModel, true, false).0, Correction::PowerOnBias);
-        assert_eq!(choose(ModelDomain::TrainedAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
-        assert_eq!(choose(ModelDomain::TrainedAfterPowerOnBias, false, false).0, Correction::Model);
-    }
-
-    #[test]
-    fn a_model_trained_after_the_power_on_bias_gets_it_removed_on_its_own_imu_only() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fsda-f.json");
-        let mut meta: crate::model::ModelMetadata = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
-        assert_eq!(ModelDomain::of(&meta, Some("euroc")), ModelDomain::Trained);
-        meta.power_on_bias_removed = true;
-        assert_eq!(ModelDomain::of(&meta, Some("euroc")), ModelDomain::TrainedAfterPowerOnBias);
-        assert_eq!(ModelDomain::of(&meta, Some("another")), ModelDomain::NewImu);
-        assert_eq!(ModelDomain::of(&meta, None), ModelDomain::NewImu);
     }
 }

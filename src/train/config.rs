@@ -141,13 +141,6 @@ pub struct DatasetConfig {
     /// pose is at most this far away, ms (DIGDL on TUM-VI: 10 ms).
     #[serde(default = "default_nearest")]
     pub max_nearest_gt_ms: f64,
-    /// Each recording's power-on bias removed from its gyro before the model sees it, by the
-    /// pipeline's causal standstill rule (`standstill::BiasTrack` with its defaults, over the
-    /// whole recording before any crop): the model then learns what lasts, not each power-on's
-    /// constant, and is deployed after the power-on bias (`power_on_bias_removed` in its
-    /// metadata). A recording without a standstill is fed as measured.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub power_on_bias: bool,
 }
 
 impl DatasetConfig {

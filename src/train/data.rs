@@ -483,14 +483,11 @@ pub fn check_length(task: &Task, needed: usize, what: &str, available: usize) ->
 /// stamps, the crop of `src.start_s` / `src.end_s` and the support split): the node's
 /// buffered data and `imu-fsda adapt`'s split bag go through the trainer's own path.
 pub fn task_from_recording(
-    mut rec: Recording,
+    rec: Recording,
     src: &SourceConfig,
     cfg: &DatasetConfig,
     support_seconds: Option<f64>,
 ) -> Result<Task, DataError> {
-    if cfg.power_on_bias {
-        remove_power_on_bias(&mut rec);
-    }
     let (gt, valid) = ground_truth_at_imu(&rec, cfg);
     let first = gt.iter().position(Option::is_some);
     let last = gt.iter().rposition(Option::is_some);
@@ -589,14 +586,6 @@ pub fn task_from_recording(
     })
 }
 
-/// The gyro minus the power-on bias in force at each sample, as the deployed pipeline removes
-/// it (causal: nothing before the first standstill); said per recording.
-fn remove_power_on_bias(rec: &mut Recording) {
-    let track = crate::standstill::BiasTrack::over(&rec.imu, &crate::standstill::StandstillConfig::default());
-    tracing::info!("{}: {}", rec.name, track.note());
-    rec.imu = track.debiased(&rec.imu);
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -625,7 +614,6 @@ mod tests {
             support_seconds: 60.0,
             max_interpolation_gap_ms: 50.0,
             max_nearest_gt_ms: 10.0,
-            power_on_bias: false,
         }
     }
 
@@ -644,38 +632,6 @@ mod tests {
         assert!(gt[44].is_some()); // 220 ms: interpolated across the 40 ms hole …
         assert!(!valid[44]); // … but 20 ms from the nearest pose: masked
         assert!(valid[10] && valid[60]);
-    }
-
-    /// With `power_on_bias`, a recording's gyro reaches the model less the bias its standstill
-    /// measured, from the end of that standstill on (the pipeline's causal rule); without, as
-    /// recorded.
-    #[test]
-    fn power_on_bias_is_removed_after_the_first_standstill() {
-        let bias = Vector3::new(0.01, -0.02, 0.07);
-        let imu: Vec<ImuSample> = (0..2000)
-            .map(|i| ImuSample { stamp_ns: i * 5_000_000, gyro: bias, accel: Vector3::new(0.0, 0.0, 9.81) })
-            .collect();
-        let ground_truth: Vec<PoseSample> = (0..1000)
-            .map(|i| PoseSample {
-                stamp_ns: i * 10_000_000,
-                position_in_world: Vector3::zeros(),
-                world_from_body: UnitQuaternion::identity(),
-            })
-            .collect();
-        let rec = Recording { name: "rest".into(), imu, ground_truth, temperature: vec![] };
-        let src = SourceConfig::default();
-        let gyro_of = |task: &Task, i: i64| Vec::<f32>::try_from(task.imu.get(i).narrow(0, 0, 3)).unwrap();
-
-        let raw = task_from_recording(rec.clone(), &src, &dcfg(), None).unwrap();
-        assert_eq!(gyro_of(&raw, 1900), vec![0.01f32, -0.02, 0.07]);
-
-        let cfg = DatasetConfig { power_on_bias: true, ..dcfg() };
-        let task = task_from_recording(rec, &src, &cfg, None).unwrap();
-        assert_eq!(gyro_of(&task, 10), vec![0.01f32, -0.02, 0.07], "nothing is removed before a standstill ends");
-        for i in [500, 1900] {
-            assert!(gyro_of(&task, i).iter().all(|g| g.abs() < 1e-6), "{:?}", gyro_of(&task, i));
-        }
-        assert!(task.rec.imu[1900].gyro.norm() < 1e-9, "the evaluated recording is the debiased one");
     }
 
     /// A `simulate` source is the recording `imu-fsda simulate` writes to a bag (the IMU

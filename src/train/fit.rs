@@ -1175,7 +1175,7 @@ pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> Result<TrainSummary, Train
             metrics,
             code_revision,
             adapted_from: None,
-            power_on_bias_removed: cfg.dataset.power_on_bias,
+            power_on_bias_removed: false,
             imu_correction_gains,
             side_files: vec![("train.json".into(), summary_json)],
         },
@@ -1355,7 +1355,6 @@ mod tests {
             support_seconds,
             max_interpolation_gap_ms: 50.0,
             max_nearest_gt_ms: 10.0,
-            power_on_bias: false,
         };
         let task = data::task_from_recording(rec, &src, &dcfg, Some(support_seconds)).unwrap();
         let _ = task.valid.narrow(0, task.support_end as i64, (task.len() - task.support_end) as i64).fill_(0.0);
