@@ -5,7 +5,8 @@
 # varying length, none on one). Scored per power-on: raw, static-bias, the pipeline's
 # power-on bias, the bundled model on this new IMU (alone, and as the node deploys it), and
 # the model adapted on power-on 1 (`adapt --judge` on the others, and alone as the node's
-# ~/adapt, no other power-on to judge on). Writes docs/poweron.json and
+# ~/adapt, no other power-on to judge on), and on power-on 2 judged on 1 and scored on 3–N
+# (held out). Writes docs/poweron.json and
 # the table in docs/poweron.md between its markers.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -47,8 +48,14 @@ for profile in aerial handheld car quadruped; do
     if "$bin" adapt --model "$model" --bag "${bags[0]}" -o "$work/$imu-alone.pt" --json > "$work/$imu.alone.adapt.json" 2> "$work/$imu.alone.adapt.log"; then
       adapted+=(--model "$work/$imu-alone.pt")
     fi
+    # Judged on the past, scored on the future: adapted on power-on 2 and judged on power-on 1
+    # (as the node's adapt_support_archive on the second power-on), run on 3–N, which neither
+    # fitted nor judged it.
+    if "$bin" adapt --model "$model" --bag "${bags[1]}" --judge "${bags[0]}" -o "$work/$imu-past.pt" --json > "$work/$imu.past.adapt.json" 2> "$work/$imu.past.adapt.log"; then
+      adapted+=(--model "$work/$imu-past.pt")
+    fi
     "$bin" eval "${bags[@]}" --method raw --method static-bias --method power-on-bias --model "$model" "${adapted[@]}" --json "$work/$imu.eval.json" >/dev/null
-    echo "[poweron] $imu: $(tail -1 "$work/$imu.adapt.log"); without --judge: $(tail -1 "$work/$imu.alone.adapt.log")" >&2
+    echo "[poweron] $imu: $(tail -1 "$work/$imu.adapt.log"); without --judge: $(tail -1 "$work/$imu.alone.adapt.log"); on power-on 2 judged on 1: $(tail -1 "$work/$imu.past.adapt.log")" >&2
   done
 done
 "$PYTHON" "$here/scripts/poweron_table.py" "$work" "$here/docs/poweron.json" "$here/docs/poweron.md"

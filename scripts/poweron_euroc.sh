@@ -5,8 +5,10 @@
 # consumer part's lasting scale and cross-axis errors injected into every recording
 # (`imu-fsda inject`, the same terms as scripts/poweron.sh's MPU-9250 unit). Each support is
 # also adapted on alone (no `--judge`, as the node's ~/adapt) and what that wrote is run on
-# the others. Writes
-# docs/poweron-euroc.json and the tables in docs/poweron.md between their markers.
+# the others. Then the order a robot meets them in (EuRoC's numbering): each recording adapted
+# on and judged on the JUDGE_POWER_ONS (3) before it, as the node's adapt_support_archive
+# judges, and what it kept scored on the ones after it, which neither fitted nor judged it.
+# Writes docs/poweron-euroc.json and the tables in docs/poweron.md between their markers.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$here/scripts/env.sh"
@@ -16,6 +18,7 @@ model="${MODEL:-$here/models/fsda-f.pt}"
 require_models "$model"
 data="${DATA:-$here/../shared/data}"
 work="$IMU_FSDA_CACHE/poweron-euroc"
+judge_power_ons="${JUDGE_POWER_ONS:-3}"
 rm -rf "$work"; mkdir -p "$work/recorded" "$work/injected" "$IMU_FSDA_CACHE/bags"
 for dir in "$data"/euroc/*/; do
   s="$(basename "$dir")"
@@ -44,5 +47,15 @@ for set in recorded injected; do
     fi
     echo "[poweron-euroc] $set $s without --judge: $(tail -1 "$work/$set/$s.alone.adapt.log")" >&2
   done
+  # Judged on the past, scored on the future.
+  for ((i = 1; i < ${#bags[@]} - 1; i++)); do
+    s="$(basename "${bags[i]}" .mcap)"
+    past=(); for ((j = i > judge_power_ons ? i - judge_power_ons : 0; j < i; j++)); do past+=(--judge "${bags[j]}"); done
+    if "$bin" adapt --model "$model" --bag "${bags[i]}" "${past[@]}" -o "$work/$set/$s-past.pt" --json \
+      > "$work/$set/$s.past.adapt.json" 2> "$work/$set/$s.past.adapt.log"; then
+      "$bin" eval "${bags[@]:i+1}" --model "$work/$set/$s-past.pt" --json "$work/$set/$s.past.eval.json" >/dev/null
+    fi
+    echo "[poweron-euroc] $set $s judged on the $(( ${#past[@]} / 2 )) before it: $(tail -1 "$work/$set/$s.past.adapt.log")" >&2
+  done
 done
-"$PYTHON" "$here/scripts/poweron_euroc_table.py" "$work" "$here/docs/poweron-euroc.json" "$here/docs/poweron.md"
+JUDGE_POWER_ONS="$judge_power_ons" "$PYTHON" "$here/scripts/poweron_euroc_table.py" "$work" "$here/docs/poweron-euroc.json" "$here/docs/poweron.md"

@@ -2,13 +2,21 @@
 """Tables of scripts/poweron_euroc.sh: per support recording, what `adapt` kept and the mean
 AOE over the other recordings that start with a rest (static-bias exists there).
 
-usage: poweron_euroc_table.py WORK_DIR OUT.json OUT.md  (OUT.md: each set's table replaces the
-text between `<!-- euroc-adapt-SET:begin -->` and `<!-- euroc-adapt-SET:end -->`)."""
+Then, per recording in EuRoC's order, what `adapt` kept when judged on the power-ons before it
+and the mean AOE over the ones after it (held out: neither fitted nor judged).
+
+usage: poweron_euroc_table.py WORK_DIR OUT.json OUT.md  (OUT.md: each set's tables replace the
+text between `<!-- euroc-adapt-SET:begin -->` and `<!-- euroc-adapt-SET:end -->`, and between
+`<!-- euroc-adapt-SET-past:begin -->` and `<!-- euroc-adapt-SET-past:end -->`)."""
 import json
 import os
 import re
 import statistics
 import sys
+
+
+# As scripts/poweron_euroc.sh's JUDGE_POWER_ONS (the node's adapt_judge_power_ons).
+JUDGE_POWER_ONS = int(os.environ.get('JUDGE_POWER_ONS', '3'))
 
 
 def load_report(path):
@@ -24,11 +32,7 @@ def judged_after(entries):
 
 
 def set_rows(work, name):
-    ev = json.load(open(os.path.join(work, name + '.eval.json')))['rows']
-    by = {}
-    for r in ev:
-        if r.get('aoe_deg') is not None:
-            by.setdefault(r['method'], {})[r['bag']] = r['aoe_deg']
+    by = eval_rows(work, name)
     bags = sorted(by['raw'])
     rested = [b for b in bags if b in by.get('static-bias', {})]
     rows = []
@@ -84,6 +88,65 @@ def short(why):
     return why[:50]
 
 
+def carried(c):
+    """The carry-over ratio, its bound over the recordings and over the pieces (the one kept on)."""
+    if not c:
+        return '–'
+    pieces = f"{c['piece_upper_95']:.3f}" if c.get('pieces', 0) >= 2 else 'none'
+    return f"{c['ratio']:.3f} (≤ {c['upper_95']:.3f}; pieces ≤ {pieces})"
+
+
+def eval_rows(work, name):
+    by = {}
+    for r in json.load(open(os.path.join(work, name + '.eval.json')))['rows']:
+        if r.get('aoe_deg') is not None:
+            by.setdefault(r['method'], {})[r['bag']] = r['aoe_deg']
+    return by
+
+
+def past_rows(work, name):
+    """Each recording but the first and last, judged on those before it, scored on those after."""
+    by = eval_rows(work, name)
+    bags = sorted(by['raw'])
+    rested = set(by.get('static-bias', {}))
+    rows = []
+    for i, s in enumerate(bags[1:-1], start=1):
+        later = [b for b in bags[i + 1:] if b in rested]
+        report = load_report(os.path.join(work, name, s + '.past.adapt.json'))
+        log = open(os.path.join(work, name, s + '.past.adapt.log')).read().strip().splitlines()
+        kept = report.get('kind') if report and report.get('accepted') else None
+        row = {'support': s, 'judged_on': bags[max(0, i - JUDGE_POWER_ONS):i], 'later_with_rest': later, 'kept': kept,
+               'verdict': log[-1] if log else '', 'carry_over': report.get('carry_over') if report else None}
+        for key, method in (('static_bias', 'static-bias'), ('power_on_bias', 'power-on-bias')):
+            row[key] = statistics.mean(by[method][b] for b in later) if later else None
+        deployed = dict(by['power-on-bias'])
+        ev = os.path.join(work, name, s + '.past.eval.json')
+        if kept and os.path.exists(ev):
+            deployed = {r['bag']: r['aoe_deg'] for r in json.load(open(ev))['rows'] if r.get('aoe_deg') is not None}
+        row['deployed_per_recording'] = {b: deployed[b] for b in later}
+        row['deployed'] = statistics.mean(deployed[b] for b in later) if later else None
+        row['each'] = ', '.join(f"{deployed[b] / by['power-on-bias'][b]:.2f}" for b in later) if kept else '–'
+        rows.append(row)
+    return rows
+
+
+def past_table(rows):
+    f = lambda v: '–' if v is None else f'{v:.2f}'
+    names = {'calibration': 'gyro calibration', 'calibration_with_offset': 'calibration with the offset', 'network': 'networks'}
+    out = ['| power-on (adapted on its first 60 s) | judged on | kept | carried over on those: ratio (bounds) | later power-ons with a rest | static-bias | power-on bias | as deployed after `adapt` | as deployed / power-on bias, each later one |',
+           '|---|---|---|---|---|---|---|---|---|']
+    for r in rows:
+        kept = names.get(r['kept'], 'refused')
+        if r['kept'] is None:
+            v = r['verdict']
+            kept += ': ' + ('not better on the earlier power-ons' if 'other recordings' in v else 'not better on the query' if 'query' in v else v[:60])
+        out.append(f"| {r['support']} | {', '.join(j.split('_')[0] + '_' + j.split('_')[1] for j in r['judged_on'])} | {kept} | {carried(r['carry_over']) if r['kept'] or r['carry_over'] else '–'} | {len(r['later_with_rest'])} | {f(r['static_bias'])} | {f(r['power_on_bias'])} | {f(r['deployed'])} | {r['each']} |")
+    valid = [r for r in rows if r['later_with_rest']]
+    mean = lambda k: statistics.mean(r[k] for r in valid)
+    out.append(f"| mean | | {sum(1 for r in rows if r['kept'])} of {len(rows)} kept | | | {f(mean('static_bias'))} | {f(mean('power_on_bias'))} | {f(mean('deployed'))} | |")
+    return '\n'.join(out)
+
+
 def table(rows):
     f = lambda v: '–' if v is None else f'{v:.2f}'
     out = ['| support (adapted on its first 60 s) | kept | Ĉ_ω diagonal − 1 (%) | bias offset in motion (mrad/s) | carried over: ratio (95 % bound) over the 10 others | static-bias | power-on bias | gyro calibration alone | with the offset | adapted networks | as deployed after `adapt` | without `--judge`: kept (query pieces: ratio, bound) | as deployed after `adapt` without `--judge` |',
@@ -97,7 +160,7 @@ def table(rows):
         diag = r.get('calibration_diagonal_percent')
         diag = ' / '.join(f'{d:+.2f}' for d in diag) if diag else ('none: ' + short(r['calibration_refused']) if r.get('calibration_refused') else '–')
         c = r.get('carry_over')
-        ratio = f"{c['ratio']:.3f} (≤ {c['upper_95']:.3f})" if c else '–'
+        ratio = carried(c)
         alone = names.get(r.get('alone_kept'), 'refused')
         p = r.get('alone_pieces')
         alone += f" ({p['ratio']:.2f}, ≤ {p['upper_95']:.2f})" if p else ''
@@ -110,11 +173,13 @@ def table(rows):
 def main():
     work, out_json, out_md = sys.argv[1:4]
     result = {name: set_rows(work, name) for name in ('recorded', 'injected')}
-    json.dump(result, open(out_json, 'w'), indent=1)
+    past = {name: past_rows(work, name) for name in ('recorded', 'injected')}
+    json.dump({**result, 'judged_on_the_past': past}, open(out_json, 'w'), indent=1)
     md = open(out_md).read()
-    for name, rows in result.items():
-        begin, end = f'<!-- euroc-adapt-{name}:begin -->', f'<!-- euroc-adapt-{name}:end -->'
-        md = re.sub(re.escape(begin) + '.*?' + re.escape(end), lambda _: f'{begin}\n{table(rows)}\n{end}', md, flags=re.S)
+    for key, tables, render in (('', result, table), ('-past', past, past_table)):
+        for name, rows in tables.items():
+            begin, end = f'<!-- euroc-adapt-{name}{key}:begin -->', f'<!-- euroc-adapt-{name}{key}:end -->'
+            md = re.sub(re.escape(begin) + '.*?' + re.escape(end), lambda _: f'{begin}\n{render(rows)}\n{end}', md, flags=re.S)
     open(out_md, 'w').write(md)
 
 

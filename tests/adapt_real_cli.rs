@@ -97,21 +97,28 @@ fn a_gyro_calibration_learned_on_one_real_power_on_carries_to_another() {
         }
     }
 
-    // Every candidate that passed the query was judged on the other power-on; the one kept
-    // carries over best, and the calibration alone is far better than the rest calibration
-    // there.
+    // Every candidate that passed the query was judged on the other power-on; the plainest
+    // that carries over is kept (a richer one only where surely better), and the calibration
+    // alone is far better than the rest calibration there.
     assert!(out.exists(), "{err}");
     let aoe = |judged: &serde_json::Value| judged[0]["after"]["aoe_deg"].as_f64().unwrap_or_else(|| panic!("no figures in {injected}"));
-    let kept = aoe(&injected["judged"]);
     let others = injected["judged_others"].as_array().unwrap_or_else(|| panic!("no judged_others in {injected}"));
+    let rank = |kind: &serde_json::Value| ["calibration", "calibration_with_offset", "network"].iter().position(|k| kind == k);
     for other in others {
-        assert!(kept <= aoe(&other["judged"]), "kept {kept}° against {}: {}°\n{err}", other["kind"], aoe(&other["judged"]));
+        let carries =
+            other["carry_over"]["ratio"].as_f64().unwrap() < 1.0 && other["carry_over"]["piece_upper_95"].as_f64().is_some_and(|b| b < 1.0);
+        assert!(
+            !carries || rank(&other["kind"]) > rank(&injected["kind"]),
+            "{} carries over and is plainer than the kept {}\n{err}",
+            other["kind"],
+            injected["kind"]
+        );
     }
     let calibration = match others.iter().find(|o| o["kind"] == "calibration") {
         Some(o) => aoe(&o["judged"]),
         None => {
             assert_eq!(injected["kind"], "calibration", "the calibration alone was judged: {injected}");
-            kept
+            aoe(&injected["judged"])
         }
     };
     let pob = injected["judged"][0]["power_on_bias"]["aoe_deg"].as_f64().unwrap();
@@ -161,27 +168,38 @@ fn without_another_power_on_only_what_lasts_is_kept() {
 }
 
 /// EuRoC as recorded: V1_03's bias in flight is off the one its rest measured (the offset its
-/// support shows, a few mrad/s). Judged on three other power-ons, the calibration with that
-/// offset carries over and is kept, and the model written runs as judged; adapted on V1_03
-/// alone it is never kept (within one power-on a lasting offset and a drift look the same).
+/// support shows, a few mrad/s). Judged on the three power-ons before it (as the node's
+/// `adapt_support_archive` judges), the calibration with that offset carries over piece by
+/// piece and is kept, and on a later power-on that neither fitted nor judged it (V2_01) it
+/// is better than the power-on bias. The adapted networks are better than the power-on bias
+/// on those three too, but not better than the model they started from, which was trained on
+/// this IMU: not kept (held out, they were 2–3× the power-on bias). Adapted on V1_03 alone
+/// the offset is never kept (within one power-on a lasting offset and a drift look the same).
 #[test]
 fn a_bias_offset_in_motion_is_kept_only_where_other_power_ons_show_it_lasts() {
     let Some(data) = shared_data() else { return };
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
     let support = import(&data, "V1_03_difficult", d);
-    let (v102, v201, v202) = (import(&data, "V1_02_medium", d), import(&data, "V2_01_easy", d), import(&data, "V2_02_medium", d));
+    let earlier = [import(&data, "MH_05_difficult", d), import(&data, "V1_01_easy", d), import(&data, "V1_02_medium", d)];
+    let later = import(&data, "V2_01_easy", d);
 
     let out = d.join("judged.pt");
-    let (judged, err) = adapt(&support, &[&v102, &v201, &v202], &out);
+    let (judged, err) = adapt(&support, &earlier.iter().map(PathBuf::as_path).collect::<Vec<_>>(), &out);
     assert!(judged["query_calibrated_with_offset"]["aoe_deg"].is_f64(), "the support determines an offset: {judged}");
     assert_eq!(judged["kind"], "calibration_with_offset", "{err}");
     let carry = &judged["carry_over"];
-    assert!(carry["upper_95"].as_f64().unwrap() < 1.0 && carry["recordings"] == 3, "{carry}");
-    let (deployed, pob) = deployed_and_power_on_bias(&out, &v102, d);
-    let as_judged = judged["judged"][0]["after"]["aoe_deg"].as_f64().unwrap();
-    eprintln!("V1_02: adapted on V1_03 with the offset {deployed:.3}° (judged {as_judged:.3}°), power-on bias {pob:.3}°");
-    assert!((deployed - as_judged).abs() < 0.01 && deployed < pob, "V1_02 {deployed}° (judged {as_judged}°) against {pob}°\n{err}");
+    assert!(carry["recordings"] == 3 && carry["ratio"].as_f64().unwrap() < 1.0, "{carry}");
+    assert!(carry["pieces"].as_u64().unwrap() >= 10 && carry["piece_upper_95"].as_f64().unwrap() < 1.0, "{carry}");
+    let networks = judged["judged_others"].as_array().unwrap().iter().find(|o| o["kind"] == "network");
+    let networks = networks.unwrap_or_else(|| panic!("the networks passed the query and were judged: {judged}"));
+    for j in networks["judged"].as_array().unwrap() {
+        let (before, pob) = (j["before"]["aoe_deg"].as_f64().unwrap(), j["power_on_bias"]["aoe_deg"].as_f64().unwrap());
+        assert_eq!(j["compared_with_deg"].as_f64().unwrap(), before.min(pob), "the networks against the better of the two: {j}");
+    }
+    let (deployed, pob) = deployed_and_power_on_bias(&out, &later, d);
+    eprintln!("V2_01 (held out): adapted on V1_03 with the offset {deployed:.3}°, power-on bias {pob:.3}°");
+    assert!(deployed < pob, "V2_01 {deployed}° against {pob}°\n{err}");
 
     let out = d.join("alone.pt");
     let (alone, err) = adapt(&support, &[], &out);

@@ -42,20 +42,38 @@ pub fn piece_confidence(
     without: &[Vector3<f64>],
     opts: &EvalOptions,
 ) -> Option<PieceConfidence> {
-    let logs: Vec<f64> = piece_bounds(rec)
-        .into_iter()
-        .filter_map(|(a, b)| {
-            let piece = piece_of(rec, a, b);
-            let with = evaluate(&piece, &candidate[a..b], opts).ok()?.aoe_deg;
-            let base = evaluate(&piece, &without[a..b], opts).ok()?.aoe_deg;
-            (with > 0.0 && base > 0.0 && with.is_finite() && base.is_finite()).then(|| (with / base).ln())
-        })
-        .collect();
+    let logs: Vec<f64> = piece_log_ratios(rec, candidate, without, opts, 0).into_iter().filter(|l| l.is_finite()).collect();
     if logs.is_empty() {
         return None;
     }
     let c = CarryOver::of_log_ratios(&logs);
     Some(PieceConfidence { ratio: c.ratio, upper_95: c.upper_95, pieces: logs.len(), piece_seconds: QUERY_PIECE_S })
+}
+
+/// ln(AOE with `candidate` / AOE with `without`) on each piece of `rec` that starts at sample
+/// `from` or later (the pieces as [`piece_confidence`] cuts them); NaN for a piece that could
+/// not be scored, so two candidates' pieces line up.
+pub fn piece_log_ratios(
+    rec: &Recording,
+    candidate: &[Vector3<f64>],
+    without: &[Vector3<f64>],
+    opts: &EvalOptions,
+    from: usize,
+) -> Vec<f64> {
+    piece_bounds(rec)
+        .into_iter()
+        .filter(|&(a, _)| a >= from)
+        .map(|(a, b)| {
+            let piece = piece_of(rec, a, b);
+            let aoe = |gyro: &[Vector3<f64>]| evaluate(&piece, gyro, opts).map_or(f64::NAN, |e| e.aoe_deg);
+            let (with, base) = (aoe(&candidate[a..b]), aoe(&without[a..b]));
+            if with > 0.0 && base > 0.0 && with.is_finite() && base.is_finite() {
+                (with / base).ln()
+            } else {
+                f64::NAN
+            }
+        })
+        .collect()
 }
 
 /// Index ranges `[a, b)` of the IMU samples in each piece.

@@ -120,6 +120,17 @@ impl AdaptReport {
 }
 
 impl AdaptedKind {
+    /// How much of the IMU a candidate claims to know, fewest lasting parameters first: the
+    /// judge keeps a richer candidate only where it is better than a plainer one that also
+    /// carries over.
+    pub fn complexity(self) -> u8 {
+        match self {
+            AdaptedKind::Calibration => 0,
+            AdaptedKind::CalibrationWithOffset => 1,
+            AdaptedKind::Network => 2,
+        }
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             AdaptedKind::Network => "the adapted networks",

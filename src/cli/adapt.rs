@@ -359,10 +359,11 @@ fn judge_on_other_recordings(
     let r = &outcome.report;
     let say = |what: &str, c: &CarryOver| {
         eprintln!(
-            "on the other recordings: AOE with {what} / without adapting {:.3} (geometric mean {}, 95 % upper bound {:.3})",
+            "on the other recordings: AOE with {what} / without adapting {:.3} (geometric mean {}; 95 % upper bound {:.3} over the recordings, {} over the pieces)",
             c.ratio,
             c.over(),
-            c.upper_95
+            c.upper_95,
+            c.piece_upper_95.filter(|_| c.pieces >= 2).map_or("none".to_string(), |b| format!("{b:.3}"))
         )
     };
     if let Some(c) = &r.carry_over {
