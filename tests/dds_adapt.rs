@@ -376,6 +376,7 @@ fn adapt_service_answers_when_it_cannot_adapt() {
         assert_eq!(replies.len(), 1, "{tag}: one call, one reply that names it\n{logs}");
         let msg = replies[0]["message"].as_str().unwrap_or("").to_string();
         assert!(replies[0]["success"] == false && msg.contains("no model is loaded"), "{tag}: reply {}\n{logs}", replies[0]);
+        assert_eq!(o.node_stats["adapt_calls_refused"], 1, "{tag}: the refused call counted\n{logs}");
         (o, msg)
     };
 
@@ -390,6 +391,26 @@ fn adapt_service_answers_when_it_cannot_adapt() {
     let cyclone = dir.path().join("params_cyclone.yaml");
     std::fs::write(&cyclone, format!("{NODE_NAME}:\n  ros__parameters:\n    adapt_enabled: true\n    service_mapping: cyclone\n")).unwrap();
     call_without_model("cyclone_mapping", &cyclone, &["--service-mapping", "cyclone"]);
+
+    // ---- a flood of calls: each answered and counted, the log one line a second.
+    let mut peer_args = csv_args.to_vec();
+    peer_args.extend(["--count", "2000", "--requests", "3x50", "--after-s", "1", "--no-ground-truth-reader"]);
+    let params = write_params(dir.path(), &adapted_dir);
+    let o = run(
+        &pre,
+        dir.path(),
+        "flood",
+        &["--params", params.to_str().unwrap(), "--model", ""],
+        "adapt_peer.py",
+        &peer_args,
+        RESTART_RUN_TIMEOUT,
+    );
+    let logs = &o.logs;
+    assert_eq!(o.rc, vec![0, 0], "flood: peer / node exit codes\n{logs}");
+    assert_eq!(o.peer["replies"].as_array().unwrap().len(), 50, "flood: every call answered\n{logs}");
+    assert_eq!(o.node_stats["adapt_calls_refused"], 50, "flood: every call counted\n{logs}");
+    let lines = logs.matches("(refused: ").count();
+    assert!((1..=5).contains(&lines), "flood: {lines} log lines for 50 calls\n{logs}");
 
     // ---- stopped while adapting: a long inner loop, SIGTERM 2 s after the call.
     let params = write_params_with(dir.path(), &adapted_dir, "params_long.yaml", 1_000_000, 60.0);

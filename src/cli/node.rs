@@ -151,7 +151,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
                 "latency_max_us": stats.latency.max_us(), "latency_samples": stats.latency.count(), "frame_changes": stats.frame_changes, "decode_errors": stats.decode_errors,
                 "input_writers": stats.input_sequences.writers(), "input_published_before_first": stats.input_sequences.before_first,
                 "input_lost": stats.input_sequences.lost, "input_out_of_order": stats.input_sequences.out_of_order,
-                "model": stats.model, "adaptation": stats.adapt_status, "adapt_requested_by": stats.adapt_requested_by, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
+                "model": stats.model, "adaptation": stats.adapt_status, "adapt_requested_by": stats.adapt_requested_by, "adapt_calls_refused": stats.adapt_calls_refused, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
                 "latency_by_adaptation_state": stats.split_latency.summary_json(),
                 "latency_by_stage": stats.stage_latency.summary_json(),
                 "correction": stats.correction, "power_on_bias": stats.power_on_bias, "power_on_bias_from": stats.power_on_bias_from, "power_on_bias_retakes": stats.power_on_bias_retakes, "power_on_bias_memory": stats.power_on_bias_memory,

@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 
 use futures::StreamExt;
 
+use super::log_throttle::{self, LogThrottle, LOG_EVERY};
 use super::support_archive::SupportArchive;
 use super::{AdaptSetup, NodeParams, NodeStats, TriggerRequest, TriggerResponse};
 use crate::adapt::swap::{warm_up, Buffers, SeqSample, SwapHandle};
@@ -96,6 +97,7 @@ pub(super) async fn service_loop(
     let mut running: Option<(ros2_client::RmwRequestId, tokio::sync::oneshot::Receiver<JobResult>, Instant)> = None;
     // Started with the node: its start names this power-on's supports.
     let archive = SupportArchive::new(&params.adapt_support_archive, params.adapt_judge_power_ons).map(Arc::new);
+    let mut refused_log = LogThrottle::new(LOG_EVERY);
     loop {
         let finished = async {
             match running.as_mut() {
@@ -113,14 +115,20 @@ pub(super) async fn service_loop(
                     }
                 };
                 let caller = caller_of(&id);
-                // At the default level: a call may change the model the node runs.
-                tracing::warn!("~/adapt called by {caller}");
                 stats.lock().expect("stats lock").adapt_requested_by.clone_from(&caller);
                 if let Some((_, _, started)) = &running {
+                    // Refused, the model untouched: a flood of these is one line a second.
+                    stats.lock().expect("stats lock").adapt_calls_refused += 1;
+                    if let Some(n) = refused_log.admit(Instant::now()) {
+                        tracing::warn!("~/adapt called by {caller} while an adaptation runs: refused{}", log_throttle::unsaid(n));
+                    }
                     let msg = format!("an adaptation is already running (started {:.1} s ago); the current model keeps running — call again when it ends", started.elapsed().as_secs_f64());
                     respond(server, id, false, msg).await;
                     continue;
                 }
+                // At the default level: a call that starts an adaptation may change the model
+                // the node runs.
+                tracing::warn!("~/adapt called by {caller}");
                 let (imu, gt): (Vec<SeqSample>, Vec<crate::core::PoseSample>) = {
                     let b = buffers.lock().expect("buffers lock");
                     (b.imu.iter().copied().collect(), b.ground_truth.iter().copied().collect())
@@ -202,12 +210,19 @@ pub(super) async fn refusing_service_loop(
     why: &str,
     stats: &Mutex<NodeStats>,
 ) {
+    let mut refused_log = LogThrottle::new(LOG_EVERY);
     loop {
         match server.async_receive_request().await {
             Ok((id, _)) => {
                 let caller = caller_of(&id);
-                tracing::warn!("~/adapt called by {caller} (refused: {why})");
-                stats.lock().expect("stats lock").adapt_requested_by = caller;
+                if let Some(n) = refused_log.admit(Instant::now()) {
+                    tracing::warn!("~/adapt called by {caller} (refused: {why}){}", log_throttle::unsaid(n));
+                }
+                {
+                    let mut s = stats.lock().expect("stats lock");
+                    s.adapt_requested_by = caller;
+                    s.adapt_calls_refused += 1;
+                }
                 respond(server, id, false, format!("cannot adapt: {why}")).await
             }
             Err(e) => tracing::warn!("~/adapt request: {e:?}"),

@@ -8,6 +8,7 @@ mod adaptation;
 mod environment;
 mod input_sequence;
 mod latency;
+mod log_throttle;
 mod messages;
 mod params;
 mod power_on;
@@ -379,6 +380,8 @@ async fn process_loop(
     let mut last_frame: Option<String> = None;
     let mut frame_warnings = FrameWarnings::default();
     let mut sequences = input_sequence::InputSequences::default();
+    // A peer publishing another type on the input topic errs at its rate: one line a second.
+    let mut decode_log = log_throttle::LogThrottle::new(log_throttle::LOG_EVERY);
     loop {
         // Idle counts from the first input, published or dropped (an all-NaN stream ends too).
         let next = match limits.idle_exit {
@@ -398,7 +401,9 @@ async fn process_loop(
                 (m, info.source_timestamp().map(|t| t.to_nanos()))
             }
             Err(e) => {
-                tracing::warn!("input decode error: {e:?}");
+                if let Some(n) = decode_log.admit(Instant::now()) {
+                    tracing::warn!("input decode error: {e:?}{}", log_throttle::unsaid(n));
+                }
                 stats.lock().expect("stats lock").decode_errors += 1;
                 continue;
             }

@@ -58,6 +58,9 @@ pub struct NodeStats {
     pub adapt_seconds: Option<f64>,
     /// The DDS identity of the last `~/adapt` caller ([`super::adaptation::caller_of`]).
     pub adapt_requested_by: String,
+    /// `~/adapt` calls refused (one already running, or the service cannot adapt): counted
+    /// every one, logged at most once a second.
+    pub adapt_calls_refused: u64,
     /// Latencies split by adaptation state (recorded only when the service is on).
     pub split_latency: SplitLatency,
     /// The in-node latency by stage, and DDS receive before it.
@@ -237,6 +240,7 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         values.push(kv("adapt_query_aoe_after_deg", f(stats.adapt_query_aoe_after_deg)));
         values.push(kv("adapt_seconds", f(stats.adapt_seconds)));
         values.push(kv("adapt_requested_by", stats.adapt_requested_by.clone()));
+        values.push(kv("adapt_calls_refused", stats.adapt_calls_refused.to_string()));
         for (i, state) in ["idle", "adapting"].iter().enumerate() {
             let h = &stats.split_latency.in_node[i];
             values.push(kv(&format!("latency_{state}_p99_us"), format!("{:.0}", h.quantile_us(0.99))));
