@@ -413,7 +413,8 @@ pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name:
 }
 
 /// Removes the power-on bias in force at each sample (the node's [`crate::standstill`] rule,
-/// run over support then query as one stream) from both sets; the support's estimate. A
+/// run over support then query as one stream) from both sets, and the support's estimate from
+/// the support's samples before its first standstill; returns that estimate. A
 /// support without a standstill takes `known` (measured earlier in this power-on) off every
 /// sample instead, or is refused with [`AdaptError::NoStandstill`].
 pub fn remove_power_on_bias(
@@ -438,11 +439,15 @@ pub fn remove_power_on_bias(
         }
         return Ok(*known);
     };
-    // The bias in force at each sample of the one stream, as the node would have it.
+    // The bias in force at each sample of the one stream, as the node would have it …
     let whole: Vec<_> = support.imu.iter().chain(&query.imu).copied().collect();
     let track = crate::standstill::BiasTrack::over(&whole, cfg);
-    for (s, b) in support.imu.iter_mut().chain(query.imu.iter_mut()).zip(&track.bias) {
-        s.gyro -= b;
+    // … but what is learned from, the support, is all past when adapting: before its first
+    // standstill it takes the bias the support measured (a platform that sets off before it
+    // stands would otherwise teach its whole turn-on bias as an offset in motion).
+    let first_known = track.still.first().map_or(0, |&(_, end)| end).min(support.imu.len());
+    for (i, (s, b)) in support.imu.iter_mut().chain(query.imu.iter_mut()).zip(&track.bias).enumerate() {
+        s.gyro -= if i < first_known { estimate.bias } else { *b };
     }
     Ok(estimate)
 }
@@ -504,6 +509,32 @@ mod tests {
         assert_eq!(used, known);
         for (after, before) in support.imu.iter().chain(&query.imu).zip(raw.0.imu.iter().chain(&raw.1.imu)) {
             assert!((before.gyro - after.gyro - bias).amax() < 1e-15);
+        }
+    }
+
+    /// A platform that sets off, then stands: the support learns from its samples before the
+    /// standstill with the bias the standstill measured (it is all past when adapting); the
+    /// query keeps the bias in force as the node had it.
+    #[test]
+    fn a_support_that_moves_before_it_stands_is_debiased_from_its_start() {
+        let bias = Vector3::new(0.02, -0.01, 0.03);
+        let cfg = crate::standstill::StandstillConfig { in_motion: crate::standstill::InMotion::Off, ..Default::default() };
+        let mut support = moving(1.0, 10.0, bias);
+        let rest_from = support.imu.len();
+        support.imu.extend((0..600).map(|k| ImuSample {
+            stamp_ns: ((11.0 + k as f64 * 0.005) * 1e9) as i64,
+            gyro: bias,
+            accel: Vector3::new(0.0, 0.0, 9.81),
+        }));
+        let mut query = moving(14.0, 5.0, bias);
+        let raw = (support.clone(), query.clone());
+        let estimate = remove_power_on_bias(&mut support, &mut query, &cfg, None).unwrap();
+        assert!((estimate.bias - bias).amax() < 1e-9, "{estimate:?}");
+        for (after, before) in support.imu[..rest_from].iter().zip(&raw.0.imu) {
+            assert!((before.gyro - after.gyro - estimate.bias).amax() < 1e-15, "before the standstill");
+        }
+        for (after, before) in query.imu.iter().zip(&raw.1.imu) {
+            assert!((before.gyro - after.gyro - estimate.bias).amax() < 1e-9, "the query, after it");
         }
     }
 }
