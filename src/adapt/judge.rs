@@ -4,7 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::pieces::{piece_log_ratios, QUERY_PIECE_S};
+use super::pieces::{log_ratios, piece_aoe, QUERY_PIECE_S};
 use super::{to_task, AdaptConfig, AdaptError, AdaptOutcome, AdaptedKind, JudgedCandidate};
 use crate::core::Recording;
 use crate::eval::{evaluate, EvalOptions, OrientationErrors};
@@ -86,11 +86,17 @@ pub fn judge_each(
         }
         None => (None, raw_gyro),
     };
-    // The starting model over the same samples, for the networks' comparison piece by piece.
-    let start_gyro =
-        with_correction_gain(&rec.imu, correct_with_net(&inference(start, task.calibration_row), &rec.imu)?, start.correction_gain());
     // Pieces from the end of the first standstill: before it neither side has the bias removed.
     let from = track.still.first().map_or(0, |&(_, end)| end);
+    let without_pieces = piece_aoe(&rec, &without_gyro, &eopts, from);
+    // The starting model piece by piece, for the adapted networks' comparison (only with them).
+    let start_pieces = if adapted.iter().any(|(kind, _)| *kind == AdaptedKind::Network) {
+        let gyro = correct_with_net(&inference(start, task.calibration_row), &rec.imu)?;
+        Some(piece_aoe(&rec, &with_correction_gain(&rec.imu, gyro, start.correction_gain()), &eopts, from))
+    } else {
+        None
+    };
+    let without = power_on_bias.as_ref().map_or(raw.aoe_deg.min(before.aoe_deg), |e| e.aoe_deg);
     let debiased = track.debiased(&rec.imu);
     adapted
         .iter()
@@ -107,11 +113,12 @@ pub fn judge_each(
             } else {
                 evaluate_net(&model.net, &task, &eopts)?
             };
-            let without = power_on_bias.as_ref().map_or(raw.aoe_deg.min(before.aoe_deg), |e| e.aoe_deg);
             // The adapted networks start from the starting model's: where it is the better of the
             // two here (an IMU it was trained on, left unnamed), their gain is not the adaptation's.
-            let start_rules = kind == AdaptedKind::Network && before.aoe_deg < without;
-            let (compared_with, compared_gyro) = if start_rules { (before.aoe_deg, &start_gyro) } else { (without, &without_gyro) };
+            let (compared_with, compared_pieces) = match &start_pieces {
+                Some(p) if kind == AdaptedKind::Network && before.aoe_deg < without => (before.aoe_deg, p),
+                _ => (without, &without_pieces),
+            };
             Ok(Judged {
                 recording: rec.name.clone(),
                 raw: raw.clone(),
@@ -119,7 +126,7 @@ pub fn judge_each(
                 before: before.clone(),
                 after,
                 compared_with_deg: Some(compared_with),
-                piece_log_ratios: piece_log_ratios(&rec, &after_gyro, compared_gyro, &eopts, from),
+                piece_log_ratios: log_ratios(&piece_aoe(&rec, &after_gyro, &eopts, from), compared_pieces),
             })
         })
         .collect()

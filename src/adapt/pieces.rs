@@ -60,19 +60,24 @@ pub fn piece_log_ratios(
     opts: &EvalOptions,
     from: usize,
 ) -> Vec<f64> {
+    log_ratios(&piece_aoe(rec, candidate, opts, from), &piece_aoe(rec, without, opts, from))
+}
+
+/// AOE of `gyro` on each piece of `rec` from sample `from` on, each integrated from the ground
+/// truth at its start; NaN where a piece cannot be scored.
+pub fn piece_aoe(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOptions, from: usize) -> Vec<f64> {
     piece_bounds(rec)
         .into_iter()
         .filter(|&(a, _)| a >= from)
-        .map(|(a, b)| {
-            let piece = piece_of(rec, a, b);
-            let aoe = |gyro: &[Vector3<f64>]| evaluate(&piece, gyro, opts).map_or(f64::NAN, |e| e.aoe_deg);
-            let (with, base) = (aoe(&candidate[a..b]), aoe(&without[a..b]));
-            if with > 0.0 && base > 0.0 && with.is_finite() && base.is_finite() {
-                (with / base).ln()
-            } else {
-                f64::NAN
-            }
-        })
+        .map(|(a, b)| evaluate(&piece_of(rec, a, b), &gyro[a..b], opts).map_or(f64::NAN, |e| e.aoe_deg))
+        .collect()
+}
+
+/// ln(with / base) piece by piece; NaN where either is not a positive finite AOE.
+pub fn log_ratios(with: &[f64], base: &[f64]) -> Vec<f64> {
+    with.iter()
+        .zip(base)
+        .map(|(&w, &b)| if w > 0.0 && b > 0.0 && w.is_finite() && b.is_finite() { (w / b).ln() } else { f64::NAN })
         .collect()
 }
 
