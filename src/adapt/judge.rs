@@ -167,9 +167,8 @@ impl CarryOver {
     /// AOE shows the lasting errors rather than an unremoved bias's 100°), or all of them where
     /// none has one.
     pub fn of(judged: &[Judged]) -> Self {
-        let rested: Vec<&Judged> = judged.iter().filter(|j| j.power_on_bias.is_some()).collect();
-        let with_standstill_only = !rested.is_empty();
-        let used = if with_standstill_only { rested } else { judged.iter().collect() };
+        let with_standstill_only = any_with_standstill(judged);
+        let used: Vec<&Judged> = judged.iter().filter(|j| counts(j, with_standstill_only)).collect();
         let logs: Vec<f64> = used.iter().map(|j| (j.after.aoe_deg / j.compared_with()).ln()).collect();
         let piece_logs: Vec<f64> = used.iter().flat_map(|j| j.piece_log_ratios.iter().copied()).filter(|l| l.is_finite()).collect();
         let pieces = (!piece_logs.is_empty()).then(|| Self::of_log_ratios(&piece_logs));
@@ -210,6 +209,11 @@ impl CarryOver {
     /// over whole recordings wide; the pieces judge the same gain where it shows.
     pub fn carries_over(&self) -> bool {
         self.ratio < 1.0 && self.pieces >= 2 && self.piece_upper_95.is_some_and(|b| b < 1.0)
+    }
+
+    /// The bound over the pieces for messages ("none" with fewer than two).
+    pub fn piece_bound_said(&self) -> String {
+        self.piece_upper_95.filter(|_| self.pieces >= 2).map_or("none".to_string(), |b| format!("{b:.3}"))
     }
 
     /// "over N recordings[ with a standstill] (M pieces of 10 s)", for messages.
@@ -274,10 +278,20 @@ pub fn keep_judged(
             c.ratio,
             c.over(),
             c.upper_95,
-            c.piece_upper_95.filter(|_| c.pieces >= 2).map_or("none".to_string(), |b| format!("{b:.3}"))
+            c.piece_bound_said()
         );
     }
     Ok(())
+}
+
+/// Some judged recording has a standstill: only those count then ([`CarryOver::of`]).
+fn any_with_standstill(judged: &[Judged]) -> bool {
+    judged.iter().any(|j| j.power_on_bias.is_some())
+}
+
+/// `j` counts toward a carry-over: it has a standstill, or none judged has one.
+fn counts(j: &Judged, with_standstill_only: bool) -> bool {
+    !with_standstill_only || j.power_on_bias.is_some()
 }
 
 /// The candidate kept among those that carry over: the plainest (fewest lasting parameters,
@@ -303,11 +317,11 @@ fn simplest_that_carries_over(judged: &[JudgedCandidate]) -> Option<usize> {
 /// AOE of `richer` over that of `plainer`, piece by piece on the recordings both were judged on
 /// (those with a standstill where any has one): its geometric mean and one-sided 95 % bound.
 fn paired_piece_gain(richer: &[Judged], plainer: &[Judged]) -> Option<CarryOver> {
-    let any_rested = richer.iter().any(|j| j.power_on_bias.is_some());
+    let with_standstill_only = any_with_standstill(richer);
     let logs: Vec<f64> = richer
         .iter()
         .zip(plainer)
-        .filter(|(j, _)| !any_rested || j.power_on_bias.is_some())
+        .filter(|(j, _)| counts(j, with_standstill_only))
         .flat_map(|(a, b)| a.piece_log_ratios.iter().zip(&b.piece_log_ratios).map(|(x, y)| x - y))
         .filter(|d| d.is_finite())
         .collect();

@@ -53,19 +53,13 @@ pub fn piece_confidence(
 /// ln(AOE with `candidate` / AOE with `without`) on each piece of `rec` that starts at sample
 /// `from` or later (the pieces as [`piece_confidence`] cuts them); NaN for a piece that could
 /// not be scored, so two candidates' pieces line up.
-pub fn piece_log_ratios(
-    rec: &Recording,
-    candidate: &[Vector3<f64>],
-    without: &[Vector3<f64>],
-    opts: &EvalOptions,
-    from: usize,
-) -> Vec<f64> {
+fn piece_log_ratios(rec: &Recording, candidate: &[Vector3<f64>], without: &[Vector3<f64>], opts: &EvalOptions, from: usize) -> Vec<f64> {
     log_ratios(&piece_aoe(rec, candidate, opts, from), &piece_aoe(rec, without, opts, from))
 }
 
 /// AOE of `gyro` on each piece of `rec` from sample `from` on, each integrated from the ground
 /// truth at its start; NaN where a piece cannot be scored.
-pub fn piece_aoe(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOptions, from: usize) -> Vec<f64> {
+pub(super) fn piece_aoe(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOptions, from: usize) -> Vec<f64> {
     piece_bounds(rec)
         .into_iter()
         .filter(|&(a, _)| a >= from)
@@ -74,7 +68,7 @@ pub fn piece_aoe(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOptions, fro
 }
 
 /// ln(with / base) piece by piece; NaN where either is not a positive finite AOE.
-pub fn log_ratios(with: &[f64], base: &[f64]) -> Vec<f64> {
+pub(super) fn log_ratios(with: &[f64], base: &[f64]) -> Vec<f64> {
     with.iter()
         .zip(base)
         .map(|(&w, &b)| if w > 0.0 && b > 0.0 && w.is_finite() && b.is_finite() { (w / b).ln() } else { f64::NAN })

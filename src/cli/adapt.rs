@@ -363,7 +363,7 @@ fn judge_on_other_recordings(
             c.ratio,
             c.over(),
             c.upper_95,
-            c.piece_upper_95.filter(|_| c.pieces >= 2).map_or("none".to_string(), |b| format!("{b:.3}"))
+            c.piece_bound_said()
         )
     };
     if let Some(c) = &r.carry_over {

@@ -351,12 +351,7 @@ impl Job {
         crate::adapt::keep_judged(start, &mut outcome, &earlier.recordings, &self.cfg, |_| {})?;
         let n = earlier.recordings.len();
         let ratio = outcome.report.carry_over.map_or(String::new(), |c| {
-            format!(
-                ": AOE adapted / without {:.3} (95 % bound over {} pieces {})",
-                c.ratio,
-                c.pieces,
-                c.piece_upper_95.map_or("none".to_string(), |b| format!("{b:.3}"))
-            )
+            format!(": AOE adapted / without {:.3} (95 % bound over {} pieces {})", c.ratio, c.pieces, c.piece_bound_said())
         });
         let said = format!("judged on {n} earlier power-on{}{ratio}{skipped}", if n == 1 { "" } else { "s" });
         Ok((outcome, said))
