@@ -11,6 +11,7 @@ mod latency;
 mod log_throttle;
 mod messages;
 mod params;
+mod peer_check;
 mod power_on;
 mod status;
 mod support_archive;
@@ -30,7 +31,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use futures::StreamExt;
-use ros2_client::{NodeName, NodeOptions, ParameterValue, QosProfile};
+use ros2_client::{MessageTypeName, NodeName, NodeOptions, ParameterValue, QosProfile};
 
 use crate::adapt::swap::{Buffers, SeqSample, SwapHandle};
 use crate::infer::{CorrectedImu, Pipeline};
@@ -152,16 +153,12 @@ pub async fn run_node_with_adaptation(
     if params.use_sim_time {
         options = options.declare_parameter("use_sim_time", ParameterValue::Boolean(true));
     }
-    let mut node = context
-        .new_node(
-            NodeName::new("/", node_name).map_err(|e| NodeError::Invalid {
-                what: "node name",
-                value: node_name.into(),
-                why: format!("{e:?}"),
-            })?,
-            options,
-        )
-        .map_err(|e| NodeError::Dds(format!("node: {e:?}")))?;
+    let ros_node_name = NodeName::new("/", node_name).map_err(|e| NodeError::Invalid {
+        what: "node name",
+        value: node_name.into(),
+        why: format!("{e:?}"),
+    })?;
+    let mut node = context.new_node(ros_node_name.clone(), options).map_err(|e| NodeError::Dds(format!("node: {e:?}")))?;
 
     let depth = params.queue_depth.max(1);
     let sensor_qos = sensor_data_qos(depth);
@@ -176,7 +173,7 @@ pub async fn run_node_with_adaptation(
     let subscription = node.create_subscription::<Imu>(&input_topic, Some(sensor_qos.clone())).map_err(dds)?;
     let out_pub = node.create_publisher::<Imu>(&output_topic, Some(reliable_qos.clone())).map_err(dds)?;
     let corr_pub = node.create_publisher::<Vector3Stamped>(&correction_topic, Some(reliable_qos.clone())).map_err(dds)?;
-    let diag_pub = node.create_publisher::<DiagnosticArray>(&diag_topic, Some(reliable_qos)).map_err(dds)?;
+    let diag_pub = node.create_publisher::<DiagnosticArray>(&diag_topic, Some(reliable_qos.clone())).map_err(dds)?;
     let (adapt, unavailable) = match adapt {
         _ if !params.adapt_enabled => (None, None),
         AdaptService::Off => (None, None),
@@ -223,6 +220,27 @@ pub async fn run_node_with_adaptation(
     }
     let retake_server =
         if params.pipeline.power_on_bias { Some(power_on::retake_server(&mut node, node_name, params.service_mapping)?) } else { None };
+    let mut peer_check = {
+        let endpoint = |topic: &str, type_name: MessageTypeName, qos: &QosProfile, writes: bool| {
+            Ok::<_, NodeError>(peer_check::OwnEndpoint::new(&topic_name(topic)?, &ros_node_name, &type_name, qos, writes))
+        };
+        let mut own = vec![
+            endpoint(&params.input_topic, type_name::<Imu>(), &sensor_qos, false)?,
+            endpoint(&params.output_topic, type_name::<Imu>(), &reliable_qos, true)?,
+            endpoint(&params.correction_topic, type_name::<Vector3Stamped>(), &reliable_qos, true)?,
+            endpoint(&params.diagnostics_topic, type_name::<DiagnosticArray>(), &reliable_qos, true)?,
+        ];
+        let gt_type = match &gt_source {
+            Some(GroundTruthSub::Pose(_)) => Some(type_name::<crate::msg::PoseStamped>()),
+            Some(GroundTruthSub::Odometry(_)) => Some(type_name::<crate::msg::Odometry>()),
+            None => None,
+        };
+        if let Some(t) = gt_type {
+            own.push(endpoint(&params.ground_truth_topic, t, &sensor_data_qos(depth.max(50)), false)?);
+        }
+        peer_check::PeerCheck::new(own)
+    };
+    let participant = context.domain_participant();
     let spinner = node.spinner().map_err(dds)?;
 
     let memory_writer = power_on::BiasMemoryWriter::new(&params.power_on_bias_memory, &pipeline);
@@ -289,9 +307,16 @@ pub async fn run_node_with_adaptation(
         let mut clock = StatusClock::default();
         loop {
             tick.tick().await;
+            let remotes = participant.discovered_writers().iter().map(peer_check::RemoteEndpoint::writer).collect::<Vec<_>>();
+            let readers = participant.discovered_readers();
+            for said in peer_check.scan(remotes.into_iter().chain(readers.iter().map(peer_check::RemoteEndpoint::reader))) {
+                tracing::warn!("{said}: it cannot work with this node (docs/interop.md, \"Peers that cannot match\")");
+            }
             let stamp = Time::from_ns(node_ref.time_now().to_nanos());
             let msg = {
-                let s = diag_stats.lock().expect("stats lock");
+                let mut s = diag_stats.lock().expect("stats lock");
+                let (present, described) = peer_check.present();
+                s.incompatible_peers = IncompatiblePeers { said: peer_check.count(), present, described: described.to_vec() };
                 let live = clock.tick(&s, status_clock_ns(Instant::now()));
                 diagnostics_message(&s, &live, &node_name_owned, stamp)
             };

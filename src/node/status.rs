@@ -70,6 +70,18 @@ pub struct NodeStats {
     /// unchanged. The process must then end without running libtorch's exit-time destructors
     /// under that thread (it crashed with SIGSEGV): see `imu-fsda node`.
     pub adaptation_abandoned: bool,
+    /// Peers on the node's topics that cannot work with it ([`super::peer_check`]).
+    pub incompatible_peers: IncompatiblePeers,
+}
+
+/// What [`super::peer_check::PeerCheck`] found, as the status shows it.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct IncompatiblePeers {
+    /// Found since the start, each once.
+    pub said: u64,
+    /// In discovery now, and the first few of them described.
+    pub present: usize,
+    pub described: Vec<String>,
 }
 
 /// No input for this long after the first, s: the status says the input stopped.
@@ -164,6 +176,10 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         (DiagnosticStatus::ERROR, format!("no input for {s:.1} s{model}"))
     } else if stats.model_status != "ok" {
         (DiagnosticStatus::WARN, stats.model_status.clone())
+    } else if let Some(first) = stats.incompatible_peers.described.first() {
+        // Before "no input yet": a writer of another type on the input is often why.
+        let n = stats.incompatible_peers.present;
+        (DiagnosticStatus::WARN, format!("{n} peer(s) on its topics cannot work with it: {first}"))
     } else if c.received == 0 {
         (DiagnosticStatus::STALE, "no input yet".to_string())
     } else if stats.rate_off_nominal && !stats.resampling {
@@ -225,8 +241,13 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("warmup_samples", c.warmup_samples.to_string()),
         kv("missed_samples", c.missed_samples.to_string()),
         kv("saturated_samples", c.saturated_samples.to_string()),
+        kv("incompatible_peers", stats.incompatible_peers.present.to_string()),
+        kv("incompatible_peers_said", stats.incompatible_peers.said.to_string()),
     ];
     let mut values = values;
+    if !stats.incompatible_peers.described.is_empty() {
+        values.push(kv("incompatible_peer_list", stats.incompatible_peers.described.join("; ")));
+    }
     if !stats.security.is_empty() {
         values.push(kv("security", stats.security.clone()));
     }
