@@ -105,7 +105,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         stop_requested: Some(super::interrupts::requested),
     };
     super::interrupts::catch();
-    let s = fit::train(&cfg, &opts)?;
+    let s = imu_fsda::train::train(&cfg, &opts)?;
     out!(
         "trained {} ({:?}, seed {}): {} epochs in {:.1} s ({:.3} s/epoch, {} threads); loss {:.4} → {:.4}",
         s.name,

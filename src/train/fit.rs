@@ -1,5 +1,6 @@
-//! The training loop: data checks, normalisation, the three strategies, schedule,
-//! held-out evaluation, checkpoints, best-model selection and export.
+//! What a training run is made of (the run itself, its loop, checkpoints and export, is
+//! [`super::run`]): the datasets loaded and checked, evaluation and gains per IMU, the three
+//! strategies' steps, the MAML inner loop and the initialisations.
 //!
 //! One epoch = one optimiser step (DIGDL's definition):
 //! - `digdl`, `fsda`: one batch of `windows_per_sequence` random `window_samples`-sample
@@ -12,21 +13,16 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use super::error::{refuse, Context, TrainError};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
 use super::checkpoint::{self, CheckpointMeta};
 use super::config::{Augment, TaskWeighting, TrainConfig, TrainSettings};
 use super::data::{self, Batch, Task};
-use super::optim::Adam;
-use super::report::{EpochRecord, SequenceEvals, TaskInfo, TestResult, TrainSummary};
+use super::report::SequenceEvals;
 use crate::eval::{evaluate, EvalOptions, OrientationErrors};
-use crate::model::export::{export_model, ExportInfo};
 use crate::model::loss::total_loss;
 use crate::model::predict::{correct_with_net, with_correction_gain};
 use crate::model::{ForwardOptions, Mode, Net};
@@ -273,11 +269,11 @@ fn augment(u: &Tensor, a: &Augment) -> Tensor {
     u + noise + Tensor::cat(&[offset, accel], 2)
 }
 
-struct StepLosses {
-    loss: f64,
-    increment: f64,
-    reconstruction: Option<f64>,
-    support: Option<f64>,
+pub(super) struct StepLosses {
+    pub(super) loss: f64,
+    pub(super) increment: f64,
+    pub(super) reconstruction: Option<f64>,
+    pub(super) support: Option<f64>,
 }
 
 fn scalar(t: &Tensor) -> f64 {
@@ -295,7 +291,7 @@ fn plain_window_range(t: &TrainSettings, len: usize) -> (usize, usize) {
 }
 
 /// DIGDL / FSDA: one batch from all recordings, gradients accumulated into the variables.
-fn plain_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
+pub(super) fn plain_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
     let t = &cfg.train;
     let refs: Vec<&Task> = tasks.iter().collect();
     let batch: Batch = data::sample_windows(&refs, |x| plain_window_range(t, x.len()), t.windows_per_sequence, t.window_samples, rng);
@@ -315,7 +311,7 @@ fn plain_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng
 }
 
 /// FSDA-F: MAML on the Embedding (see the module doc).
-fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
+pub(super) fn maml_step(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
     let t = &cfg.train;
     let m = &t.maml;
     let theta = net.embedding_parameters();
@@ -390,7 +386,7 @@ pub fn domain_weights(domains: &[String], how: TaskWeighting) -> Vec<f64> {
 }
 
 /// Zeroes the last conv of the correction CNN (Generator or DIGDL's), so ω' starts at 0.
-fn zero_init_correction(vs: &VarStore, net: &Net) -> Result<(), TrainError> {
+pub(super) fn zero_init_correction(vs: &VarStore, net: &Net) -> Result<(), TrainError> {
     let prefix = if net.config().mode == Mode::Digdl { "digdl" } else { "generator" };
     let layers =
         if net.config().mode == Mode::Digdl { net.config().digdl.kernel_sizes.len() } else { net.config().generator.kernel_sizes.len() };
@@ -444,7 +440,7 @@ pub fn assign_calibration_rows(net: &Net, data: &mut Datasets, calibrated: &[Str
 
 /// Copies a trained model's variables (`TrainSettings::init_from`) into `vs`, normalisation
 /// included; its config must be `cfg.model`.
-fn init_from_model(vs: &mut VarStore, cfg: &TrainConfig, model_path: &std::path::Path) -> Result<(), TrainError> {
+pub(super) fn init_from_model(vs: &mut VarStore, cfg: &TrainConfig, model_path: &std::path::Path) -> Result<(), TrainError> {
     // The model may be named by any of its three files, as everywhere else.
     let metadata_path = &crate::model::predict::metadata_path(model_path);
     let loaded = crate::model::export::load_net(metadata_path, Device::Cpu)
@@ -487,7 +483,7 @@ fn slice_out(out: &crate::model::NetOutput, start: i64, len: i64) -> crate::mode
 /// `MamlConfig::batch_tasks`): per-task fast Embedding weights; the inner gradient of task i
 /// is that of the summed support losses w.r.t. task i's fast weights (the other tasks' losses
 /// depend on them only through the shared BatchNorm statistics).
-fn maml_step_batched(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
+pub(super) fn maml_step_batched(net: &Net, cfg: &TrainConfig, tasks: &[Task], rng: &mut ChaCha8Rng) -> StepLosses {
     let t = &cfg.train;
     let m = &t.maml;
     let theta = net.embedding_parameters();
@@ -592,7 +588,7 @@ fn inner_adapt_batched(
     (fast, sup, support_at_meta)
 }
 
-fn epoch_seed(seed: u64, epoch: usize) -> i64 {
+pub(super) fn epoch_seed(seed: u64, epoch: usize) -> i64 {
     // SplitMix64 of (seed, epoch): independent per-epoch streams, stable across resumes.
     let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15u64.wrapping_mul(epoch as u64 + 1));
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
@@ -648,7 +644,7 @@ pub fn flush_denormals_to_zero() {
 /// it: after "stopped after epoch 116 of 300", the same command without `--resume` started
 /// again from epoch 0 and the 116 epochs were gone. A finished run's checkpoint is replaced
 /// (training a model again under its name).
-fn refuse_to_restart_over_unfinished(out_dir: &Path, name: &str) -> Result<(), TrainError> {
+pub(super) fn refuse_to_restart_over_unfinished(out_dir: &Path, name: &str) -> Result<(), TrainError> {
     let (ot, json) = checkpoint::paths(out_dir, name);
     if !ot.exists() && !json.exists() {
         return Ok(());
@@ -689,507 +685,6 @@ pub fn with_overrides(cfg: &TrainConfig, seed: Option<u64>, epochs: Option<usize
 }
 
 /// Trains, evaluates and exports; returns the summary (also written to `<out>/<name>.train.json`).
-pub fn train(cfg: &TrainConfig, opts: &RunOptions) -> Result<TrainSummary, TrainError> {
-    let cfg = with_overrides(cfg, opts.seed, opts.epochs)?;
-    let seed = cfg.train.seed;
-    // Read now: the checkout can move (a commit, a checkout) during an hour of training, and
-    // the export must name the code that trained, not what the tree holds when it ends.
-    let code_revision = crate::model::export::code_revision();
-    flush_denormals_to_zero();
-    tch::set_num_threads(cfg.train.threads);
-    if cfg.train.threads > 1 && !std::env::var("OMP_WAIT_POLICY").is_ok_and(|v| v.eq_ignore_ascii_case("passive")) {
-        tracing::warn!(
-            "train.threads = {} without OMP_WAIT_POLICY=passive: libgomp's spinning threads make epochs up to 6× slower \
-             on a shared machine (docs/training.md); use threads: 1 or export OMP_WAIT_POLICY=passive",
-            cfg.train.threads
-        );
-    }
-    tch::manual_seed(seed as i64);
-    let mode = cfg.model.mode;
-
-    // Every check that can fail runs here, before any training.
-    let resume = opts.resume.as_deref().map(checkpoint::load).transpose()?;
-    if let Some(r) = &resume {
-        // A resume continues the same run: other data, losses or rates would make one model
-        // of two runs and a summary that describes neither (train.init_from fine-tunes).
-        let changed = r.meta.config.run_differences(&cfg);
-        if !changed.is_empty() {
-            refuse!(
-                "--resume continues the run the checkpoint holds, and the config now differs in {}: start a new run (train.init_from fine-tunes from a model)",
-                changed.join(", ")
-            );
-        }
-        if cfg.train.epochs < r.meta.epoch {
-            refuse!(
-                "--resume: the checkpoint has {} epochs done, more than the {} asked for; a run cannot be shortened (its checkpoint and model are kept as they are)",
-                r.meta.epoch,
-                cfg.train.epochs
-            );
-        }
-    }
-    if resume.is_none() {
-        refuse_to_restart_over_unfinished(&opts.out_dir, &opts.name)?;
-    }
-    let mut data = load_datasets(&cfg)?;
-    let fingerprints = data.fingerprints();
-    if let Some(r) = resume.as_ref().filter(|r| !r.meta.data_fingerprints.is_empty()) {
-        // Recordings of the same name only: the evaluation lists may change on a resume. The
-        // test recordings are scored once, at the end: theirs may change.
-        let changed: Vec<&str> = fingerprints
-            .iter()
-            .filter(|(k, _)| !k.starts_with("test."))
-            .filter(|(k, v)| r.meta.data_fingerprints.get(*k).is_some_and(|was| was != *v))
-            .map(|(k, _)| k.as_str())
-            .collect();
-        if !changed.is_empty() {
-            refuse!(
-                "--resume: the data of {} changed since the checkpoint (same paths and config, other samples): the run would continue on other data; restore the recordings, or delete the checkpoint to start a new run",
-                changed.join(", ")
-            );
-        }
-    }
-    let eopts = eval_opts(&cfg);
-
-    let mut vs = VarStore::new(Device::Cpu);
-    let net = Net::new(&cfg.model, &vs.root())?;
-    assign_calibration_rows(&net, &mut data, &cfg.train.calibrated_imus)?;
-    let (mean, std) = data::normalization(&data.train);
-    net.set_normalization(&mean, &std)?;
-    if cfg.train.zero_init_correction && resume.is_none() && cfg.train.init_from.is_none() {
-        zero_init_correction(&vs, &net)?;
-    }
-    if let Some(path) = &cfg.train.init_from {
-        init_from_model(&mut vs, &cfg, path)?;
-    }
-    let batched = mode == Mode::FsdaF && cfg.train.maml.batch_tasks;
-    if mode == Mode::FsdaF {
-        let w = task_weights(&data.train, cfg.train.task_weighting);
-        tracing::info!("task weights ({:?}): {:?}", cfg.train.task_weighting, w);
-    }
-    let mut adam = Adam::new(&vs);
-    tracing::info!("normalisation from {} training recordings: mean {mean:?}, std {std:?}", data.train.len());
-
-    let mut history: Vec<EpochRecord> = Vec::new();
-    let mut validation: Vec<SequenceEvals> = Vec::new();
-    let mut monitor: Vec<SequenceEvals> = Vec::new();
-    let mut best: Option<(usize, f64)> = None;
-    let mut best_vars: Option<BTreeMap<String, Tensor>> = None;
-    let mut start_epoch = 0;
-    let mut prior_seconds = 0.0;
-    if let Some(r) = &resume {
-        checkpoint::restore_vars(&vs, &r.tensors, "vs")?;
-        adam.load_state(r.meta.adam_step, &r.tensors).map_err(|e| TrainError::Refused(format!("--resume: {e}")))?;
-        if r.meta.seed != seed {
-            // The rest of the run would draw another seed's windows and be recorded as that
-            // seed's run throughout.
-            refuse!("--resume: the checkpoint was trained with seed {}, not {seed}: resume it with --seed {}", r.meta.seed, r.meta.seed);
-        }
-        start_epoch = r.meta.epoch;
-        history = r.meta.history.clone();
-        validation = r.meta.validation.clone();
-        monitor = r.meta.monitor.clone();
-        best = r.meta.best;
-        prior_seconds = r.meta.train_seconds;
-        if best.is_some() && r.tensors.keys().any(|k| k.starts_with("best.")) {
-            best_vars =
-                Some(r.tensors.iter().filter_map(|(k, t)| k.strip_prefix("best.").map(|n| (n.to_string(), t.shallow_clone()))).collect());
-        }
-        tracing::info!("resumed from {} at epoch {start_epoch}", opts.resume.as_ref().unwrap().display());
-    }
-    let mut ema = (cfg.train.ema_decay > 0.0)
-        .then(|| checkpoint::Ema::new(&vs, cfg.train.ema_decay, resume.as_ref().map(|r| &r.tensors), adam.step.max(0) as u64));
-    let fresh = |t: &Task| -> Result<SequenceEvals, TrainError> {
-        Ok(SequenceEvals { name: t.name.clone(), source: t.source.clone(), raw: evaluate_raw(t, &eopts)?, evals: vec![] })
-    };
-    // A resume may change the evaluation lists: the checkpoint's evaluations are kept for the
-    // recordings still listed (by name and source), the others start empty. Before, they were
-    // paired by position, and a new recording's figures were filed under the old one's name.
-    let carry = |old: Vec<SequenceEvals>, tasks: &[Task]| -> Result<(Vec<SequenceEvals>, bool), TrainError> {
-        let same = old.len() == tasks.len() && old.iter().zip(tasks).all(|(o, t)| o.name == t.name && o.source == t.source);
-        let mut old: BTreeMap<(String, String), SequenceEvals> = old.into_iter().map(|o| ((o.name.clone(), o.source.clone()), o)).collect();
-        let list = tasks
-            .iter()
-            .map(|t| old.remove(&(t.name.clone(), t.source.clone())).map_or_else(|| fresh(t), Ok))
-            .collect::<Result<Vec<_>, TrainError>>()?;
-        Ok((list, same))
-    };
-    let (carried, same_validation) = carry(std::mem::take(&mut validation), &data.validation)?;
-    validation = carried;
-    monitor = carry(std::mem::take(&mut monitor), &data.monitor)?.0;
-    if resume.is_some() && !same_validation && best.is_some() {
-        tracing::warn!(
-            "--resume: the validation set is not the checkpoint's; the best epoch so far (epoch {}) was chosen on the other one, and the best is chosen again from here on",
-            best.map_or(0, |b| b.0)
-        );
-        best = None;
-        best_vars = None;
-    }
-    for v in &validation {
-        tracing::info!("validation {}: raw AOE {:.2}°", v.name, v.raw.aoe_deg);
-    }
-    for v in &monitor {
-        tracing::info!("monitor {} (never selected on): raw AOE {:.2}°", v.name, v.raw.aoe_deg);
-    }
-
-    let epochs = cfg.train.epochs;
-    let pb = if opts.progress {
-        ProgressBar::new(epochs as u64)
-    } else {
-        ProgressBar::with_draw_target(Some(epochs as u64), ProgressDrawTarget::hidden())
-    };
-    pb.set_style(
-        ProgressStyle::with_template("{prefix} {elapsed_precise} [{bar:25}] {pos}/{len} epochs, ETA {eta_precise} {msg}")
-            .expect("template")
-            .progress_chars("=> "),
-    );
-    pb.set_prefix(format!("{} {:?}", opts.name, mode));
-    pb.set_position(start_epoch as u64);
-    let save_ckpt = |epoch: usize,
-                     adam: &Adam,
-                     history: &[EpochRecord],
-                     validation: &[SequenceEvals],
-                     monitor: &[SequenceEvals],
-                     best: Option<(usize, f64)>,
-                     best_vars: Option<&BTreeMap<String, Tensor>>,
-                     ema: Option<&checkpoint::Ema>,
-                     seconds: f64|
-     -> Result<PathBuf, TrainError> {
-        let meta = CheckpointMeta {
-            format_version: 1,
-            epoch,
-            adam_step: adam.step,
-            seed,
-            config: cfg.clone(),
-            history: history.to_vec(),
-            validation: validation.to_vec(),
-            monitor: monitor.to_vec(),
-            best,
-            train_seconds: seconds,
-            pair_token: None,
-            data_fingerprints: fingerprints.clone(),
-        };
-        checkpoint::save(&opts.out_dir, &opts.name, &vs, adam, best_vars, ema.map(|e| &e.avg), &meta)
-    };
-
-    let started = Instant::now();
-    let mut ran = 0usize;
-    let mut stopped_at: Option<usize> = None;
-    for epoch in start_epoch..epochs {
-        let t0 = Instant::now();
-        let es = epoch_seed(seed, epoch);
-        tch::manual_seed(es);
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        rng.set_stream(epoch as u64);
-        let _: u32 = rng.gen();
-        let lr = cfg.train.schedule.lr(cfg.train.lr, epoch);
-        adam.zero_grad();
-        let l = match mode {
-            Mode::FsdaF if batched => maml_step_batched(&net, &cfg, &data.train, &mut rng),
-            Mode::FsdaF => maml_step(&net, &cfg, &data.train, &mut rng),
-            Mode::Fsda | Mode::Digdl => plain_step(&net, &cfg, &data.train, &mut rng),
-        };
-        if !l.loss.is_finite() {
-            refuse!("epoch {epoch}: the loss is {} — lower train.lr (or train.maml.inner_lr)", l.loss);
-        }
-        let grad_norm = adam.grad_norm();
-        adam.step(lr, cfg.train.weight_decay);
-        if let Some(e) = ema.as_mut() {
-            e.update(&vs);
-        }
-        ran += 1;
-        history.push(EpochRecord {
-            epoch,
-            lr,
-            loss: l.loss,
-            increment: l.increment,
-            reconstruction: l.reconstruction,
-            support_loss: l.support,
-            grad_norm,
-            seconds: t0.elapsed().as_secs_f64(),
-        });
-        let done = epoch + 1;
-        let mut msg = format!(
-            "loss {:.4} (L_D {:.4}{}) lr {lr:.2e}",
-            l.loss,
-            l.increment,
-            l.reconstruction.map_or(String::new(), |r| format!(", L_R {r:.4}"))
-        );
-        if let Some(s) = l.support {
-            msg.push_str(&format!(", support {s:.4}"));
-        }
-        // The budget is the whole run's: a resumed run counts the seconds before its checkpoint.
-        let over_budget = cfg.train.max_train_seconds > 0.0
-            && prior_seconds + started.elapsed().as_secs_f64() > cfg.train.max_train_seconds
-            && done < epochs;
-        if over_budget {
-            tracing::warn!(
-                "epoch {done}: past the wall-time budget of {:.0} s; stopping and exporting this epoch",
-                cfg.train.max_train_seconds
-            );
-            stopped_at = Some(done);
-        }
-        let eval_now = cfg.train.eval_every > 0 && done % cfg.train.eval_every == 0 || done == epochs || over_budget;
-        if eval_now && !(data.validation.is_empty() && data.monitor.is_empty()) {
-            let evals = |v: &mut Vec<SequenceEvals>, m: &mut Vec<SequenceEvals>| -> Result<(), TrainError> {
-                for (v, task) in v.iter_mut().zip(&data.validation).chain(m.iter_mut().zip(&data.monitor)) {
-                    v.evals.push((done, evaluate_net(&net, task, &eopts)?));
-                }
-                Ok(())
-            };
-            match &ema {
-                Some(e) => e.with_average(&vs, || evals(&mut validation, &mut monitor))??,
-                None => evals(&mut validation, &mut monitor)?,
-            }
-            let m = validation_score(&validation, None, cfg.train.task_weighting).unwrap_or(f64::NAN);
-            let mon = validation_score(&monitor, None, cfg.train.task_weighting).map_or(String::new(), |x| format!(", monitor {x:.3}°"));
-            tracing::info!("epoch {done}: {msg}; validation AOE {m:.3}°{mon}");
-            msg.push_str(&format!(", val AOE {m:.2}°"));
-            if cfg.train.select_best && !data.validation.is_empty() && best.is_none_or(|(_, b)| m < b) {
-                best = Some((done, m));
-                best_vars = Some(match &ema {
-                    Some(e) => e.avg.iter().map(|(n, t)| (n.clone(), t.copy())).collect(),
-                    None => checkpoint::snapshot(&vs),
-                });
-            }
-        } else if done % (epochs / 20).max(1) == 0 {
-            tracing::info!("epoch {done}: {msg}");
-        }
-        pb.set_message(msg);
-        pb.set_position(done as u64);
-        if over_budget {
-            break;
-        }
-        let stop = done < epochs && opts.stop_requested.is_some_and(|f| f());
-        if stop || cfg.train.checkpoint_every > 0 && done % cfg.train.checkpoint_every == 0 && done < epochs {
-            let secs = prior_seconds + started.elapsed().as_secs_f64();
-            let checkpoint = save_ckpt(done, &adam, &history, &validation, &monitor, best, best_vars.as_ref(), ema.as_ref(), secs)?;
-            if stop {
-                pb.abandon();
-                return Err(Stopped { epoch: done, epochs, checkpoint }.into());
-            }
-        }
-    }
-    pb.finish();
-    let train_seconds = prior_seconds + started.elapsed().as_secs_f64();
-    let last_epoch = stopped_at.unwrap_or(epochs);
-    let ckpt = save_ckpt(last_epoch, &adam, &history, &validation, &monitor, best, best_vars.as_ref(), ema.as_ref(), train_seconds)?;
-    tracing::info!("checkpoint {}", ckpt.display());
-
-    // The exported weights: the best validated epoch if asked, else the last (averaged when
-    // `ema_decay` is on).
-    let mut exported_epoch = last_epoch;
-    if let Some(e) = &ema {
-        checkpoint::restore_snapshot(&vs, &e.avg)?;
-    }
-    if let (true, Some((e, _)), Some(snap)) = (cfg.train.select_best, best, best_vars.as_ref()) {
-        checkpoint::restore_snapshot(&vs, snap)?;
-        exported_epoch = e;
-    }
-
-    // `train.correction_gains`: one gain per IMU, fitted with the exported weights on the
-    // validation recordings; the test recordings are then scored as deployed on their IMU.
-    let gains = if cfg.train.correction_gains { fit_correction_gains(&net, &data.validation, &eopts)? } else { BTreeMap::new() };
-    let gain_of = |task: &Task| gains.get(&task.imu_name).copied().unwrap_or(1.0);
-    let mut validation_with_gain = Vec::new();
-    if !gains.is_empty() {
-        for task in &data.validation {
-            let errors = evaluate_net_with_gain(&net, task, &eopts, gain_of(task))?;
-            let raw = match validation.iter().find(|v| v.name == task.name) {
-                Some(v) => v.raw.clone(),
-                None => evaluate_raw(task, &eopts)?,
-            };
-            validation_with_gain.push(SequenceEvals {
-                name: task.name.clone(),
-                source: task.source.clone(),
-                raw,
-                evals: vec![(exported_epoch, errors)],
-            });
-        }
-    }
-
-    let mut test = Vec::new();
-    // A signal after the last epoch: the checkpoint above holds every epoch, and a resume from
-    // it goes straight to the scoring and the export.
-    let stopped_after_training = || opts.stop_requested.is_some_and(|f| f());
-    for task in &data.test {
-        if stopped_after_training() {
-            return Err(Stopped { epoch: last_epoch, epochs, checkpoint: ckpt.clone() }.into());
-        }
-        let raw = evaluate_raw(task, &eopts)?;
-        let gain = gain_of(task);
-        // One forward; scored with the gain, and without it when that differs.
-        let gyro = corrected_gyro(&net, task)?;
-        let model_without_gain = if gain == 1.0 { None } else { Some(evaluate(&task.rec, &gyro, &eopts)?) };
-        let model = evaluate(&task.rec, &with_correction_gain(&task.rec.imu, gyro, gain), &eopts)?;
-        tracing::info!(
-            "test {}: AOE raw {:.2}° → model {:.2}°{}",
-            task.name,
-            raw.aoe_deg,
-            model.aoe_deg,
-            model_without_gain.as_ref().map_or(String::new(), |m| format!(" (gain {gain:.3}; {:.2}° at 1)", m.aoe_deg))
-        );
-        test.push(TestResult { name: task.name.clone(), source: task.source.clone(), raw, model, model_without_gain });
-    }
-
-    let k = (history.len() / 4).clamp(1, 5);
-    let mean_of = |h: &[EpochRecord]| h.iter().map(|r| r.loss).sum::<f64>() / h.len().max(1) as f64;
-    let loss_first = mean_of(&history[..k.min(history.len())]);
-    let loss_last = mean_of(&history[history.len().saturating_sub(k)..]);
-    // A run resumed only to export (no new epoch) reports the whole run's mean.
-    let seconds_per_epoch = if ran > 0 {
-        started.elapsed().as_secs_f64() / ran as f64
-    } else if last_epoch > 0 {
-        train_seconds / last_epoch as f64
-    } else {
-        f64::NAN
-    };
-
-    let mut metrics = BTreeMap::new();
-    metrics.insert("epochs".to_string(), exported_epoch as f64);
-    metrics.insert("loss_first".to_string(), loss_first);
-    metrics.insert("loss_last".to_string(), loss_last);
-    metrics.insert("train_seconds".to_string(), train_seconds);
-    metrics.insert("seconds_per_epoch".to_string(), seconds_per_epoch);
-    metrics.insert("threads".to_string(), cfg.train.threads as f64);
-    metrics.insert("seed".to_string(), seed as f64);
-    if let Some(e) = stopped_at {
-        metrics.insert("stopped_at_budget".to_string(), e as f64);
-    }
-    let val_at_export: Vec<(f64, f64)> = validation
-        .iter()
-        .filter_map(|v| v.evals.iter().find(|(e, _)| *e == exported_epoch).map(|(_, e)| (v.raw.aoe_deg, e.aoe_deg)))
-        .collect();
-    for (v, (raw, m)) in validation.iter().zip(&val_at_export) {
-        metrics.insert(format!("val.{}.raw_aoe_deg", v.name), *raw);
-        metrics.insert(format!("val.{}.aoe_deg", v.name), *m);
-    }
-    if !val_at_export.is_empty() {
-        let n = val_at_export.len() as f64;
-        metrics.insert("val.mean_raw_aoe_deg".into(), val_at_export.iter().map(|x| x.0).sum::<f64>() / n);
-        metrics.insert("val.mean_aoe_deg".into(), val_at_export.iter().map(|x| x.1).sum::<f64>() / n);
-        if let Some(score) = validation_score(&validation, Some(exported_epoch), cfg.train.task_weighting) {
-            metrics.insert("val.score_deg".into(), score);
-        }
-    }
-    if !gains.is_empty() {
-        // The score of the model as deployed (with its gains) is the one seeds are chosen on.
-        if let Some(score) = metrics.get("val.score_deg").copied() {
-            metrics.insert("val.score_without_gain_deg".into(), score);
-        }
-        if let Some(score) = validation_score(&validation_with_gain, Some(exported_epoch), cfg.train.task_weighting) {
-            metrics.insert("val.score_deg".into(), score);
-        }
-        for v in &validation_with_gain {
-            metrics.insert(format!("val.{}.aoe_with_gain_deg", v.name), v.evals[0].1.aoe_deg);
-        }
-        for (imu, g) in &gains {
-            metrics.insert(format!("correction_gain.{imu}"), *g);
-        }
-    }
-    for r in &test {
-        for (k, v) in [
-            ("raw_aoe_deg", r.raw.aoe_deg),
-            ("aoe_deg", r.model.aoe_deg),
-            ("roll_rmse_deg", r.model.roll_rmse_deg),
-            ("pitch_rmse_deg", r.model.pitch_rmse_deg),
-            ("yaw_rmse_deg", r.model.yaw_rmse_deg),
-            ("tilt_rmse_deg", r.model.tilt_rmse_deg),
-            ("heading_rmse_deg", r.model.heading_rmse_deg),
-        ] {
-            metrics.insert(format!("test.{}.{k}", r.name), v);
-        }
-        if let Some(m) = &r.model_without_gain {
-            metrics.insert(format!("test.{}.aoe_without_gain_deg", r.name), m.aoe_deg);
-        }
-    }
-    if !test.is_empty() {
-        let n = test.len() as f64;
-        metrics.insert("test.mean_raw_aoe_deg".into(), test.iter().map(|r| r.raw.aoe_deg).sum::<f64>() / n);
-        metrics.insert("test.mean_aoe_deg".into(), test.iter().map(|r| r.model.aoe_deg).sum::<f64>() / n);
-    }
-
-    let training_data: Vec<String> = data
-        .train
-        .iter()
-        .map(|t| {
-            if mode == Mode::FsdaF {
-                format!(
-                    "{} (support {:.1} s + query {:.1} s)",
-                    t.source,
-                    t.support_end as f64 / t.rec.imu_rate_hz(),
-                    (t.len() - t.support_end) as f64 / t.rec.imu_rate_hz()
-                )
-            } else {
-                t.source.clone()
-            }
-        })
-        .collect();
-    let files = crate::model::export::ExportPaths::new(&opts.out_dir, &opts.name);
-    let imu_correction_gains = gains.clone();
-    let summary = TrainSummary {
-        name: opts.name.clone(),
-        mode,
-        seed,
-        epochs: last_epoch,
-        epochs_planned: stopped_at.map(|_| epochs),
-        resumed_from_epoch: resume.as_ref().map(|r| r.meta.epoch),
-        exported_epoch,
-        loss_first,
-        loss_last,
-        train_seconds,
-        seconds_per_epoch,
-        threads: cfg.train.threads,
-        tasks: data
-            .train
-            .iter()
-            .map(|t| TaskInfo {
-                name: t.name.clone(),
-                source: t.source.clone(),
-                samples: t.len(),
-                seconds: t.seconds(),
-                support_samples: t.support_end,
-                valid_fraction: t.valid_fraction,
-            })
-            .collect(),
-        validation,
-        monitor,
-        correction_gains: gains,
-        validation_with_gain,
-        test,
-        history,
-        model_json: files.metadata.display().to_string(),
-        config: cfg.clone(),
-    };
-    if stopped_after_training() {
-        return Err(Stopped { epoch: last_epoch, epochs, checkpoint: ckpt.clone() }.into());
-    }
-    // The summary is written with the model, as one set: a failure leaves the earlier pair whole.
-    let summary_json = serde_json::to_string_pretty(&summary).context("the run's summary")?;
-    export_model(
-        &opts.out_dir,
-        &opts.name,
-        &vs,
-        &net,
-        &ExportInfo {
-            training_data,
-            metrics,
-            code_revision,
-            adapted_from: None,
-            power_on_bias_removed: false,
-            imu_correction_gains,
-            side_files: vec![("train.json".into(), summary_json)],
-        },
-    )
-    .with_context(|| format!("exporting {} to {}", opts.name, opts.out_dir.display()))?;
-    let curves = opts.out_dir.join(format!("{}.curves.png", opts.name));
-    match super::curves::training_curves(&summary, &curves) {
-        Ok(()) => tracing::info!("curves {}", curves.display()),
-        // The model and its summary are written; a figure is not worth failing the run.
-        Err(e) => tracing::warn!("no training curves: {e}"),
-    }
-    Ok(summary)
-}
-
 /// `<out>/<name>.train.json`.
 pub fn summary_path(out_dir: &Path, name: &str) -> PathBuf {
     out_dir.join(format!("{name}.train.json"))
@@ -1276,6 +771,7 @@ mod tests {
     }
 
     use super::*;
+    use rand::{Rng, SeedableRng};
 
     /// With `window_start_within: 32` a 16000-sample window starts at one of a recording's
     /// first 32 samples (DIGDL's `randint(0, max_train_freq)`); without it, anywhere; a short

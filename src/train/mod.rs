@@ -4,7 +4,8 @@
 //!
 //! Files: [`config`] (the YAML), [`data`] (recordings → checked tasks, windows,
 //! normalisation), [`optim`] (Adam with saveable state), [`checkpoint`], [`report`] (the
-//! run's JSON), [`curves`] (its figure), [`fit`] (the loop), [`seeds`] (restarts: the best of
+//! run's JSON), [`curves`] (its figure), [`fit`] (datasets, evaluation, the strategies'
+//! steps), [`run`] (one run as an object with steps: start, epochs, finish), [`seeds`] (restarts: the best of
 //! several seeds by validation score), [`error`].
 
 pub mod checkpoint;
@@ -15,7 +16,9 @@ pub mod error;
 pub mod fit;
 pub mod optim;
 pub mod report;
+pub mod run;
 pub mod seeds;
 
 pub use config::TrainConfig;
-pub use fit::{train, RunOptions, Stopped};
+pub use fit::{RunOptions, Stopped};
+pub use run::train;
