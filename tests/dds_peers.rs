@@ -1,7 +1,11 @@
 //! Peers on the node's topics that cannot work with it (src/node/peer_check.rs): a writer of
-//! another message type on the input and a reader whose QoS the output cannot serve, made by
-//! an independent Cyclone DDS peer (tests/python/mismatch_peer.py) in a private network
-//! namespace. The node must name both on /diagnostics, log each once, and keep running.
+//! another message type on the input (laid out as sensor_msgs/Imu, so its samples would
+//! decode) and a reader whose QoS the output cannot serve, made by an independent Cyclone DDS
+//! peer (tests/python/mismatch_peer.py) in a private network namespace. The node must name
+//! both on /diagnostics, log each once and keep running. Cyclone DDS does not match its writer
+//! with a reader of another type name, so none of its samples reaches the node: /diagnostics is
+//! where the user learns why nothing arrives. (A writer that matches by topic name alone, as
+//! RustDDS does, has its samples dropped by their writer's type: `peer_check`'s unit tests.)
 
 mod common;
 
@@ -44,9 +48,7 @@ echo $? >"$OUT/node.rc"
     assert_eq!(status["incompatible_peers"], "2", "both peers named on /diagnostics: {status}\n{logs}");
     let list = status["incompatible_peer_list"].as_str().unwrap_or_default();
     assert!(
-        list.contains(
-            "a writer on /imu/data_raw of type geometry_msgs::msg::dds_::Vector3Stamped_, not the node's sensor_msgs::msg::dds_::Imu_"
-        ),
+        list.contains("a writer on /imu/data_raw of type my_msgs::msg::dds_::Imu_, not the node's sensor_msgs::msg::dds_::Imu_"),
         "{list}"
     );
     assert!(list.contains("a reader on /imu/denoised whose durability QoS cannot match what the node offers"), "{list}");
@@ -61,6 +63,10 @@ echo $? >"$OUT/node.rc"
     }
     let stats = common::last_json_line(&read("node.out")).unwrap_or_else(|| panic!("no --stats-json line\n{logs}"));
     assert_eq!(stats["incompatible_peers"]["said"], 2, "{stats}");
-    // Nothing of the wrong type was published as a corrected sample.
-    assert_eq!(stats["counters"]["processed"], 0, "{stats}");
+    // Nothing of the wrong type reached the pipeline, decoded or not.
+    assert!(peer["wrong_type_written"].as_u64().unwrap_or(0) >= 20, "{peer}");
+    for key in ["decode_errors", "dropped_wrong_type"] {
+        assert_eq!(stats[key], 0, "{key}: {stats}");
+    }
+    assert_eq!((stats["counters"]["received"].as_u64(), stats["counters"]["processed"].as_u64()), (Some(0), Some(0)), "{stats}");
 }

@@ -148,7 +148,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
             "{}",
             serde_json::json!({
                 "counters": c, "latency_p50_us": stats.latency.quantile_us(0.5), "latency_p99_us": stats.latency.quantile_us(0.99),
-                "latency_max_us": stats.latency.max_us(), "latency_samples": stats.latency.count(), "frame_changes": stats.frame_changes, "decode_errors": stats.decode_errors,
+                "latency_max_us": stats.latency.max_us(), "latency_samples": stats.latency.count(), "frame_changes": stats.frame_changes, "decode_errors": stats.decode_errors, "dropped_wrong_type": stats.dropped_wrong_type,
                 "input_writers": stats.input_sequences.writers(), "input_published_before_first": stats.input_sequences.before_first,
                 "input_lost": stats.input_sequences.lost, "input_out_of_order": stats.input_sequences.out_of_order,
                 "model": stats.model, "adaptation": stats.adapt_status, "adapt_requested_by": stats.adapt_requested_by, "adapt_calls_refused": stats.adapt_calls_refused, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,

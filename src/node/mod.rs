@@ -274,7 +274,14 @@ pub async fn run_node_with_adaptation(
     let tap = buffers.as_ref().map(|b| AdaptTap { buffers: b.clone(), adapting: adapting.clone() });
     // Set by `~/retake_power_on_bias`, taken by the process loop between two samples.
     let retake = Arc::new(AtomicBool::new(false));
-    let controls = LoopControls { tap, retake: retake.clone() };
+    let input_writers = peer_check::InputWriters::new(peer_check::OwnEndpoint::new(
+        &topic_name(&params.input_topic)?,
+        &ros_node_name,
+        &type_name::<Imu>(),
+        &sensor_qos,
+        false,
+    ));
+    let controls = LoopControls { tap, retake: retake.clone(), input_writers, participant: participant.clone() };
     let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits, controls);
     let retake_task = async {
         match &retake_server {
@@ -382,10 +389,13 @@ struct AdaptTap {
     adapting: Arc<AtomicBool>,
 }
 
-/// What reaches the process loop from the services: the adaptation's tap, and the re-take flag.
+/// What reaches the process loop from the services: the adaptation's tap, and the re-take
+/// flag; and the input's writers judged by their discovered type.
 struct LoopControls {
     tap: Option<AdaptTap>,
     retake: Arc<AtomicBool>,
+    input_writers: peer_check::InputWriters,
+    participant: ros2_client::dds::rustdds::DomainParticipant,
 }
 
 async fn process_loop(
@@ -397,7 +407,7 @@ async fn process_loop(
     limits: RunLimits,
     controls: LoopControls,
 ) {
-    let LoopControls { tap, retake } = controls;
+    let LoopControls { tap, retake, mut input_writers, participant } = controls;
     let stream = subscription.async_stream();
     futures::pin_mut!(stream);
     let mut published = 0u64;
@@ -423,6 +433,13 @@ async fn process_loop(
         let (mut msg, source_ns) = match item {
             Ok((m, info)) => {
                 sequences.observe(info.publisher_gid(), info.sequence_number());
+                let writer = info.publisher_gid().into();
+                let discovered = || participant.discovered_writers().iter().map(peer_check::RemoteEndpoint::writer).collect();
+                if input_writers.refuses(writer, discovered).is_some() {
+                    // Said once, by the peer check on /diagnostics and in the log.
+                    stats.lock().expect("stats lock").dropped_wrong_type += 1;
+                    continue;
+                }
                 (m, info.source_timestamp().map(|t| t.to_nanos()))
             }
             Err(e) => {

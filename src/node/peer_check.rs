@@ -143,6 +143,44 @@ fn hex(guid: &GUID) -> String {
     guid.to_bytes().iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// Writers followed by [`InputWriters`]; a topic with more (a misconfigured graph) has the rest
+/// looked up in discovery at each of their samples.
+const MAX_WRITERS: usize = 16;
+
+/// The input's writers judged by the type discovery gives them. RustDDS matches a writer of
+/// another type all the same (by topic name), and its samples would be read as the node's type
+/// (garbage into the power-on bias and the model where the layouts agree): they are dropped.
+#[derive(Debug)]
+pub struct InputWriters {
+    input: OwnEndpoint,
+    /// Each writer seen, and why its samples are dropped (`None`: they are the node's type).
+    known: Vec<(GUID, Option<String>)>,
+}
+
+impl InputWriters {
+    pub fn new(input: OwnEndpoint) -> Self {
+        InputWriters { input, known: Vec::new() }
+    }
+
+    /// Why `writer`'s samples are not the node's, if they are not; discovery (`writers`) is
+    /// read once per writer, at its first sample. A writer discovery does not hold is taken as
+    /// what its samples decoded as.
+    pub fn refuses(&mut self, writer: GUID, writers: impl FnOnce() -> Vec<RemoteEndpoint>) -> Option<&str> {
+        if let Some(i) = self.known.iter().position(|(w, _)| *w == writer) {
+            return self.known[i].1.as_deref();
+        }
+        let why = writers()
+            .into_iter()
+            .find(|r| r.guid == writer && r.writes && r.type_name != self.input.type_name)
+            .and_then(|r| mismatch(&self.input, &r));
+        if self.known.len() >= MAX_WRITERS {
+            self.known.remove(0);
+        }
+        self.known.push((writer, why));
+        self.known.last().and_then(|(_, why)| why.as_deref())
+    }
+}
+
 /// `rt/imu/data_raw` → `/imu/data_raw`: the name a ROS user knows.
 fn ros_topic(dds: &str) -> String {
     dds.strip_prefix("rt").filter(|r| r.starts_with('/')).map_or_else(|| dds.to_string(), str::to_string)
@@ -230,6 +268,29 @@ mod tests {
         assert_eq!(mismatch(&input, &remote("rt/imu/data_raw", IMU, true, qos(true, true))), None);
         assert_eq!(mismatch(&input, &remote("rt/imu/data_raw", "x::Y_", false, qos(false, false))), None);
         assert_eq!(mismatch(&input, &remote("rt/other", "x::Y_", true, qos(false, false))), None);
+    }
+
+    #[test]
+    fn an_input_writer_of_another_type_is_refused_and_discovery_read_once_per_writer() {
+        let mut writers = InputWriters::new(own("rt/imu/data_raw", false, false));
+        let (good, bad) = (GUID::from_bytes([1; 16]), GUID::from_bytes([2; 16]));
+        let discovered =
+            |guid: GUID, type_name: &str| RemoteEndpoint { guid, ..remote("rt/imu/data_raw", type_name, true, qos(false, false)) };
+        let lookups = std::cell::Cell::new(0);
+        let graph = || {
+            lookups.set(lookups.get() + 1);
+            vec![discovered(good, IMU), discovered(bad, "my_msgs::msg::dds_::Imu_")]
+        };
+        assert_eq!(writers.refuses(good, graph), None);
+        let why = writers.refuses(bad, graph).expect("refused").to_string();
+        assert!(why.contains("of type my_msgs::msg::dds_::Imu_"), "{why}");
+        for _ in 0..10 {
+            assert_eq!(writers.refuses(good, graph), None);
+            assert!(writers.refuses(bad, graph).is_some());
+        }
+        assert_eq!(lookups.get(), 2);
+        // Unknown to discovery: taken as what it decoded as.
+        assert_eq!(writers.refuses(GUID::from_bytes([3; 16]), Vec::new), None);
     }
 
     #[test]

@@ -18,6 +18,8 @@ pub struct NodeStats {
     pub latency: LatencyHistogram,
     pub frame_changes: u64,
     pub decode_errors: u64,
+    /// Input samples from a writer whose discovered type is not the node's ([`super::peer_check::InputWriters`]).
+    pub dropped_wrong_type: u64,
     pub frame_id: String,
     pub last_stamp_ns: i64,
     /// When the last input arrived, on the status clock's time line ([`StatusClock`]).
@@ -230,6 +232,7 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("dropped_duplicate_stamp", c.dropped_duplicate_stamp.to_string()),
         kv("dropped_backwards_stamp", c.dropped_backwards_stamp.to_string()),
         kv("decode_errors", stats.decode_errors.to_string()),
+        kv("dropped_wrong_type", stats.dropped_wrong_type.to_string()),
         kv("input_writers", stats.input_sequences.writers().to_string()),
         kv("input_published_before_first", stats.input_sequences.before_first.to_string()),
         kv("input_lost", stats.input_sequences.lost.to_string()),

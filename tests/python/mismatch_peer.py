@@ -3,12 +3,14 @@
 cyclonedds, no ROS 2 library; the message types are dds_peer.py's).
 
 On one participant it makes:
-  * a writer of geometry_msgs/Vector3Stamped on `rt/imu/data_raw` (the node's input is
-    sensor_msgs/Imu) and writes a few samples on it;
+  * a writer on `rt/imu/data_raw` (the node's input is sensor_msgs/Imu) of a type laid out as
+    sensor_msgs/Imu but named `my_msgs::msg::dds_::Imu_`, writing plausible samples at 10 Hz
+    (they would decode as sensor_msgs/Imu; Cyclone DDS does not match a reader of another type
+    name, so none should reach the node);
   * a reader of `rt/imu/denoised` asking for transient-local durability (the node offers
     volatile: no sample can flow);
   * a reader of `rt/diagnostics` (reliable, as `ros2 topic echo`), read until the node's status
-    names both peers or `--timeout-s` passes.
+    names both peers, or `--timeout-s` passes.
 Writes the last status's values and what the transient-local reader got as JSON to `--out`.
 """
 
@@ -27,7 +29,26 @@ from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
 from cyclonedds.util import duration  # noqa: E402
 
-from dds_peer import DiagnosticArray, Header, Imu, Time, Vector3, Vector3Stamped  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+
+import cyclonedds.idl.annotations as annotate  # noqa: E402
+from cyclonedds.idl import IdlStruct  # noqa: E402
+from cyclonedds.idl.types import array, float64  # noqa: E402
+
+from dds_peer import DiagnosticArray, Header, Imu, Quaternion, Time, Vector3  # noqa: E402
+
+
+@annotate.final
+@dataclass
+class OtherImu(IdlStruct, typename="my_msgs::msg::dds_::Imu_"):
+    """sensor_msgs/Imu's layout under another type name."""
+    header: Header
+    orientation: Quaternion
+    orientation_covariance: array[float64, 9]
+    angular_velocity: Vector3
+    angular_velocity_covariance: array[float64, 9]
+    linear_acceleration: Vector3
+    linear_acceleration_covariance: array[float64, 9]
 
 
 def main() -> None:
@@ -42,16 +63,20 @@ def main() -> None:
     reliable = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepAll)
     latched = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.Durability.TransientLocal, Policy.History.KeepLast(1))
 
-    wrong = DataWriter(dp, Topic(dp, "rt/imu/data_raw", Vector3Stamped), qos=best_effort)
+    wrong = DataWriter(dp, Topic(dp, "rt/imu/data_raw", OtherImu), qos=best_effort)
     denoised = DataReader(dp, Topic(dp, "rt/imu/denoised", Imu), qos=latched)
     diagnostics = DataReader(dp, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=reliable)
 
     values, got_denoised, wrote = {}, 0, 0
     deadline = time.monotonic() + args.timeout_s
     while time.monotonic() < deadline:
-        if wrote < 20:
-            wrong.write(Vector3Stamped(header=Header(stamp=Time(sec=1, nanosec=wrote), frame_id="imu_link"), vector=Vector3(x=0.1, y=0.2, z=0.3)))
-            wrote += 1
+        zeros = [0.0] * 9
+        wrong.write(OtherImu(
+            header=Header(stamp=Time(sec=1 + wrote // 10, nanosec=(wrote % 10) * 100_000_000), frame_id="imu_link"),
+            orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=[-1.0] + zeros[1:],
+            angular_velocity=Vector3(x=0.01, y=-0.02, z=0.03), angular_velocity_covariance=zeros,
+            linear_acceleration=Vector3(x=0.0, y=0.0, z=9.81), linear_acceleration_covariance=zeros))
+        wrote += 1
         got_denoised += len(denoised.take(N=100))
         for msg in diagnostics.take(N=100):
             for status in getattr(msg, "status", []):
@@ -59,7 +84,7 @@ def main() -> None:
                     values = {kv.key: kv.value for kv in status.values}
                     values["_level"] = int(status.level)
                     values["_message"] = status.message
-        if int(values.get("incompatible_peers", "0")) >= 2:
+        if int(values.get("incompatible_peers", "0")) >= 2 and wrote >= 20:
             break
         time.sleep(0.1)
     with open(args.out, "w") as f:
