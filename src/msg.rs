@@ -90,6 +90,29 @@ macro_rules! sep {
     };
 }
 
+/// The dependencies' sections of a `ros2msg` schema, in the order given: for each, the
+/// separator, `MSG: <type>` and its fields, each type's text written once here.
+macro_rules! deps {
+    ($($dep:ident),+) => { concat!($(sep!(), deps!(@ $dep)),+) };
+    (@ Header) => { "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n" };
+    (@ Time) => { "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n" };
+    (@ Quaternion) => { "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n" };
+    (@ Vector3) => { "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n" };
+    (@ Point) => { "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n" };
+    (@ Pose) => { "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n" };
+    (@ PoseWithCovariance) => { "MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance\n" };
+    (@ TwistWithCovariance) => { "MSG: geometry_msgs/TwistWithCovariance\ngeometry_msgs/Twist twist\nfloat64[36] covariance\n" };
+    (@ Twist) => { "MSG: geometry_msgs/Twist\ngeometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n" };
+    (@ DiagnosticStatus) => {
+        concat!(
+            "MSG: diagnostic_msgs/DiagnosticStatus\n",
+            "byte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\n",
+            "byte level\nstring name\nstring message\nstring hardware_id\nKeyValue[] values\n"
+        )
+    };
+    (@ KeyValue) => { "MSG: diagnostic_msgs/KeyValue\nstring key\nstring value\n" };
+}
+
 /// builtin_interfaces/msg/Time.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Time {
@@ -228,18 +251,7 @@ impl RosMessage for Imu {
         "float64[9] angular_velocity_covariance\n",
         "geometry_msgs/Vector3 linear_acceleration\n",
         "float64[9] linear_acceleration_covariance\n",
-        sep!(),
-        "MSG: std_msgs/Header\n",
-        "builtin_interfaces/Time stamp\nstring frame_id\n",
-        sep!(),
-        "MSG: builtin_interfaces/Time\n",
-        "int32 sec\nuint32 nanosec\n",
-        sep!(),
-        "MSG: geometry_msgs/Quaternion\n",
-        "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
-        sep!(),
-        "MSG: geometry_msgs/Vector3\n",
-        "float64 x\nfloat64 y\nfloat64 z\n",
+        deps!(Header, Time, Quaternion, Vector3),
     );
 }
 
@@ -285,25 +297,8 @@ pub struct PoseStamped {
 
 impl RosMessage for PoseStamped {
     const TYPE_NAME: &'static str = "geometry_msgs/msg/PoseStamped";
-    const DEFINITION: &'static str = concat!(
-        "std_msgs/Header header\n",
-        "geometry_msgs/Pose pose\n",
-        sep!(),
-        "MSG: std_msgs/Header\n",
-        "builtin_interfaces/Time stamp\nstring frame_id\n",
-        sep!(),
-        "MSG: builtin_interfaces/Time\n",
-        "int32 sec\nuint32 nanosec\n",
-        sep!(),
-        "MSG: geometry_msgs/Pose\n",
-        "geometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
-        sep!(),
-        "MSG: geometry_msgs/Point\n",
-        "float64 x\nfloat64 y\nfloat64 z\n",
-        sep!(),
-        "MSG: geometry_msgs/Quaternion\n",
-        "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
-    );
+    const DEFINITION: &'static str =
+        concat!("std_msgs/Header header\n", "geometry_msgs/Pose pose\n", deps!(Header, Time, Pose, Point, Quaternion));
 }
 
 impl PoseStamped {
@@ -337,19 +332,7 @@ pub struct Vector3Stamped {
 
 impl RosMessage for Vector3Stamped {
     const TYPE_NAME: &'static str = "geometry_msgs/msg/Vector3Stamped";
-    const DEFINITION: &'static str = concat!(
-        "std_msgs/Header header\n",
-        "geometry_msgs/Vector3 vector\n",
-        sep!(),
-        "MSG: std_msgs/Header\n",
-        "builtin_interfaces/Time stamp\nstring frame_id\n",
-        sep!(),
-        "MSG: builtin_interfaces/Time\n",
-        "int32 sec\nuint32 nanosec\n",
-        sep!(),
-        "MSG: geometry_msgs/Vector3\n",
-        "float64 x\nfloat64 y\nfloat64 z\n",
-    );
+    const DEFINITION: &'static str = concat!("std_msgs/Header header\n", "geometry_msgs/Vector3 vector\n", deps!(Header, Time, Vector3));
 }
 
 /// geometry_msgs/msg/PoseWithCovariance.
@@ -389,33 +372,7 @@ impl RosMessage for Odometry {
         "string child_frame_id\n",
         "geometry_msgs/PoseWithCovariance pose\n",
         "geometry_msgs/TwistWithCovariance twist\n",
-        sep!(),
-        "MSG: std_msgs/Header\n",
-        "builtin_interfaces/Time stamp\nstring frame_id\n",
-        sep!(),
-        "MSG: builtin_interfaces/Time\n",
-        "int32 sec\nuint32 nanosec\n",
-        sep!(),
-        "MSG: geometry_msgs/PoseWithCovariance\n",
-        "geometry_msgs/Pose pose\nfloat64[36] covariance\n",
-        sep!(),
-        "MSG: geometry_msgs/Pose\n",
-        "geometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
-        sep!(),
-        "MSG: geometry_msgs/Point\n",
-        "float64 x\nfloat64 y\nfloat64 z\n",
-        sep!(),
-        "MSG: geometry_msgs/Quaternion\n",
-        "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
-        sep!(),
-        "MSG: geometry_msgs/TwistWithCovariance\n",
-        "geometry_msgs/Twist twist\nfloat64[36] covariance\n",
-        sep!(),
-        "MSG: geometry_msgs/Twist\n",
-        "geometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n",
-        sep!(),
-        "MSG: geometry_msgs/Vector3\n",
-        "float64 x\nfloat64 y\nfloat64 z\n",
+        deps!(Header, Time, PoseWithCovariance, Pose, Point, Quaternion, TwistWithCovariance, Twist, Vector3),
     );
 }
 
@@ -436,17 +393,8 @@ pub struct Temperature {
 
 impl RosMessage for Temperature {
     const TYPE_NAME: &'static str = "sensor_msgs/msg/Temperature";
-    const DEFINITION: &'static str = concat!(
-        "std_msgs/Header header\n",
-        "float64 temperature\n",
-        "float64 variance\n",
-        sep!(),
-        "MSG: std_msgs/Header\n",
-        "builtin_interfaces/Time stamp\nstring frame_id\n",
-        sep!(),
-        "MSG: builtin_interfaces/Time\n",
-        "int32 sec\nuint32 nanosec\n",
-    );
+    const DEFINITION: &'static str =
+        concat!("std_msgs/Header header\n", "float64 temperature\n", "float64 variance\n", deps!(Header, Time));
 }
 
 impl Temperature {
@@ -489,23 +437,8 @@ pub struct DiagnosticArray {
 
 impl RosMessage for DiagnosticArray {
     const TYPE_NAME: &'static str = "diagnostic_msgs/msg/DiagnosticArray";
-    const DEFINITION: &'static str = concat!(
-        "std_msgs/Header header\n",
-        "DiagnosticStatus[] status\n",
-        sep!(),
-        "MSG: std_msgs/Header\n",
-        "builtin_interfaces/Time stamp\nstring frame_id\n",
-        sep!(),
-        "MSG: builtin_interfaces/Time\n",
-        "int32 sec\nuint32 nanosec\n",
-        sep!(),
-        "MSG: diagnostic_msgs/DiagnosticStatus\n",
-        "byte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\n",
-        "byte level\nstring name\nstring message\nstring hardware_id\nKeyValue[] values\n",
-        sep!(),
-        "MSG: diagnostic_msgs/KeyValue\n",
-        "string key\nstring value\n",
-    );
+    const DEFINITION: &'static str =
+        concat!("std_msgs/Header header\n", "DiagnosticStatus[] status\n", deps!(Header, Time, DiagnosticStatus, KeyValue));
 }
 
 #[cfg(test)]
