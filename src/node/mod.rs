@@ -5,6 +5,7 @@
 //! Nothing below this module knows about DDS.
 
 mod adaptation;
+mod endpoints;
 mod environment;
 mod input_sequence;
 mod latency;
@@ -16,12 +17,13 @@ mod power_on;
 mod status;
 mod support_archive;
 
-use adaptation::{ground_truth_loop, refusing_service_loop, respond, service_loop, GroundTruthSub, RunningJob};
+use adaptation::{ground_truth_loop, refusing_service_loop, respond, service_loop, RunningJob};
+use endpoints::{Endpoints, Served};
 pub use environment::{sensor_data_qos, RosEnvironment};
 pub use input_sequence::InputSequences;
 pub use latency::{LatencyHistogram, SplitLatency, StageLatency};
+use messages::topic_name;
 pub use messages::{ros_type_name, TriggerRequest, TriggerResponse};
-use messages::{topic_name, type_name};
 pub use params::{NodeParams, ServiceMapping};
 pub use status::*;
 
@@ -31,7 +33,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use futures::StreamExt;
-use ros2_client::{MessageTypeName, NodeName, NodeOptions, ParameterValue, QosProfile};
+use ros2_client::{NodeName, NodeOptions, ParameterValue};
 
 use crate::adapt::swap::{Buffers, SeqSample, SwapHandle};
 use crate::infer::{CorrectedImu, Pipeline};
@@ -160,20 +162,6 @@ pub async fn run_node_with_adaptation(
     })?;
     let mut node = context.new_node(ros_node_name.clone(), options).map_err(|e| NodeError::Dds(format!("node: {e:?}")))?;
 
-    let depth = params.queue_depth.max(1);
-    let sensor_qos = sensor_data_qos(depth);
-    let reliable_qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth });
-    let dds = |e: ros2_client::CreateError| NodeError::Dds(format!("{e:?}"));
-    let input_topic = node.create_topic(&topic_name(&params.input_topic)?, type_name::<Imu>(), &sensor_qos).map_err(dds)?;
-    let output_topic = node.create_topic(&topic_name(&params.output_topic)?, type_name::<Imu>(), &reliable_qos).map_err(dds)?;
-    let correction_topic =
-        node.create_topic(&topic_name(&params.correction_topic)?, type_name::<Vector3Stamped>(), &reliable_qos).map_err(dds)?;
-    let diag_topic =
-        node.create_topic(&topic_name(&params.diagnostics_topic)?, type_name::<DiagnosticArray>(), &reliable_qos).map_err(dds)?;
-    let subscription = node.create_subscription::<Imu>(&input_topic, Some(sensor_qos.clone())).map_err(dds)?;
-    let out_pub = node.create_publisher::<Imu>(&output_topic, Some(reliable_qos.clone())).map_err(dds)?;
-    let corr_pub = node.create_publisher::<Vector3Stamped>(&correction_topic, Some(reliable_qos.clone())).map_err(dds)?;
-    let diag_pub = node.create_publisher::<DiagnosticArray>(&diag_topic, Some(reliable_qos.clone())).map_err(dds)?;
     let (adapt, unavailable) = match adapt {
         _ if !params.adapt_enabled => (None, None),
         AdaptService::Off => (None, None),
@@ -181,67 +169,19 @@ pub async fn run_node_with_adaptation(
         AdaptService::On(setup) => (Some(setup), None),
     };
     let buffers = adapt.as_ref().map(|_| Arc::new(Mutex::new(Buffers::new(params.adapt_buffer_seconds))));
-    let mut gt_source: Option<GroundTruthSub> = None;
-    let mut server: Option<ros2_client::service::Server<TriggerRequest, TriggerResponse>> = None;
-    if adapt.is_some() {
-        let gt_qos = sensor_data_qos(depth.max(50));
-        let name = topic_name(&params.ground_truth_topic)?;
-        gt_source = Some(match params.ground_truth_type.as_str() {
-            "geometry_msgs/msg/PoseStamped" | "geometry_msgs/PoseStamped" => {
-                let t = node.create_topic(&name, type_name::<crate::msg::PoseStamped>(), &gt_qos).map_err(dds)?;
-                GroundTruthSub::Pose(node.create_subscription(&t, Some(gt_qos.clone())).map_err(dds)?)
-            }
-            "nav_msgs/msg/Odometry" | "nav_msgs/Odometry" => {
-                let t = node.create_topic(&name, type_name::<crate::msg::Odometry>(), &gt_qos).map_err(dds)?;
-                GroundTruthSub::Odometry(node.create_subscription(&t, Some(gt_qos.clone())).map_err(dds)?)
-            }
-            other => {
-                return Err(NodeError::Invalid {
-                    what: "ground_truth_type",
-                    value: other.into(),
-                    why: "geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry".into(),
-                })
-            }
-        });
-    }
-    if adapt.is_some() || unavailable.is_some() {
-        let service_qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 10 });
-        let srv_name = topic_name(&format!("/{node_name}/adapt"))?;
-        server = Some(
-            node.create_server::<TriggerRequest, TriggerResponse>(
-                params.service_mapping.ros2(),
-                &srv_name,
-                &ros2_client::ServiceTypeName::new("std_srvs", "Trigger"),
-                service_qos.clone(),
-                service_qos,
-            )
-            .map_err(dds)?,
-        );
-    }
-    let retake_server =
-        if params.pipeline.power_on_bias { Some(power_on::retake_server(&mut node, node_name, params.service_mapping)?) } else { None };
-    let mut peer_check = {
-        let endpoint = |topic: &str, type_name: MessageTypeName, qos: &QosProfile, writes: bool| {
-            Ok::<_, NodeError>(peer_check::OwnEndpoint::new(&topic_name(topic)?, &ros_node_name, &type_name, qos, writes))
-        };
-        let mut own = vec![
-            endpoint(&params.input_topic, type_name::<Imu>(), &sensor_qos, false)?,
-            endpoint(&params.output_topic, type_name::<Imu>(), &reliable_qos, true)?,
-            endpoint(&params.correction_topic, type_name::<Vector3Stamped>(), &reliable_qos, true)?,
-            endpoint(&params.diagnostics_topic, type_name::<DiagnosticArray>(), &reliable_qos, true)?,
-        ];
-        let gt_type = match &gt_source {
-            Some(GroundTruthSub::Pose(_)) => Some(type_name::<crate::msg::PoseStamped>()),
-            Some(GroundTruthSub::Odometry(_)) => Some(type_name::<crate::msg::Odometry>()),
-            None => None,
-        };
-        if let Some(t) = gt_type {
-            own.push(endpoint(&params.ground_truth_topic, t, &sensor_data_qos(depth.max(50)), false)?);
-        }
-        peer_check::PeerCheck::new(own)
+    let served = if adapt.is_some() {
+        Served::Adaptation
+    } else if unavailable.is_some() {
+        Served::RefusingAdaptation
+    } else {
+        Served::Plain
     };
+    let Endpoints { subscription, out_pub, corr_pub, diag_pub, gt_source, server, retake_server, own } =
+        Endpoints::create(&mut node, &ros_node_name, &params, served)?;
+    let peer_check = peer_check::PeerCheck::new(own.clone());
+    let input_writers = peer_check::InputWriters::new(own[0].clone());
     let participant = context.domain_participant();
-    let spinner = node.spinner().map_err(dds)?;
+    let spinner = node.spinner().map_err(|e| NodeError::Dds(format!("{e:?}")))?;
 
     let memory_writer = power_on::BiasMemoryWriter::new(&params.power_on_bias_memory, &pipeline);
     let stats = Arc::new(Mutex::new(NodeStats {
@@ -274,13 +214,6 @@ pub async fn run_node_with_adaptation(
     let tap = buffers.as_ref().map(|b| AdaptTap { buffers: b.clone(), adapting: adapting.clone() });
     // Set by `~/retake_power_on_bias`, taken by the process loop between two samples.
     let retake = Arc::new(AtomicBool::new(false));
-    let input_writers = peer_check::InputWriters::new(peer_check::OwnEndpoint::new(
-        &topic_name(&params.input_topic)?,
-        &ros_node_name,
-        &type_name::<Imu>(),
-        &sensor_qos,
-        false,
-    ));
     let controls = LoopControls { tap, retake: retake.clone(), input_writers, participant: participant.clone() };
     let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits, controls);
     let retake_task = async {
@@ -302,51 +235,21 @@ pub async fn run_node_with_adaptation(
             _ => std::future::pending().await,
         }
     };
-    let diag_stats = stats.clone();
     // Shared with the end of the run, which saves what the last tick did not.
     let memory_writer = Arc::new(Mutex::new(memory_writer));
-    let diag_memory = memory_writer.clone();
-    let node_name_owned = node_name.to_string();
-    let period = Duration::from_secs_f64(params.diagnostics_period.max(0.01));
-    let node_ref = &node;
-    let diagnostics = async move {
-        let mut tick = tokio::time::interval(period);
-        let mut clock = StatusClock::default();
-        loop {
-            tick.tick().await;
-            let remotes = participant.discovered_writers().iter().map(peer_check::RemoteEndpoint::writer).collect::<Vec<_>>();
-            let readers = participant.discovered_readers();
-            for said in peer_check.scan(remotes.into_iter().chain(readers.iter().map(peer_check::RemoteEndpoint::reader))) {
-                tracing::warn!("{said}: it cannot work with this node (docs/interop.md, \"Peers that cannot match\")");
-            }
-            let stamp = Time::from_ns(node_ref.time_now().to_nanos());
-            let msg = {
-                let mut s = diag_stats.lock().expect("stats lock");
-                let (present, described) = peer_check.present();
-                s.incompatible_peers = IncompatiblePeers { said: peer_check.count(), present, described: described.to_vec() };
-                let live = clock.tick(&s, status_clock_ns(Instant::now()));
-                diagnostics_message(&s, &live, &node_name_owned, stamp)
-            };
-            if let Err(e) = diag_pub.async_publish(msg).await {
-                tracing::warn!("diagnostics publish: {e:?}");
-            }
-            if let Some(w) = diag_memory.lock().expect("memory lock").as_mut() {
-                w.tick(&diag_stats, false);
-            }
-        }
-    };
-    let shutdown = async {
-        #[cfg(unix)]
-        {
-            let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
-            tokio::select! {
-                _ = tokio::signal::ctrl_c() => {}
-                _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
-            }
-        }
-        #[cfg(not(unix))]
-        let _ = tokio::signal::ctrl_c().await;
-    };
+    let diagnostics = publish_diagnostics(
+        DiagnosticsTask {
+            period: Duration::from_secs_f64(params.diagnostics_period.max(0.01)),
+            node_name,
+            stats: stats.clone(),
+            memory_writer: memory_writer.clone(),
+            participant,
+            peer_check,
+        },
+        &node,
+        &diag_pub,
+    );
+    let shutdown = shutdown_signal();
     tokio::select! {
         _ = processing => {}
         _ = diagnostics => {}
@@ -381,6 +284,61 @@ pub async fn run_node_with_adaptation(
         );
     }
     Ok(s)
+}
+
+/// What the /diagnostics publisher works with.
+struct DiagnosticsTask<'a> {
+    period: Duration,
+    node_name: &'a str,
+    stats: Arc<Mutex<NodeStats>>,
+    memory_writer: Arc<Mutex<Option<power_on::BiasMemoryWriter>>>,
+    participant: ros2_client::dds::rustdds::DomainParticipant,
+    peer_check: peer_check::PeerCheck,
+}
+
+/// Each period: the peers on the node's topics checked against what discovery holds, the
+/// status published on /diagnostics, the bias memory saved when it moved.
+async fn publish_diagnostics(task: DiagnosticsTask<'_>, node: &ros2_client::Node, diag_pub: &ros2_client::Publisher<DiagnosticArray>) {
+    let DiagnosticsTask { period, node_name, stats, memory_writer, participant, mut peer_check } = task;
+    let mut tick = tokio::time::interval(period);
+    let mut clock = StatusClock::default();
+    loop {
+        tick.tick().await;
+        let writers = participant.discovered_writers();
+        let readers = participant.discovered_readers();
+        let remotes = writers.iter().map(peer_check::RemoteEndpoint::writer).chain(readers.iter().map(peer_check::RemoteEndpoint::reader));
+        for said in peer_check.scan(remotes) {
+            tracing::warn!("{said}: it cannot work with this node (docs/interop.md, \"Peers that cannot match\")");
+        }
+        let stamp = Time::from_ns(node.time_now().to_nanos());
+        let msg = {
+            let mut s = stats.lock().expect("stats lock");
+            let (present, described) = peer_check.present();
+            s.incompatible_peers = IncompatiblePeers { said: peer_check.count(), present, described: described.to_vec() };
+            let live = clock.tick(&s, status_clock_ns(Instant::now()));
+            diagnostics_message(&s, &live, node_name, stamp)
+        };
+        if let Err(e) = diag_pub.async_publish(msg).await {
+            tracing::warn!("diagnostics publish: {e:?}");
+        }
+        if let Some(w) = memory_writer.lock().expect("memory lock").as_mut() {
+            w.tick(&stats, false);
+        }
+    }
+}
+
+/// Ctrl-C, or SIGTERM where there is one (a service manager, `ros2 launch`).
+async fn shutdown_signal() {
+    #[cfg(unix)]
+    {
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = tokio::signal::ctrl_c().await;
 }
 
 /// What the process loop feeds and reads when the adaptation service is on.

@@ -1,0 +1,106 @@
+//! The node's DDS endpoints, made from its parameters: the input, the outputs and
+//! /diagnostics; the ground truth and `~/adapt` where adaptation is served; `~/retake_power_on_bias`
+//! where the power-on bias is measured; and the node's own endpoints as discovery names them
+//! (what [`super::peer_check`] compares peers against).
+
+use ros2_client::service::Server;
+use ros2_client::{MessageTypeName, Node, NodeName, Publisher, QosProfile, Subscription};
+
+use super::adaptation::GroundTruthSub;
+use super::messages::{topic_name, type_name, TriggerRequest, TriggerResponse};
+use super::peer_check::OwnEndpoint;
+use super::{power_on, sensor_data_qos, NodeError, NodeParams};
+use crate::msg::{DiagnosticArray, Imu, Odometry, PoseStamped, Vector3Stamped};
+
+/// Which services the node offers besides the topics.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Served {
+    /// No `~/adapt`.
+    Plain,
+    /// `~/adapt`, answering every call that it cannot adapt (no model): no ground truth read.
+    RefusingAdaptation,
+    /// `~/adapt` and the ground truth it adapts on.
+    Adaptation,
+}
+
+pub(super) struct Endpoints {
+    pub subscription: Subscription<Imu>,
+    pub out_pub: Publisher<Imu>,
+    pub corr_pub: Publisher<Vector3Stamped>,
+    pub diag_pub: Publisher<DiagnosticArray>,
+    pub gt_source: Option<GroundTruthSub>,
+    pub server: Option<Server<TriggerRequest, TriggerResponse>>,
+    pub retake_server: Option<Server<TriggerRequest, TriggerResponse>>,
+    /// The node's topics as discovery names them, the input first.
+    pub own: Vec<OwnEndpoint>,
+}
+
+impl Endpoints {
+    pub(super) fn create(node: &mut Node, node_name: &NodeName, params: &NodeParams, served: Served) -> Result<Self, NodeError> {
+        let depth = params.queue_depth.max(1);
+        let sensor_qos = sensor_data_qos(depth);
+        let reliable_qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth });
+        let dds = |e: ros2_client::CreateError| NodeError::Dds(format!("{e:?}"));
+        let mut own = Vec::new();
+        let mut topic = |name: &str, type_name: MessageTypeName, qos: &QosProfile, writes: bool| {
+            let ros_name = topic_name(name)?;
+            own.push(OwnEndpoint::new(&ros_name, node_name, &type_name, qos, writes));
+            node.create_topic(&ros_name, type_name, qos).map_err(dds)
+        };
+        let input_topic = topic(&params.input_topic, type_name::<Imu>(), &sensor_qos, false)?;
+        let output_topic = topic(&params.output_topic, type_name::<Imu>(), &reliable_qos, true)?;
+        let correction_topic = topic(&params.correction_topic, type_name::<Vector3Stamped>(), &reliable_qos, true)?;
+        let diag_topic = topic(&params.diagnostics_topic, type_name::<DiagnosticArray>(), &reliable_qos, true)?;
+        let gt_qos = sensor_data_qos(depth.max(50));
+        let gt_topic = match served {
+            Served::Adaptation => Some(match params.ground_truth_type.as_str() {
+                "geometry_msgs/msg/PoseStamped" | "geometry_msgs/PoseStamped" => {
+                    (true, topic(&params.ground_truth_topic, type_name::<PoseStamped>(), &gt_qos, false)?)
+                }
+                "nav_msgs/msg/Odometry" | "nav_msgs/Odometry" => {
+                    (false, topic(&params.ground_truth_topic, type_name::<Odometry>(), &gt_qos, false)?)
+                }
+                other => {
+                    return Err(NodeError::Invalid {
+                        what: "ground_truth_type",
+                        value: other.into(),
+                        why: "geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry".into(),
+                    })
+                }
+            }),
+            Served::Plain | Served::RefusingAdaptation => None,
+        };
+        let subscription = node.create_subscription::<Imu>(&input_topic, Some(sensor_qos.clone())).map_err(dds)?;
+        let out_pub = node.create_publisher::<Imu>(&output_topic, Some(reliable_qos.clone())).map_err(dds)?;
+        let corr_pub = node.create_publisher::<Vector3Stamped>(&correction_topic, Some(reliable_qos.clone())).map_err(dds)?;
+        let diag_pub = node.create_publisher::<DiagnosticArray>(&diag_topic, Some(reliable_qos)).map_err(dds)?;
+        let gt_source = match gt_topic {
+            Some((true, t)) => Some(GroundTruthSub::Pose(node.create_subscription(&t, Some(gt_qos)).map_err(dds)?)),
+            Some((false, t)) => Some(GroundTruthSub::Odometry(node.create_subscription(&t, Some(gt_qos)).map_err(dds)?)),
+            None => None,
+        };
+        let server = match served {
+            Served::Plain => None,
+            Served::RefusingAdaptation | Served::Adaptation => {
+                let service_qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 10 });
+                let name = topic_name(&format!("/{}/adapt", node_name.base_name()))?;
+                Some(
+                    node.create_server::<TriggerRequest, TriggerResponse>(
+                        params.service_mapping.ros2(),
+                        &name,
+                        &ros2_client::ServiceTypeName::new("std_srvs", "Trigger"),
+                        service_qos.clone(),
+                        service_qos,
+                    )
+                    .map_err(dds)?,
+                )
+            }
+        };
+        let retake_server = if params.pipeline.power_on_bias {
+            Some(power_on::retake_server(node, node_name.base_name(), params.service_mapping)?)
+        } else {
+            None
+        };
+        Ok(Endpoints { subscription, out_pub, corr_pub, diag_pub, gt_source, server, retake_server, own })
+    }
+}
