@@ -44,10 +44,10 @@ fn uncalibrated(calibrated: &Path, out: &Path) {
         accel: rec.imu.iter().map(|x| x.accel).collect(),
     };
     let terms = [
-        Term::GyroMisalignment(GyroMisalignment { matrix: [[0.0, 0.004, -0.003], [0.002, 0.0, 0.005], [-0.004, 0.003, 0.0]] }),
-        Term::GyroScale(GyroScale { scale: GYRO_SCALE }),
-        Term::GyroBias(GyroBias { bias: GYRO_BIAS }),
-        Term::AccelBias(AccelBias { bias: [1.2, -0.4, 0.3] }),
+        Term::GyroMisalignment(GyroMisalignment::new([[0.0, 0.004, -0.003], [0.002, 0.0, 0.005], [-0.004, 0.003, 0.0]])),
+        Term::GyroScale(GyroScale::new(GYRO_SCALE)),
+        Term::GyroBias(GyroBias::new(GYRO_BIAS)),
+        Term::AccelBias(AccelBias::new([1.2, -0.4, 0.3])),
     ];
     apply_terms(&terms, &mut s, &mut TermContext::new(0)).unwrap();
     write_recording(out, &imu_fsda::core::Recording { imu: s.to_samples(), ..rec }).unwrap();

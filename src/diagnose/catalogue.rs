@@ -143,22 +143,18 @@ impl Catalogue {
             m
         };
 
-        let gb =
-            cat.linear("gyro_bias", (0..3).map(|i| (v3("bias", i), Term::GyroBias(GyroBias { bias: unit(i) }), 1.0)).collect(), base)?;
+        let gb = cat.linear("gyro_bias", (0..3).map(|i| (v3("bias", i), Term::GyroBias(GyroBias::new(unit(i))), 1.0)).collect(), base)?;
         cat.add("gyro_bias", gb.clone(), Map::Direct);
         let step = 1e-3;
         let a = cat.linear(
             "gyro_scale",
-            (0..3).map(|i| (v3("scale", i), Term::GyroScale(GyroScale { scale: unit(i).map(|x| x * step) }), step)).collect(),
+            (0..3).map(|i| (v3("scale", i), Term::GyroScale(GyroScale::new(unit(i).map(|x| x * step))), step)).collect(),
             base,
         )?;
         cat.add("gyro_scale", a, Map::Direct);
         let a = cat.linear(
             "gyro_misalignment",
-            OFF_DIAGONAL
-                .iter()
-                .map(|&(r, c)| (m3(r, c), Term::GyroMisalignment(GyroMisalignment { matrix: mat(r, c, step) }), step))
-                .collect(),
+            OFF_DIAGONAL.iter().map(|&(r, c)| (m3(r, c), Term::GyroMisalignment(GyroMisalignment::new(mat(r, c, step))), step)).collect(),
             base,
         )?;
         cat.add("gyro_misalignment", a, Map::Direct);
@@ -190,21 +186,17 @@ impl Catalogue {
             }
             _ => cat.excluded.push(("gyro_bias_temperature".into(), "the die temperature is unknown or spans less than 1 K".into())),
         }
-        let a =
-            cat.linear("accel_bias", (0..3).map(|i| (v3("bias", i), Term::AccelBias(AccelBias { bias: unit(i) }), 1.0)).collect(), base)?;
+        let a = cat.linear("accel_bias", (0..3).map(|i| (v3("bias", i), Term::AccelBias(AccelBias::new(unit(i))), 1.0)).collect(), base)?;
         cat.add("accel_bias", a, Map::Direct);
         let a = cat.linear(
             "accel_scale",
-            (0..3).map(|i| (v3("scale", i), Term::AccelScale(AccelScale { scale: unit(i).map(|x| x * step) }), step)).collect(),
+            (0..3).map(|i| (v3("scale", i), Term::AccelScale(AccelScale::new(unit(i).map(|x| x * step))), step)).collect(),
             base,
         )?;
         cat.add("accel_scale", a, Map::Direct);
         let a = cat.linear(
             "accel_misalignment",
-            OFF_DIAGONAL
-                .iter()
-                .map(|&(r, c)| (m3(r, c), Term::AccelMisalignment(AccelMisalignment { matrix: mat(r, c, step) }), step))
-                .collect(),
+            OFF_DIAGONAL.iter().map(|&(r, c)| (m3(r, c), Term::AccelMisalignment(AccelMisalignment::new(mat(r, c, step))), step)).collect(),
             base,
         )?;
         cat.add("accel_misalignment", a, Map::Direct);
@@ -352,14 +344,14 @@ pub fn to_term(name: &str, beta: &[f64], nonlinear: f64, vibration_hz: f64) -> T
         m
     };
     match name {
-        "gyro_bias" => Term::GyroBias(GyroBias { bias: v(0) }),
-        "gyro_scale" => Term::GyroScale(GyroScale { scale: v(0) }),
-        "gyro_misalignment" => Term::GyroMisalignment(GyroMisalignment { matrix: off(beta) }),
+        "gyro_bias" => Term::GyroBias(GyroBias::new(v(0))),
+        "gyro_scale" => Term::GyroScale(GyroScale::new(v(0))),
+        "gyro_misalignment" => Term::GyroMisalignment(GyroMisalignment::new(off(beta))),
         "gyro_g_sensitivity" => Term::GyroGSensitivity(GyroGSensitivity { matrix: [v(0), v(3), v(6)] }),
         "gyro_bias_temperature" => Term::GyroBiasTemperature(GyroBiasTemperature { coefficient: v(0), reference_c: nonlinear }),
-        "accel_bias" => Term::AccelBias(AccelBias { bias: v(0) }),
-        "accel_scale" => Term::AccelScale(AccelScale { scale: v(0) }),
-        "accel_misalignment" => Term::AccelMisalignment(AccelMisalignment { matrix: off(beta) }),
+        "accel_bias" => Term::AccelBias(AccelBias::new(v(0))),
+        "accel_scale" => Term::AccelScale(AccelScale::new(v(0))),
+        "accel_misalignment" => Term::AccelMisalignment(AccelMisalignment::new(off(beta))),
         "mount_rotation" => Term::MountRotation(MountRotation { rotvec: v(0) }),
         "lever_arm" => Term::LeverArm(LeverArm { offset: v(0) }),
         "time_offset" => Term::TimeOffset(TimeOffset { seconds: beta[0] }),
@@ -656,7 +648,7 @@ mod tests {
         g[0][1] = 1.6e-4;
         let plausible = [
             Term::GyroGSensitivity(GyroGSensitivity { matrix: g }),
-            Term::GyroScale(GyroScale { scale: [3e-4, -7e-4, 8e-4] }),
+            Term::GyroScale(GyroScale::new([3e-4, -7e-4, 8e-4])),
             Term::LeverArm(LeverArm { offset: [-0.02, 0.03, -0.03] }),
             Term::TimeOffset(TimeOffset { seconds: 7e-5 }),
             Term::Vibration(Vibration { frequency_hz: 56.4, accel_amplitude: [0.01, 0.02, 0.02], phase_rad: [0.0; 3] }),
@@ -665,7 +657,7 @@ mod tests {
             Term::EarthRotation(EarthRotation { latitude_rad: 0.83, rate_rad_s: earth_rotation::EARTH_RATE }),
             Term::LowPass(LowPass { cutoff_hz: 45.0, sensor: LowPassSensor::Both }),
             Term::GyroNoiseDensity(GyroNoiseDensity { factor: 1.5 }),
-            Term::AccelBias(AccelBias { bias: [0.05, -0.07, 0.07] }),
+            Term::AccelBias(AccelBias::new([0.05, -0.07, 0.07])),
         ];
         for t in &plausible {
             assert_eq!(implausible(t, fs), None, "{t:?}");
@@ -676,7 +668,7 @@ mod tests {
             (Term::GravityMagnitude(GravityMagnitude { g: 9.988 }), "9.988 m/s²"),
             (Term::LowPass(LowPass { cutoff_hz: 130.4, sensor: LowPassSensor::Both }), "Nyquist"),
             (Term::EarthRotation(EarthRotation { latitude_rad: std::f64::consts::FRAC_PI_2, rate_rad_s: 7.29e-5 }), "pinned"),
-            (Term::GyroScale(GyroScale { scale: [-0.057, -0.0097, 0.1316] }), "0.1316"),
+            (Term::GyroScale(GyroScale::new([-0.057, -0.0097, 0.1316])), "0.1316"),
             (Term::TimeOffset(TimeOffset { seconds: -0.009 }), "1.8 samples"),
             (Term::Vibration(Vibration { frequency_hz: 1.09, accel_amplitude: [0.0, 0.0, 0.04], phase_rad: [0.0; 3] }), "motion"),
         ];

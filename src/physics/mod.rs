@@ -43,23 +43,21 @@
 //! println!("realised white noise on gyro: {} samples", ctx.history.gyro_white.len());
 //! ```
 
-pub mod accel_bias;
-pub mod accel_misalignment;
-pub mod accel_scale;
+pub mod bias;
 pub mod bias_random_walk;
 pub mod earth_rotation;
 pub mod gravity_magnitude;
-pub mod gyro_bias;
 pub mod gyro_bias_temperature;
 pub mod gyro_g_sensitivity;
-pub mod gyro_misalignment;
 pub mod gyro_noise_density;
-pub mod gyro_scale;
 pub mod lever_arm;
 pub mod low_pass;
+pub mod misalignment;
 pub mod mount_rotation;
 pub mod quantization;
 pub mod saturation;
+pub mod scale;
+pub mod sensor_kind;
 pub mod time_offset;
 pub mod vibration;
 pub mod white_noise;
@@ -69,23 +67,21 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-pub use accel_bias::AccelBias;
-pub use accel_misalignment::AccelMisalignment;
-pub use accel_scale::AccelScale;
+pub use bias::{AccelBias, Bias, GyroBias};
 pub use bias_random_walk::BiasRandomWalk;
 pub use earth_rotation::EarthRotation;
 pub use gravity_magnitude::GravityMagnitude;
-pub use gyro_bias::GyroBias;
 pub use gyro_bias_temperature::GyroBiasTemperature;
 pub use gyro_g_sensitivity::GyroGSensitivity;
-pub use gyro_misalignment::GyroMisalignment;
 pub use gyro_noise_density::GyroNoiseDensity;
-pub use gyro_scale::GyroScale;
 pub use lever_arm::LeverArm;
 pub use low_pass::{LowPass, LowPassSensor};
+pub use misalignment::{AccelMisalignment, GyroMisalignment, Misalignment};
 pub use mount_rotation::MountRotation;
 pub use quantization::Quantization;
 pub use saturation::Saturation;
+pub use scale::{AccelScale, GyroScale, Scale};
+pub use sensor_kind::{Accel, Gyro, SensorKind};
 pub use time_offset::TimeOffset;
 pub use vibration::Vibration;
 pub use white_noise::WhiteNoise;
@@ -646,9 +642,9 @@ mod tests {
     #[test]
     fn reads_answer_json_form_and_rejects_typos() {
         let t: Term = serde_json::from_str(r#"{"term": "gyro_scale", "params": {"scale": [0.001, -0.002, 0.0], "_energy": 978}}"#).unwrap();
-        assert_eq!(t, Term::GyroScale(GyroScale { scale: [0.001, -0.002, 0.0] }));
+        assert_eq!(t, Term::GyroScale(GyroScale::new([0.001, -0.002, 0.0])));
         let t: Term = serde_yaml::from_str("{term: gyro_bias, bias: [1, 2, 3]}").unwrap();
-        assert_eq!(t, Term::GyroBias(GyroBias { bias: [1.0, 2.0, 3.0] }));
+        assert_eq!(t, Term::GyroBias(GyroBias::new([1.0, 2.0, 3.0])));
         let e = serde_yaml::from_str::<Term>("{term: gyro_bias, bais: [1, 2, 3]}").unwrap_err().to_string();
         assert!(e.contains("bais"), "{e}");
         let e = serde_yaml::from_str::<Term>("{term: gyro_wobble, x: 1}").unwrap_err().to_string();
@@ -672,7 +668,7 @@ mod tests {
     fn order_is_physical_whatever_the_list_order() {
         let terms = vec![
             Term::Saturation(Saturation { gyro_range: 0.1, accel_range: f64::INFINITY }),
-            Term::GyroBias(GyroBias { bias: [1.0, 0.0, 0.0] }),
+            Term::GyroBias(GyroBias::new([1.0, 0.0, 0.0])),
             Term::MountRotation(MountRotation { rotvec: [0.0, 0.0, 0.1] }),
         ];
         let names: Vec<_> = in_application_order(&terms).iter().map(|t| t.name()).collect();
@@ -704,7 +700,7 @@ mod tests {
     #[test]
     fn effect_is_the_difference() {
         let s = signals(20);
-        let e = effect(&Term::GyroBias(GyroBias { bias: [0.0, 0.5, 0.0] }), &s, 0).unwrap();
+        let e = effect(&Term::GyroBias(GyroBias::new([0.0, 0.5, 0.0])), &s, 0).unwrap();
         assert!(e.gyro.iter().all(|d| (d - Vector3::new(0.0, 0.5, 0.0)).norm() < 1e-12));
         assert!(e.accel.iter().all(|d| d.norm() == 0.0));
     }

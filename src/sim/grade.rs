@@ -252,7 +252,7 @@ impl GradeSpec {
         let mut draw = |range: f64| -> [f64; 3] { std::array::from_fn(|_| rng.gen_range(-1.0..=1.0) * range) };
         let gyro = draw(self.gyro_turn_on_bias);
         let accel = draw(self.accel_turn_on_bias);
-        [Term::GyroBias(GyroBias { bias: gyro }), Term::AccelBias(AccelBias { bias: accel })]
+        [Term::GyroBias(GyroBias::new(gyro)), Term::AccelBias(AccelBias::new(accel))]
     }
 }
 

@@ -78,19 +78,19 @@ fn draw(name: &str, rng: &mut impl Rng, s: &ImuSignals, var: (f64, f64)) -> Term
     match name {
         "gyro_scale" => {
             let u = unit3(rng);
-            sized(&|k| Term::GyroScale(GyroScale { scale: u.map(|v| v * k * 1e-3) }))
+            sized(&|k| Term::GyroScale(GyroScale::new(u.map(|v| v * k * 1e-3))))
         }
         "accel_scale" => {
             let u = unit3(rng);
-            sized(&|k| Term::AccelScale(AccelScale { scale: u.map(|v| v * k * 1e-3) }))
+            sized(&|k| Term::AccelScale(AccelScale::new(u.map(|v| v * k * 1e-3))))
         }
         "gyro_misalignment" => {
             let m = off(rng);
-            sized(&|k| Term::GyroMisalignment(GyroMisalignment { matrix: sc(m, k * 1e-3) }))
+            sized(&|k| Term::GyroMisalignment(GyroMisalignment::new(sc(m, k * 1e-3))))
         }
         "accel_misalignment" => {
             let m = off(rng);
-            sized(&|k| Term::AccelMisalignment(AccelMisalignment { matrix: sc(m, k * 1e-3) }))
+            sized(&|k| Term::AccelMisalignment(AccelMisalignment::new(sc(m, k * 1e-3))))
         }
         "gyro_g_sensitivity" => {
             let m: [[f64; 3]; 3] = std::array::from_fn(|_| std::array::from_fn(|_| rng.gen_range(-1.0..1.0)));
@@ -127,8 +127,8 @@ fn draw(name: &str, rng: &mut impl Rng, s: &ImuSignals, var: (f64, f64)) -> Term
             }
             Term::LowPass(LowPass { cutoff_hz: (0.5 * (lo + hi)).exp(), sensor })
         }
-        "gyro_bias" => Term::GyroBias(GyroBias { bias: unit3(rng).map(|v| v * rng.gen_range(0.002..0.01)) }),
-        "accel_bias" => Term::AccelBias(AccelBias { bias: unit3(rng).map(|v| v * rng.gen_range(0.03..0.15)) }),
+        "gyro_bias" => Term::GyroBias(GyroBias::new(unit3(rng).map(|v| v * rng.gen_range(0.002..0.01)))),
+        "accel_bias" => Term::AccelBias(AccelBias::new(unit3(rng).map(|v| v * rng.gen_range(0.03..0.15)))),
         "gyro_bias_temperature" => Term::GyroBiasTemperature(GyroBiasTemperature {
             coefficient: unit3(rng).map(|v| v * rng.gen_range(2e-4..8e-4)),
             reference_c: 25.0,

@@ -68,17 +68,17 @@ fn off_diagonal(rng: &mut impl Rng, lo: f64, hi: f64) -> [[f64; 3]; 3] {
 fn draw(name: &str, rng: &mut impl Rng, rate_hz: f64) -> Term {
     use physics::*;
     match name {
-        "gyro_bias" => Term::GyroBias(GyroBias { bias: axes(&mut *rng, 0.005, 0.05) }),
-        "gyro_scale" => Term::GyroScale(GyroScale { scale: axes(&mut *rng, 0.005, 0.04) }),
-        "gyro_misalignment" => Term::GyroMisalignment(GyroMisalignment { matrix: off_diagonal(rng, 0.002, 0.01) }),
+        "gyro_bias" => Term::GyroBias(GyroBias::new(axes(&mut *rng, 0.005, 0.05))),
+        "gyro_scale" => Term::GyroScale(GyroScale::new(axes(&mut *rng, 0.005, 0.04))),
+        "gyro_misalignment" => Term::GyroMisalignment(GyroMisalignment::new(off_diagonal(rng, 0.002, 0.01))),
         "gyro_g_sensitivity" => Term::GyroGSensitivity(GyroGSensitivity { matrix: std::array::from_fn(|_| axes(&mut *rng, 1e-4, 5e-4)) }),
         // Within one sample: a larger offset is a stamping fault, said as implausible.
         "time_offset" => Term::TimeOffset(TimeOffset { seconds: signed(rng, 0.1, 0.8) / rate_hz }),
         // Where real parts' digital low-pass filters sit: 0.1–0.4 of the sample rate.
         "low_pass" => Term::LowPass(LowPass { cutoff_hz: rng.gen_range(0.1..0.4) * rate_hz, sensor: LowPassSensor::Both }),
-        "accel_bias" => Term::AccelBias(AccelBias { bias: axes(&mut *rng, 0.05, 0.5) }),
-        "accel_scale" => Term::AccelScale(AccelScale { scale: axes(&mut *rng, 0.005, 0.03) }),
-        "accel_misalignment" => Term::AccelMisalignment(AccelMisalignment { matrix: off_diagonal(rng, 0.002, 0.01) }),
+        "accel_bias" => Term::AccelBias(AccelBias::new(axes(&mut *rng, 0.05, 0.5))),
+        "accel_scale" => Term::AccelScale(AccelScale::new(axes(&mut *rng, 0.005, 0.03))),
+        "accel_misalignment" => Term::AccelMisalignment(AccelMisalignment::new(off_diagonal(rng, 0.002, 0.01))),
         "mount_rotation" => {
             let u = Vector3::from_fn(|_, _| rng.gen_range(-1.0..1.0)).normalize() * rng.gen_range(0.5f64..3.0).to_radians();
             Term::MountRotation(MountRotation { rotvec: [u.x, u.y, u.z] })
@@ -151,14 +151,14 @@ fn mirrored(t: &Term) -> Option<Term> {
     let neg3 = |v: [f64; 3]| v.map(|x| -x);
     let neg33 = |m: [[f64; 3]; 3]| m.map(|r| r.map(|x| -x));
     Some(match t {
-        Term::GyroBias(b) => Term::GyroBias(GyroBias { bias: neg3(b.bias) }),
-        Term::GyroScale(b) => Term::GyroScale(GyroScale { scale: neg3(b.scale) }),
-        Term::GyroMisalignment(b) => Term::GyroMisalignment(GyroMisalignment { matrix: neg33(b.matrix) }),
+        Term::GyroBias(b) => Term::GyroBias(GyroBias::new(neg3(b.bias))),
+        Term::GyroScale(b) => Term::GyroScale(GyroScale::new(neg3(b.scale))),
+        Term::GyroMisalignment(b) => Term::GyroMisalignment(GyroMisalignment::new(neg33(b.matrix))),
         Term::GyroGSensitivity(b) => Term::GyroGSensitivity(GyroGSensitivity { matrix: neg33(b.matrix) }),
         Term::TimeOffset(b) => Term::TimeOffset(TimeOffset { seconds: -b.seconds }),
-        Term::AccelBias(b) => Term::AccelBias(AccelBias { bias: neg3(b.bias) }),
-        Term::AccelScale(b) => Term::AccelScale(AccelScale { scale: neg3(b.scale) }),
-        Term::AccelMisalignment(b) => Term::AccelMisalignment(AccelMisalignment { matrix: neg33(b.matrix) }),
+        Term::AccelBias(b) => Term::AccelBias(AccelBias::new(neg3(b.bias))),
+        Term::AccelScale(b) => Term::AccelScale(AccelScale::new(neg3(b.scale))),
+        Term::AccelMisalignment(b) => Term::AccelMisalignment(AccelMisalignment::new(neg33(b.matrix))),
         Term::MountRotation(b) => Term::MountRotation(MountRotation { rotvec: neg3(b.rotvec) }),
         _ => return None,
     })
