@@ -108,7 +108,7 @@ impl OrientationErrors {
 
 /// Integrate `gyro` (one per IMU sample) and compare with the ground truth.
 pub fn evaluate(rec: &Recording, gyro: &[Vector3<f64>], opts: &EvalOptions) -> Result<OrientationErrors, EvalError> {
-    evaluate_with_path(rec, gyro, opts).map(|(e, _)| e)
+    score(rec, gyro, opts, None)
 }
 
 /// The integrated attitude and the ground truth at every IMU sample from the start of the
@@ -119,11 +119,26 @@ pub struct OrientationPath {
     pub ground_truth: Vec<Option<UnitQuaternion<f64>>>,
 }
 
+/// [`evaluate`], with the path for plots (the attitude and the ground truth kept at every
+/// sample: [`evaluate`] keeps neither, so its memory is the ground truth at the IMU stamps).
 pub fn evaluate_with_path(
     rec: &Recording,
     gyro: &[Vector3<f64>],
     opts: &EvalOptions,
 ) -> Result<(OrientationErrors, OrientationPath), EvalError> {
+    let mut path = OrientationPath { start: 0, estimate: Vec::new(), ground_truth: Vec::new() };
+    let errors = score(rec, gyro, opts, Some(&mut path))?;
+    Ok((errors, path))
+}
+
+/// The gyro integrated from the first sample the ground truth covers and scored against it;
+/// the path filled in where one is given.
+fn score(
+    rec: &Recording,
+    gyro: &[Vector3<f64>],
+    opts: &EvalOptions,
+    mut path: Option<&mut OrientationPath>,
+) -> Result<OrientationErrors, EvalError> {
     if gyro.len() != rec.imu.len() {
         return Err(EvalError::Length { name: rec.name.clone(), got: gyro.len(), expected: rec.imu.len() });
     }
@@ -159,8 +174,13 @@ pub fn evaluate_with_path(
     // the hole (restarting from the ground truth instead made a lossy link score 0.1°). Without
     // ground truth at both ends, the last rate is held, and counted apart.
     let gap_limit = imu_gap_limit_ns(imu);
-    let mut estimate = Vec::with_capacity(imu.len());
+    if let Some(p) = path.as_deref_mut() {
+        *p = OrientationPath { start, estimate: Vec::with_capacity(imu.len()), ground_truth: gt.to_vec() };
+    }
     let (mut r, mut imu_gaps, mut held, mut longest_gap_ns) = (initial, 0usize, 0usize, 0i64);
+    let mut acc = ErrorAccumulator::default();
+    // The samples in ground-truth gaps before the last one scored.
+    let (mut last_eval, mut in_gaps, mut in_gaps_at_last) = (0, 0usize, 0usize);
     for n in 0..imu.len() {
         if n > 0 {
             let dt_ns = imu[n].stamp_ns - imu[n - 1].stamp_ns;
@@ -175,25 +195,25 @@ pub fn evaluate_with_path(
                 longest_gap_ns = longest_gap_ns.max(dt_ns);
             }
         }
-        estimate.push(r);
-    }
-
-    let mut acc = ErrorAccumulator::default();
-    let mut last_eval = 0;
-    for (n, (r_hat, r_gt)) in estimate.iter().zip(gt).enumerate() {
-        if let Some(r_gt) = r_gt {
-            acc.add(r_hat, r_gt);
-            last_eval = n;
+        match &gt[n] {
+            Some(r_gt) => {
+                acc.add(&r, r_gt);
+                (last_eval, in_gaps_at_last) = (n, in_gaps);
+            }
+            None => in_gaps += 1,
+        }
+        if let Some(p) = path.as_deref_mut() {
+            p.estimate.push(r);
         }
     }
     if acc.n < 2 {
         return Err(EvalError::TooShort { name: rec.name.clone(), covered: acc.n });
     }
     let mut errors = acc.finish();
-    errors.samples_in_gaps = gt.iter().take(last_eval + 1).filter(|g| g.is_none()).count();
+    errors.samples_in_gaps = in_gaps_at_last;
     errors.seconds = (imu[last_eval].stamp_ns - imu[0].stamp_ns) as f64 * 1e-9;
     (errors.imu_gaps, errors.imu_gaps_held, errors.longest_imu_gap_s) = (imu_gaps, held, longest_gap_ns as f64 * 1e-9);
-    Ok((errors, OrientationPath { start, estimate, ground_truth: gt.to_vec() }))
+    Ok(errors)
 }
 
 /// An IMU interval longer than this is a hole (the node's gap rule): five of the stream's

@@ -5,7 +5,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
 use imu_fsda::core::{ImuSample, Recording};
-use imu_fsda::eval::{evaluate_with_path, mean_rate_error, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector};
+use imu_fsda::eval::{
+    evaluate, evaluate_with_path, mean_rate_error, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector,
+};
 use imu_fsda::infer::{choose, ModelDomain};
 use imu_fsda::model::export::load_metadata;
 use imu_fsda::model::predict::{correct_with_torchscript_at_model_rate, metadata_path};
@@ -227,46 +229,67 @@ impl<'a> Evaluation<'a> {
         let notes = self.recording_notes(&scored, bag, name);
         let source = scored.whole.as_ref().unwrap_or(rec);
         let span = scored_span(source, rec);
-        let mut streams: Vec<(String, Stream)> = Vec::new();
+        // Each stream scored as soon as it is made and then dropped: one at a time in memory.
+        let mut paths: Vec<(String, OrientationPath)> = Vec::new();
         for &m in &self.methods {
             let got = match m.apply(source, &self.detector, &standstill) {
+                Ok((g, note)) if span.len() == g.len() => Ok((g, note)),
                 Ok((g, note)) => Ok((g[span.clone()].to_vec(), note)),
                 Err(imu_fsda::eval::EvalError::Method { why, .. }) => Err(why),
                 Err(e) => Err(e.to_string()),
             };
-            streams.push((m.name().into(), got));
+            self.score_stream(rec, name, m.name().into(), got, &notes, rows, &mut paths);
         }
+        let mut streams: Vec<(String, Stream)> = Vec::new();
         self.model_streams(source, &span, bag, name, &standstill, &mut streams)?;
-        // Integrated paths of the methods that evaluated, for the figures.
-        let mut paths: Vec<(String, OrientationPath)> = Vec::new();
         for (method, got) in streams {
-            let (gyro, mut note) = match got {
-                Ok(g) => g,
-                Err(why) => {
-                    rows.push(Row { bag: name.to_string(), method, errors: None, note: why });
-                    continue;
-                }
-            };
-            for n in &notes {
-                add_note(&mut note, n);
-            }
-            match evaluate_with_path(rec, &gyro, &self.opts) {
-                Ok((e, path)) => {
-                    if self.args.plot_dir.is_some() {
-                        paths.push((method.clone(), path));
-                    }
-                    if let Some(gaps) = e.gap_note() {
-                        add_note(&mut note, &gaps);
-                    }
-                    rows.push(Row { bag: name.to_string(), method: method.clone(), errors: Some(e), note });
-                }
-                Err(e) => rows.push(Row { bag: name.to_string(), method: method.clone(), errors: None, note: e.to_string() }),
-            }
-            if self.args.oracle_bias {
-                rows.push(self.oracle_bias_row(rec, name, &method, &gyro));
-            }
+            self.score_stream(rec, name, method, got, &notes, rows, &mut paths);
         }
         self.figures(name, rec, &paths)
+    }
+
+    /// One method's or model's row (or why it has none), its path kept for the figures.
+    #[allow(clippy::too_many_arguments)]
+    fn score_stream(
+        &self,
+        rec: &Recording,
+        name: &str,
+        method: String,
+        got: Stream,
+        notes: &[String],
+        rows: &mut Vec<Row>,
+        paths: &mut Vec<(String, OrientationPath)>,
+    ) {
+        let (gyro, mut note) = match got {
+            Ok(g) => g,
+            Err(why) => {
+                rows.push(Row { bag: name.to_string(), method, errors: None, note: why });
+                return;
+            }
+        };
+        for n in notes {
+            add_note(&mut note, n);
+        }
+        let scored = if self.args.plot_dir.is_some() {
+            evaluate_with_path(rec, &gyro, &self.opts).map(|(e, path)| {
+                paths.push((method.clone(), path));
+                e
+            })
+        } else {
+            evaluate(rec, &gyro, &self.opts)
+        };
+        match scored {
+            Ok(e) => {
+                if let Some(gaps) = e.gap_note() {
+                    add_note(&mut note, &gaps);
+                }
+                rows.push(Row { bag: name.to_string(), method: method.clone(), errors: Some(e), note });
+            }
+            Err(e) => rows.push(Row { bag: name.to_string(), method: method.clone(), errors: None, note: e.to_string() }),
+        }
+        if self.args.oracle_bias {
+            rows.push(self.oracle_bias_row(rec, name, &method, &gyro));
+        }
     }
 
     /// Reads `bag` and keeps what can be scored: values no IMU measures dropped (as the node
@@ -439,7 +462,7 @@ impl<'a> Evaluation<'a> {
         let bound = format!("{method} − oracle bias");
         let row = mean_rate_error(rec, gyro, &self.opts).and_then(|b| {
             let fixed: Vec<Vector3<f64>> = gyro.iter().map(|g| g - b).collect();
-            let (e, _) = evaluate_with_path(rec, &fixed, &self.opts)?;
+            let e = evaluate(rec, &fixed, &self.opts)?;
             let note = format!("oracle, reads the ground truth: constant [{:.5}, {:.5}, {:.5}] rad/s removed", b.x, b.y, b.z);
             Ok(Row { bag: name.to_string(), method: bound.clone(), errors: Some(e), note })
         });
