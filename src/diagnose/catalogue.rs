@@ -104,6 +104,34 @@ impl Catalogue {
         Ok(idx)
     }
 
+    /// The bias, scale and misalignment of sensor `S`, in that order, as regressors; returns
+    /// the bias's atoms (the temperature term extends them).
+    fn sensor_terms<S: physics::SensorKind>(&mut self, base: &ImuSignals) -> Result<Vec<usize>, DiagnoseError>
+    where
+        Term: From<physics::Bias<S>> + From<physics::Scale<S>> + From<physics::Misalignment<S>>,
+    {
+        use physics::{Bias, ErrorTerm, Misalignment, Scale};
+        let step = 1e-3;
+        let label = |name: &str, i: usize| format!("{name}[{i}]");
+        let bias = (0..3).map(|i| (label("bias", i), Term::from(Bias::<S>::new(unit(i))), 1.0)).collect();
+        let bias = self.linear(Bias::<S>::NAME, bias, base)?;
+        self.add(Bias::<S>::NAME, bias.clone(), Map::Direct);
+        let scale = (0..3).map(|i| (label("scale", i), Term::from(Scale::<S>::new(unit(i).map(|x| x * step))), step)).collect();
+        let scale = self.linear(Scale::<S>::NAME, scale, base)?;
+        self.add(Scale::<S>::NAME, scale, Map::Direct);
+        let off = OFF_DIAGONAL
+            .iter()
+            .map(|&(r, c)| {
+                let mut m = [[0.0; 3]; 3];
+                m[r][c] = step;
+                (format!("matrix[{r}][{c}]"), Term::from(Misalignment::<S>::new(m)), step)
+            })
+            .collect();
+        let off = self.linear(Misalignment::<S>::NAME, off, base)?;
+        self.add(Misalignment::<S>::NAME, off, Map::Direct);
+        Ok(bias)
+    }
+
     fn add(&mut self, name: &'static str, atoms: Vec<usize>, map: Map) {
         let params = match map {
             Map::Direct => atoms.len(),
@@ -143,21 +171,8 @@ impl Catalogue {
             m
         };
 
-        let gb = cat.linear("gyro_bias", (0..3).map(|i| (v3("bias", i), Term::GyroBias(GyroBias::new(unit(i))), 1.0)).collect(), base)?;
-        cat.add("gyro_bias", gb.clone(), Map::Direct);
+        let gb = cat.sensor_terms::<Gyro>(base)?;
         let step = 1e-3;
-        let a = cat.linear(
-            "gyro_scale",
-            (0..3).map(|i| (v3("scale", i), Term::GyroScale(GyroScale::new(unit(i).map(|x| x * step))), step)).collect(),
-            base,
-        )?;
-        cat.add("gyro_scale", a, Map::Direct);
-        let a = cat.linear(
-            "gyro_misalignment",
-            OFF_DIAGONAL.iter().map(|&(r, c)| (m3(r, c), Term::GyroMisalignment(GyroMisalignment::new(mat(r, c, step))), step)).collect(),
-            base,
-        )?;
-        cat.add("gyro_misalignment", a, Map::Direct);
         let a = cat.linear(
             "gyro_g_sensitivity",
             (0..9)
@@ -186,20 +201,7 @@ impl Catalogue {
             }
             _ => cat.excluded.push(("gyro_bias_temperature".into(), "the die temperature is unknown or spans less than 1 K".into())),
         }
-        let a = cat.linear("accel_bias", (0..3).map(|i| (v3("bias", i), Term::AccelBias(AccelBias::new(unit(i))), 1.0)).collect(), base)?;
-        cat.add("accel_bias", a, Map::Direct);
-        let a = cat.linear(
-            "accel_scale",
-            (0..3).map(|i| (v3("scale", i), Term::AccelScale(AccelScale::new(unit(i).map(|x| x * step))), step)).collect(),
-            base,
-        )?;
-        cat.add("accel_scale", a, Map::Direct);
-        let a = cat.linear(
-            "accel_misalignment",
-            OFF_DIAGONAL.iter().map(|&(r, c)| (m3(r, c), Term::AccelMisalignment(AccelMisalignment::new(mat(r, c, step))), step)).collect(),
-            base,
-        )?;
-        cat.add("accel_misalignment", a, Map::Direct);
+        cat.sensor_terms::<Accel>(base)?;
         let rstep = 1e-6;
         let a = cat.linear(
             "mount_rotation",
