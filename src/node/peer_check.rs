@@ -143,8 +143,8 @@ fn hex(guid: &GUID) -> String {
     guid.to_bytes().iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// Writers followed by [`InputWriters`]; a topic with more (a misconfigured graph) has the rest
-/// looked up in discovery at each of their samples.
+/// Writers followed by [`InputWriters`]; beyond them (a misconfigured graph) the oldest is
+/// forgotten, and looked up in discovery again at its next sample.
 const MAX_WRITERS: usize = 16;
 
 /// The input's writers judged by the type discovery gives them. RustDDS matches a writer of
