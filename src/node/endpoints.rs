@@ -31,8 +31,10 @@ pub(super) struct Endpoints {
     pub gt_source: Option<GroundTruthSub>,
     pub server: Option<Server<TriggerRequest, TriggerResponse>>,
     pub retake_server: Option<Server<TriggerRequest, TriggerResponse>>,
-    /// The node's topics as discovery names them, the input first.
+    /// The node's topics as discovery names them.
     pub own: Vec<OwnEndpoint>,
+    /// The input's among them (what its writers are judged against).
+    pub own_input: OwnEndpoint,
 }
 
 impl Endpoints {
@@ -70,6 +72,8 @@ impl Endpoints {
             }),
             Served::Plain | Served::RefusingAdaptation => None,
         };
+        // The input's topic was made first.
+        let own_input = own[0].clone();
         let subscription = node.create_subscription::<Imu>(&input_topic, Some(sensor_qos.clone())).map_err(dds)?;
         let out_pub = node.create_publisher::<Imu>(&output_topic, Some(reliable_qos.clone())).map_err(dds)?;
         let corr_pub = node.create_publisher::<Vector3Stamped>(&correction_topic, Some(reliable_qos.clone())).map_err(dds)?;
@@ -101,6 +105,6 @@ impl Endpoints {
         } else {
             None
         };
-        Ok(Endpoints { subscription, out_pub, corr_pub, diag_pub, gt_source, server, retake_server, own })
+        Ok(Endpoints { subscription, out_pub, corr_pub, diag_pub, gt_source, server, retake_server, own, own_input })
     }
 }

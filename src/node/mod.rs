@@ -176,10 +176,10 @@ pub async fn run_node_with_adaptation(
     } else {
         Served::Plain
     };
-    let Endpoints { subscription, out_pub, corr_pub, diag_pub, gt_source, server, retake_server, own } =
+    let Endpoints { subscription, out_pub, corr_pub, diag_pub, gt_source, server, retake_server, own, own_input } =
         Endpoints::create(&mut node, &ros_node_name, &params, served)?;
-    let peer_check = peer_check::PeerCheck::new(own.clone());
-    let input_writers = peer_check::InputWriters::new(own[0].clone());
+    let peer_check = peer_check::PeerCheck::new(own);
+    let input_writers = peer_check::InputWriters::new(own_input);
     let participant = context.domain_participant();
     let spinner = node.spinner().map_err(|e| NodeError::Dds(format!("{e:?}")))?;
 
