@@ -260,3 +260,33 @@ fn a_20_hz_or_a_short_reference_gives_no_term_of_its_own() {
         assert!(report["implausible"].as_array().unwrap().is_empty(), "{name}: {}", report["implausible"]);
     }
 }
+
+/// What a report says it did not find is a bound the recording holds to: a gyro scale error
+/// injected into room2 at twice the smallest value the control states it shows is found,
+/// either sign; at a third of it, it is not (the report's `not_found`, not a claim that the
+/// sensor has none).
+#[test]
+fn the_stated_detection_limit_holds_on_a_real_recording() {
+    let Some(seq) = room2() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("room2.mcap");
+    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag));
+    let control = diagnose(dir.path(), &bag, "control");
+    let scale = control["not_found"].as_array().unwrap().iter().find(|l| l["term"] == "gyro_scale").cloned();
+    let scale = scale.unwrap_or_else(|| panic!("the control states no limit for gyro_scale: {:#}", control["not_found"]));
+    let limit = scale["smallest_found"]["gyro_scale.scale[0]"].as_f64().unwrap();
+    assert!(limit > 0.0 && limit < 0.02, "room2 shows a gyro x scale from {limit} on: {scale:#}");
+    for (k, sign) in [(2.0, 1.0), (2.0, -1.0), (1.0 / 3.0, 1.0), (1.0 / 3.0, -1.0)] {
+        let s = sign * k * limit;
+        let name = format!("scale-{k:.2}-{sign}");
+        let injected = dir.path().join(format!("{name}.mcap"));
+        run(Command::new(bin())
+            .arg("inject")
+            .arg(&bag)
+            .args(["--term", &format!("{{term: gyro_scale, scale: [{s}, 0, 0]}}"), "-o"])
+            .arg(&injected));
+        let r = diagnose(dir.path(), &injected, &name);
+        let found = fitted(&r).iter().any(|f| f["term"] == "gyro_scale");
+        assert_eq!(found, k > 1.0, "a gyro x scale of {s} against the stated {limit}: found {found}; {:#}", r["findings"]);
+    }
+}

@@ -371,6 +371,26 @@ pub fn to_term(name: &str, beta: &[f64], nonlinear: f64, vibration_hz: f64) -> T
     }
 }
 
+/// A term's parameters in its candidate's atom order (the inverse of [`to_term`]), for the
+/// terms with one parameter per atom; `None` for the others.
+pub fn parameters(term: &Term) -> Option<Vec<f64>> {
+    let off = |m: &[[f64; 3]; 3]| OFF_DIAGONAL.iter().map(|&(r, c)| m[r][c]).collect();
+    Some(match term {
+        Term::GyroBias(t) => t.bias.to_vec(),
+        Term::AccelBias(t) => t.bias.to_vec(),
+        Term::GyroScale(t) => t.scale.to_vec(),
+        Term::AccelScale(t) => t.scale.to_vec(),
+        Term::GyroMisalignment(t) => off(&t.matrix),
+        Term::AccelMisalignment(t) => off(&t.matrix),
+        Term::GyroGSensitivity(t) => t.matrix.iter().flatten().copied().collect(),
+        Term::MountRotation(t) => t.rotvec.to_vec(),
+        Term::LeverArm(t) => t.offset.to_vec(),
+        Term::TimeOffset(t) => vec![t.seconds],
+        Term::GravityMagnitude(t) => vec![t.g - physics::NOMINAL_GRAVITY],
+        _ => return None,
+    })
+}
+
 /// Parameter names and values of a term as the vocabulary writes them (JSON).
 pub fn params_json(term: &Term) -> serde_json::Value {
     let mut v = serde_json::to_value(term).unwrap_or(serde_json::Value::Null);
@@ -638,6 +658,18 @@ fn short(x: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn parameters_read_back_what_to_term_wrote() {
+        let beta9: Vec<f64> = (1..=9).map(|k| k as f64 * 1e-4).collect();
+        for (name, n) in
+            [("gyro_scale", 3), ("accel_misalignment", 6), ("gyro_g_sensitivity", 9), ("time_offset", 1), ("gravity_magnitude", 1)]
+        {
+            let term = to_term(name, &beta9[..n], 0.0, 0.0);
+            let back = parameters(&term).expect(name);
+            assert!(back.iter().zip(&beta9).all(|(a, b)| (a - b).abs() < 1e-12), "{name}: {back:?}");
+        }
+    }
     use crate::physics::*;
 
     /// Values of the size real sensors have pass; the tester's out-of-catalogue fits (a

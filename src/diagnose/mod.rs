@@ -29,6 +29,7 @@ pub mod align;
 pub mod allan;
 pub mod bandwidth;
 pub mod catalogue;
+pub mod detection;
 pub mod figures;
 pub mod fit;
 pub mod frame;
@@ -199,6 +200,9 @@ pub struct Diagnosis {
     pub residual_after: ResidualSummary,
     pub steps: Vec<select::Step>,
     pub excluded: Vec<(String, String)>,
+    /// The terms judged and not found, with the smallest value of each parameter this
+    /// recording would have shown ([`detection`]).
+    pub not_found: Vec<detection::DetectionLimit>,
     pub curves: Curves,
     /// The signals the terms were fitted on (sim bag, smoothed), for effect comparisons.
     pub base: ImuSignals,
@@ -518,6 +522,7 @@ fn diagnose_in_frame(
         scale_numbers(&mut f.uncertainty, excess.sqrt());
         f.interval_95 = interval(&f.params, &f.uncertainty, 1.96);
     }
+    let not_found = detection::detection_limits(&sel, &mask, &opts.select, excess.sqrt());
 
     // The same tests on the residual after the fit: what is left there, the catalogue does
     // not explain.
@@ -565,6 +570,7 @@ fn diagnose_in_frame(
             residual_after,
             steps: sel.steps.clone(),
             excluded,
+            not_found,
             curves,
             base,
             noise: sel.noise,

@@ -33,6 +33,11 @@ pub fn json(d: &Diagnosis) -> serde_json::Value {
         "residual_after": d.residual_after,
         "selection_steps": d.steps,
         "not_judged": d.excluded.iter().map(|(t, why)| serde_json::json!({"term": t, "why": why})).collect::<Vec<_>>(),
+        "not_found": d.not_found.iter().map(|l| serde_json::json!({
+            "term": l.term,
+            "smallest_found": l.smallest_found.iter().map(|(k, v)| (k.clone(), if v.is_finite() { serde_json::json!(v) } else { serde_json::json!("not determined") })).collect::<serde_json::Map<_, _>>(),
+        })).collect::<Vec<_>>(),
+        "not_found_rule": "a term judged and not found; per parameter, the smallest value this recording shows 19 times in 20 (the others zero, the terms found in the model, σ widened as the findings' are): a sensor's value below it is not ruled out",
         "notes": d.notes,
         "seconds": d.seconds,
     })
@@ -127,6 +132,29 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
         let _ = writeln!(s, "| term | parameters | why not plausible |\n|---|---|---|");
         for f in &d.implausible {
             let _ = writeln!(s, "| {} | `{}` | {} |", f.term, f.params, f.implausible.as_deref().unwrap_or_default());
+        }
+        s.push('\n');
+    }
+    if !d.not_found.is_empty() {
+        let _ = writeln!(
+            s,
+            "## Judged and not found\n\nThe smallest value of each parameter this recording shows 19 times in 20 (the others zero, the terms found in the model): a sensor's value below it is not ruled out.\n"
+        );
+        let _ = writeln!(s, "| term | smallest value found 19 times in 20, per parameter |\n|---|---|");
+        for l in &d.not_found {
+            let limits: Vec<String> = l
+                .smallest_found
+                .iter()
+                .map(|(k, v)| {
+                    let name = k.split_once('.').map_or(k.as_str(), |(_, p)| p);
+                    if v.is_finite() {
+                        format!("{name} {v:.2e}")
+                    } else {
+                        format!("{name} not determined")
+                    }
+                })
+                .collect();
+            let _ = writeln!(s, "| {} | {} |", l.term, limits.join(", "));
         }
         s.push('\n');
     }

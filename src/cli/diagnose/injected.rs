@@ -229,6 +229,17 @@ struct Tally {
     errors: Vec<f64>,
     /// Per injected term's name: (injected, found).
     by_term: std::collections::BTreeMap<&'static str, (usize, usize)>,
+    /// (injected, found) by where the injected value sits against the control's stated
+    /// detection limit: at or above it, below it, no limit stated (a drift term, or one the
+    /// control found itself).
+    by_limit: [(usize, usize); 3],
+}
+
+/// Where an injected term sits against what the control says it would have shown: its
+/// margin (≥ 1: above the limit), `None` where the control states no limit for it.
+fn margin(control: &Diagnosis, t: &Term) -> Option<f64> {
+    let limit = control.not_found.iter().find(|l| l.term == t.name())?;
+    Some(limit.margin(&imu_fsda::diagnose::catalogue::parameters(t)?))
 }
 
 pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Result<()> {
@@ -250,7 +261,8 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(set.seed);
     let mut tally = Tally::default();
     let mut controls = Vec::new();
-    let mut csv = String::from("recording,case,injected,control,found,effect_errors,spurious,verdict,seconds_taken,injected_terms\n");
+    let mut csv =
+        String::from("recording,case,injected,control,found,effect_errors,spurious,verdict,seconds_taken,margins,injected_terms\n");
     for bag in set.bags {
         let name = bag.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let p = prepare(bag, set).with_context(|| format!("{}", bag.display()))?;
@@ -269,7 +281,7 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
         out!("{name}: control (as recorded): [{}]  {}", own.join(", "), control.verdict.statement)?;
         controls
             .push(serde_json::json!({"recording": name, "terms": own, "explained": control.verdict.explained, "seconds": control.seconds}));
-        let _ = writeln!(csv, "{name},control,,{},,,,{},{:.2}", own.join(" "), control.verdict.explained, control.seconds);
+        let _ = writeln!(csv, "{name},control,,{},,,,{},{:.2},,", own.join(" "), control.verdict.explained, control.seconds);
         for draw in 0..set.draws {
             let truth = draw_case(&mut rng, &names, rate);
             let mirror: Vec<Term> = truth.iter().map(|t| mirrored(t).unwrap_or_else(|| t.clone())).collect();
@@ -282,12 +294,22 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
             for (k, (terms, d)) in [&truth, &mirror].into_iter().zip(&cases).enumerate() {
                 let other = &cases[1 - k];
                 let mut errs = Vec::new();
+                let mut margins = Vec::new();
                 for injected in terms.iter() {
                     let t = &as_compared(injected);
                     tally.injected += 1;
                     tally.by_term.entry(injected.name()).or_default().0 += 1;
+                    let m = margin(&control, t);
+                    margins.push(m.map_or_else(|| format!("{} –", t.name()), |m| format!("{} {m:.2}", t.name())));
+                    let limit_class = match m {
+                        Some(m) if m >= 1.0 => 0,
+                        Some(_) => 1,
+                        None => 2,
+                    };
+                    tally.by_limit[limit_class].0 += 1;
                     let find = |d: &Diagnosis| d.terms.iter().find(|f| f.name() == t.name()).cloned();
                     if let Some(f) = find(d) {
+                        tally.by_limit[limit_class].1 += 1;
                         tally.found += 1;
                         tally.by_term.entry(injected.name()).or_default().1 += 1;
                         let control_term = control.terms.iter().find(|c| c.name() == t.name());
@@ -312,7 +334,7 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
                 let fnm: Vec<&str> = d.terms.iter().map(|t| t.name()).collect();
                 let _ = writeln!(
                     csv,
-                    "{name},{case},{},{},{},{},{},{},{:.2},\"{}\"",
+                    "{name},{case},{},{},{},{},{},{},{:.2},{},\"{}\"",
                     tn.join(" "),
                     own.join(" "),
                     fnm.join(" "),
@@ -320,6 +342,7 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
                     spurious.join(" "),
                     d.verdict.explained,
                     d.seconds,
+                    margins.join(" "),
                     serde_json::to_string(terms).unwrap_or_default().replace('"', "'")
                 );
                 tracing::info!("{name} case {case}: truth {terms:?}; found {:?}", d.terms);
@@ -344,6 +367,12 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
         "parameters_within_20pct": tally.within as f64 / tally.found.max(1) as f64,
         "median_effect_error": tally.errors.get(tally.errors.len() / 2).copied().unwrap_or(f64::NAN),
         "cases_not_explained": tally.not_explained,
+        "recall_by_limit": {
+            "rule": "each injected term against the smallest value the control (the recording as recorded) says it would have shown (report.json not_found): margin √Σ(θ/θ_min)² ≥ 1 is above it",
+            "above_the_limit": {"injected": tally.by_limit[0].0, "found": tally.by_limit[0].1},
+            "below_the_limit": {"injected": tally.by_limit[1].0, "found": tally.by_limit[1].1},
+            "no_limit_stated": {"injected": tally.by_limit[2].0, "found": tally.by_limit[2].1},
+        },
         "recall_by_term": tally.by_term.iter().map(|(k, (i, f))| (k.to_string(), serde_json::json!({"injected": i, "found": f}))).collect::<serde_json::Map<_, _>>(),
         "controls": controls,
     });
