@@ -21,6 +21,7 @@ pub mod node;
 pub mod physics;
 pub mod plot;
 pub mod resample;
+pub mod setting;
 pub mod sim;
 pub mod so3;
 pub mod standstill;

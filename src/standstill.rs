@@ -19,6 +19,7 @@
 //! about gravity slower than `max_bias` at the *first* standstill cannot be told from a bias by
 //! an IMU alone: that is the stated limit (docs/poweron.md). Per sample: no allocation.
 
+use crate::setting::InvalidSetting;
 use nalgebra::Vector3;
 
 use crate::core::{ImuSample, STANDARD_GRAVITY};
@@ -108,7 +109,7 @@ impl Default for StandstillConfig {
 
 impl StandstillConfig {
     /// Refuses settings the detector cannot run with, naming the key.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         for (key, value) in [
             ("window_s", self.window_s),
             ("max_gyro_spread", self.max_gyro_spread),
@@ -121,16 +122,16 @@ impl StandstillConfig {
             ("min_power_on_spread", self.min_power_on_spread),
         ] {
             if !(value.is_finite() && value > 0.0) {
-                return Err(format!("standstill.{key} must be finite and > 0, not {value}"));
+                return Err(format!("standstill.{key} must be finite and > 0, not {value}").into());
             }
         }
         if !(self.bias_random_walk.is_finite() && self.bias_random_walk >= 0.0) {
-            return Err(format!("standstill.bias_random_walk must be finite and ≥ 0, not {}", self.bias_random_walk));
+            return Err(format!("standstill.bias_random_walk must be finite and ≥ 0, not {}", self.bias_random_walk).into());
         }
         if !(2..=MAX_BLOCKS).contains(&self.blocks) {
-            return Err(format!("standstill.blocks must be 2 … {MAX_BLOCKS}, not {}", self.blocks));
+            return Err(format!("standstill.blocks must be 2 … {MAX_BLOCKS}, not {}", self.blocks).into());
         }
-        self.motion.validate().map_err(|e| format!("standstill.{e}"))
+        self.motion.validate().map_err(|e| e.within("standstill"))
     }
 }
 
@@ -961,9 +962,9 @@ mod tests {
     #[test]
     fn bad_settings_are_refused_with_the_key() {
         let e = StandstillConfig { blocks: 1, ..Default::default() }.validate().unwrap_err();
-        assert!(e.contains("standstill.blocks"), "{e}");
+        assert!(e.to_string().contains("standstill.blocks"), "{e}");
         let e = StandstillConfig { max_bias: f64::NAN, ..Default::default() }.validate().unwrap_err();
-        assert!(e.contains("standstill.max_bias"), "{e}");
+        assert!(e.to_string().contains("standstill.max_bias"), "{e}");
     }
 
     proptest! {

@@ -1,5 +1,6 @@
 //! Adaptation settings (`adapt --config`, the node's `adapt:` parameters) and their checks.
 
+use crate::setting::InvalidSetting;
 use serde::{Deserialize, Serialize};
 
 use crate::model::loss::LossConfig;
@@ -147,11 +148,11 @@ impl Default for AdaptConfig {
 
 impl AdaptConfig {
     /// Refuses settings the inner loop cannot run with, naming the key (as `train`'s config).
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         self.loss.validate("adapt.loss")?;
         let positive = |x: f64| x.is_finite() && x > 0.0;
         if !(self.inner_lr.is_finite() && self.inner_lr >= 0.0) {
-            return Err(format!("adapt.inner_lr = {}: must be finite and ≥ 0", self.inner_lr));
+            return Err(format!("adapt.inner_lr = {}: must be finite and ≥ 0", self.inner_lr).into());
         }
         if self.windows == 0 {
             return Err("adapt.windows must be ≥ 1".into());
@@ -162,14 +163,15 @@ impl AdaptConfig {
             return Err(format!(
                 "adapt.windows × adapt.window_samples = {} × {}: at most {MAX_BATCH_SAMPLES} samples in one batch",
                 self.windows, self.window_samples
-            ));
+            )
+            .into());
         }
         let min_window = self.loss.min_window_samples() as usize;
         if self.window_samples <= min_window {
             return Err(format!(
                 "adapt.window_samples = {}: must exceed {min_window} samples (every increment length must score one increment after its skip)",
                 self.window_samples
-            ));
+            ).into());
         }
         for (key, v) in [
             ("min_support_seconds", self.min_support_seconds),
@@ -179,11 +181,11 @@ impl AdaptConfig {
             ("max_seconds", self.max_seconds),
         ] {
             if !positive(v) {
-                return Err(format!("adapt.{key} = {v}: must be finite and > 0"));
+                return Err(format!("adapt.{key} = {v}: must be finite and > 0").into());
             }
         }
         if !(self.frame_tolerance_deg.is_finite() && self.frame_tolerance_deg >= 0.0) {
-            return Err(format!("adapt.frame_tolerance_deg = {}: must be finite and ≥ 0", self.frame_tolerance_deg));
+            return Err(format!("adapt.frame_tolerance_deg = {}: must be finite and ≥ 0", self.frame_tolerance_deg).into());
         }
         if self.keep == Keep::GyroCalibration && !self.power_on_bias {
             return Err(

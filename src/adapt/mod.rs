@@ -79,6 +79,8 @@ pub enum AdaptError {
     #[error("cancelled (the node is shutting down): nothing was kept")]
     Cancelled,
     #[error("{0}")]
+    Setting(#[from] crate::setting::InvalidSetting),
+    #[error("{0}")]
     Other(String),
 }
 
@@ -175,7 +177,7 @@ pub fn adapt_knowing(
     known_power_on_bias: Option<&crate::standstill::BiasEstimate>,
 ) -> Result<AdaptOutcome, AdaptError> {
     let t_all = Instant::now();
-    cfg.validate().map_err(AdaptError::Other)?;
+    cfg.validate()?;
     let meta = &loaded.metadata;
     let mode = loaded.metadata.mode;
     if !mode.has_embedding() {

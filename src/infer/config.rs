@@ -1,5 +1,7 @@
 //! The pipeline's settings (the node reads them from its ROS parameters).
 
+use crate::setting::InvalidSetting;
+
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PipelineConfig {
@@ -77,7 +79,7 @@ impl PipelineConfig {
     /// Refuses settings the pipeline cannot run with, naming the key: a NaN or a negative
     /// variance would reach every published covariance, and a gap of at most one period would
     /// make every sample a gap.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         for (key, value) in [
             ("nominal_rate_hz", self.nominal_rate_hz),
             ("angular_velocity_stddev", self.angular_velocity_stddev),
@@ -89,16 +91,16 @@ impl PipelineConfig {
             ("uncorrected_bias_stddev", self.uncorrected_bias_stddev),
         ] {
             if !(value.is_finite() && value >= 0.0) {
-                return Err(format!("pipeline.{key} must be finite and ≥ 0, not {value}"));
+                return Err(format!("pipeline.{key} must be finite and ≥ 0, not {value}").into());
             }
         }
-        self.standstill.validate().map_err(|e| format!("pipeline.{e}"))?;
-        self.gravity_aided.validate().map_err(|e| format!("pipeline.{e}"))?;
+        self.standstill.validate().map_err(|e| e.within("pipeline"))?;
+        self.gravity_aided.validate().map_err(|e| e.within("pipeline"))?;
         if !(self.gap_periods.is_finite() && self.gap_periods > 1.0) {
-            return Err(format!("pipeline.gap_periods must be finite and > 1 (nominal periods), not {}", self.gap_periods));
+            return Err(format!("pipeline.gap_periods must be finite and > 1 (nominal periods), not {}", self.gap_periods).into());
         }
         if !(self.rate_tolerance.is_finite() && self.rate_tolerance > 0.0) {
-            return Err(format!("pipeline.rate_tolerance must be finite and > 0, not {}", self.rate_tolerance));
+            return Err(format!("pipeline.rate_tolerance must be finite and > 0, not {}", self.rate_tolerance).into());
         }
         Ok(())
     }

@@ -9,6 +9,7 @@
 //! whose innovation is beyond `max_block_nis` (a car braking for seconds, a launch) is not used.
 //! Heading is not observed: its variance grows as only the gyro holds it.
 
+use crate::setting::InvalidSetting;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::core::ImuSample;
@@ -76,9 +77,11 @@ impl Default for GravityAidedConfig {
 
 impl GravityAidedConfig {
     /// Refuses settings the filter cannot run with, naming the key.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         for fraction in [self.rate_error_fraction, self.uncorrected_rate_error_fraction] {
-            self.filter_config(1e-3, fraction).validate().map_err(|e| e.replace("in_motion.", "gravity_aided."))?;
+            self.filter_config(1e-3, fraction)
+                .validate()
+                .map_err(|e| InvalidSetting::from(e.to_string().replace("in_motion.", "gravity_aided.")))?;
         }
         Ok(())
     }

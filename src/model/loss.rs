@@ -13,6 +13,7 @@
 //! IMU stamps; an increment counts only if every sample it spans has a valid ground truth
 //! (the mask, e.g. false where the mocap had a gap) and a finite `dt > 0`.
 
+use crate::setting::InvalidSetting;
 use serde::{Deserialize, Serialize};
 use tch::{Kind, Reduction, Tensor};
 
@@ -115,26 +116,29 @@ impl Default for LossConfig {
 impl LossConfig {
     /// Refuses a loss that cannot be computed or scores nothing; `key` prefixes the message
     /// (`train.loss`, `adapt.loss`).
-    pub fn validate(&self, key: &str) -> Result<(), String> {
+    pub fn validate(&self, key: &str) -> Result<(), InvalidSetting> {
         let positive = |x: f64| x.is_finite() && x > 0.0;
         let non_negative = |x: f64| x.is_finite() && x >= 0.0;
         if self.increments.is_empty()
             || self.increments.iter().any(|i| i.samples < 1 || !non_negative(i.weight) || i.huber_delta_rad.is_some_and(|d| !positive(d)))
         {
-            return Err(format!("{key}.increments: at least one, each with samples ≥ 1, a finite weight ≥ 0 and any huber_delta_rad > 0"));
+            return Err(
+                format!("{key}.increments: at least one, each with samples ≥ 1, a finite weight ≥ 0 and any huber_delta_rad > 0").into()
+            );
         }
         if self.skip_first_samples < 0 || self.skip_first_increments < 0 {
             return Err(format!(
                 "{key}.skip_first_samples ({}) and skip_first_increments ({}) must be ≥ 0",
                 self.skip_first_samples, self.skip_first_increments
-            ));
+            )
+            .into());
         }
         if !positive(self.huber_delta_rad)
             || !positive(self.scale)
             || !non_negative(self.gamma)
             || !non_negative(self.reconstruction_weight)
         {
-            return Err(format!("{key}: huber_delta_rad and scale must be > 0, gamma and reconstruction_weight ≥ 0"));
+            return Err(format!("{key}: huber_delta_rad and scale must be > 0, gamma and reconstruction_weight ≥ 0").into());
         }
         Ok(())
     }

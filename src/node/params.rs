@@ -1,6 +1,7 @@
 //! The node's parameters (`params/imu_fsda.yaml`): reading, checking, remapping, and the rule
 //! for relative paths (the file's own folder's).
 
+use crate::setting::InvalidSetting;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -183,7 +184,7 @@ impl NodeParams {
 
     /// Refuses values the node cannot run with, naming the key (typos are refused by serde,
     /// inside `pipeline:` too).
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         self.pipeline.validate()?;
         self.adapt.validate()?;
         // Said, not changed without a word (they were taken as 1 and clamped).
@@ -194,10 +195,13 @@ impl NodeParams {
             return Err(format!(
                 "adapt_judge_power_ons must be 1–20 (earlier power-ons an adaptation is judged on), not {}",
                 self.adapt_judge_power_ons
-            ));
+            )
+            .into());
         }
         if !(0..=19).contains(&self.adapt_thread_nice) {
-            return Err(format!("adapt_thread_nice must be 0–19 (a niceness at or below the node's own), not {}", self.adapt_thread_nice));
+            return Err(
+                format!("adapt_thread_nice must be 0–19 (a niceness at or below the node's own), not {}", self.adapt_thread_nice).into()
+            );
         }
         let positive = |x: f64| x.is_finite() && x > 0.0;
         for (key, value) in [
@@ -206,7 +210,7 @@ impl NodeParams {
             ("adapt_support_seconds", self.adapt_support_seconds),
         ] {
             if !positive(value) {
-                return Err(format!("{key} must be finite and > 0, not {value}"));
+                return Err(format!("{key} must be finite and > 0, not {value}").into());
             }
         }
         // A period a clock cannot count (1e300 s) panicked converting to a Duration.
@@ -214,7 +218,8 @@ impl NodeParams {
             return Err(format!(
                 "diagnostics_period must be at most {MAX_DIAGNOSTICS_PERIOD_S} s (a day), not {}",
                 self.diagnostics_period
-            ));
+            )
+            .into());
         }
         // One topic for two streams would mix them (raw and denoised on one topic), or feed
         // the node its own output.
@@ -227,7 +232,7 @@ impl NodeParams {
         ];
         for (i, (a, ta)) in topics.iter().enumerate() {
             if let Some((b, _)) = topics[i + 1..].iter().find(|(_, tb)| tb == ta) {
-                return Err(format!("{a} and {b} are both {ta}: each stream needs its own topic"));
+                return Err(format!("{a} and {b} are both {ta}: each stream needs its own topic").into());
             }
         }
         if self.adapt_enabled && self.ground_truth_topic.trim_matches('/').is_empty() {
@@ -237,7 +242,8 @@ impl NodeParams {
             return Err(format!(
                 "adapt_support_seconds ({}) must be below adapt_buffer_seconds ({}): the rest of the buffer judges the adapted model",
                 self.adapt_support_seconds, self.adapt_buffer_seconds
-            ));
+            )
+            .into());
         }
         Ok(())
     }
@@ -344,6 +350,6 @@ mod tests {
         // A remapping onto another stream's topic: the node would subscribe to its own output.
         p.remap("/imu/clean:=/vectornav/imu").unwrap();
         let e = p.validate().unwrap_err();
-        assert!(e.contains("input_topic and output_topic are both /vectornav/imu"), "{e}");
+        assert!(e.to_string().contains("input_topic and output_topic are both /vectornav/imu"), "{e}");
     }
 }

@@ -3,6 +3,7 @@
 //! (where the recordings are and how they are split) and `train` (optimiser, schedule,
 //! windows, augmentation, loss, MAML). Unknown keys are errors.
 
+use crate::setting::InvalidSetting;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
@@ -487,7 +488,7 @@ impl TrainConfig {
                 *sim = base.join(sim.as_str()).to_string_lossy().into_owned();
             }
         }
-        cfg.validate().map_err(|msg| ConfigError::Invalid { path: path.into(), msg })?;
+        cfg.validate().map_err(|e| ConfigError::Invalid { path: path.into(), msg: e.to_string() })?;
         Ok(cfg)
     }
 
@@ -550,7 +551,7 @@ impl TrainConfig {
     }
 
     /// Checks values that serde cannot.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         self.model.validate().map_err(|e| format!("model: {e}"))?;
         let t = &self.train;
         if self.dataset.train.is_empty() {
@@ -564,14 +565,16 @@ impl TrainConfig {
         ] {
             for (i, s) in list.iter().enumerate() {
                 if [s.sequence.is_some(), s.bag.is_some(), s.simulate.is_some()].iter().filter(|x| **x).count() != 1 {
-                    return Err(format!("dataset.{what}[{i}]: give exactly one of `sequence`, `bag` or `simulate`"));
+                    return Err(format!("dataset.{what}[{i}]: give exactly one of `sequence`, `bag` or `simulate`").into());
                 }
                 if let Some(v) = [s.start_s, s.end_s].into_iter().flatten().find(|v| !(v.is_finite() && *v >= 0.0)) {
-                    return Err(format!("dataset.{what}[{i}]: start_s / end_s {v}: seconds from the first sample with ground truth, ≥ 0"));
+                    return Err(
+                        format!("dataset.{what}[{i}]: start_s / end_s {v}: seconds from the first sample with ground truth, ≥ 0").into()
+                    );
                 }
                 if let (Some(a), Some(b)) = (s.start_s, s.end_s) {
                     if !is_after(a, b) {
-                        return Err(format!("dataset.{what}[{i}]: end_s {b} must be after start_s {a}"));
+                        return Err(format!("dataset.{what}[{i}]: end_s {b} must be after start_s {a}").into());
                     }
                 }
             }
@@ -585,7 +588,7 @@ impl TrainConfig {
                     "dataset.test[{i}] ({}) overlaps dataset.train's {}: a test recording must be held out (crop them apart with start_s / end_s, or score training data with `imu-fsda eval`)",
                     test.describe(),
                     train.describe()
-                ));
+                ).into());
             }
         }
         if t.epochs == 0 {
@@ -623,14 +626,16 @@ impl TrainConfig {
             if w <= min_window {
                 return Err(format!(
                     "{what} = {w}: must exceed {min_window} samples (every increment length must score one increment after its skip)"
-                ));
+                )
+                .into());
             }
         }
         if !positive(self.dataset.max_interpolation_gap_ms) || !positive(self.dataset.max_nearest_gt_ms) {
             return Err(format!(
                 "dataset.max_interpolation_gap_ms ({}) and max_nearest_gt_ms ({}) must be finite and > 0",
                 self.dataset.max_interpolation_gap_ms, self.dataset.max_nearest_gt_ms
-            ));
+            )
+            .into());
         }
         if self.model.mode == Mode::FsdaF && !positive(self.dataset.support_seconds) {
             return Err("dataset.support_seconds must be > 0 for fsda_f".into());
@@ -654,14 +659,14 @@ impl TrainConfig {
             if t0 < 1 || t_mult < 1 || !non_negative(eta_min) || eta_min > t.lr {
                 return Err(format!(
                     "train.schedule: cosine_warm_restarts needs t0 ≥ 1, t_mult ≥ 1 and 0 ≤ eta_min ≤ train.lr, got t0 {t0}, t_mult {t_mult}, eta_min {eta_min}"
-                ));
+                ).into());
             }
         }
         if !non_negative(t.max_train_seconds) {
-            return Err(format!("train.max_train_seconds must be finite and ≥ 0 (0: no budget), got {}", t.max_train_seconds));
+            return Err(format!("train.max_train_seconds must be finite and ≥ 0 (0: no budget), got {}", t.max_train_seconds).into());
         }
         if !(0.0..1.0).contains(&t.ema_decay) {
-            return Err(format!("train.ema_decay must be in [0, 1), got {}", t.ema_decay));
+            return Err(format!("train.ema_decay must be in [0, 1), got {}", t.ema_decay).into());
         }
         if t.threads < 1 {
             return Err("train.threads must be ≥ 1".into());
@@ -671,7 +676,7 @@ impl TrainConfig {
             s.sort_unstable();
             s.dedup();
             if s.len() != t.seeds.len() {
-                return Err(format!("train.seeds {:?} repeats a seed", t.seeds));
+                return Err(format!("train.seeds {:?} repeats a seed", t.seeds).into());
             }
             if self.dataset.validation.is_empty() {
                 return Err("train.seeds picks a run by its validation score: dataset.validation is empty".into());
@@ -751,10 +756,10 @@ mod tests {
             "schedule: {kind: cosine_warm_restarts, t0: 600, t_mult: 2, eta_min: .nan}",
             "schedule: {kind: cosine_warm_restarts, t0: 600, t_mult: 2, eta_min: 0.1}",
         ] {
-            assert!(with(bad).unwrap_err().contains("train.schedule"), "{bad}");
+            assert!(with(bad).unwrap_err().to_string().contains("train.schedule"), "{bad}");
         }
         for bad in ["max_train_seconds: -1", "max_train_seconds: .nan", "max_train_seconds: .inf"] {
-            assert!(with(bad).unwrap_err().contains("train.max_train_seconds"), "{bad}");
+            assert!(with(bad).unwrap_err().to_string().contains("train.max_train_seconds"), "{bad}");
         }
     }
 
@@ -769,10 +774,10 @@ mod tests {
         };
         assert!(with("digdl", "window_start_within: 32, augment: {accel_offset: 1.0e-3}").is_ok());
         assert!(with("fsda", "window_start_within: 1").is_ok());
-        assert!(with("digdl", "window_start_within: 0").unwrap_err().contains("window_start_within"));
-        assert!(with("fsda_f", "window_start_within: 32").unwrap_err().contains("digdl and fsda"));
-        assert!(with("digdl", "augment: {gyro_offset: -1.0e-3}").unwrap_err().contains("augment"));
-        assert!(with("digdl", "augment: {accel_offset: .nan}").unwrap_err().contains("augment"));
+        assert!(with("digdl", "window_start_within: 0").unwrap_err().to_string().contains("window_start_within"));
+        assert!(with("fsda_f", "window_start_within: 32").unwrap_err().to_string().contains("digdl and fsda"));
+        assert!(with("digdl", "augment: {gyro_offset: -1.0e-3}").unwrap_err().to_string().contains("augment"));
+        assert!(with("digdl", "augment: {accel_offset: .nan}").unwrap_err().to_string().contains("augment"));
     }
 
     /// A bad value names its key and line (the merged document's error had neither).
@@ -816,7 +821,7 @@ mod tests {
                 .validate()
         };
         let e = with("{sequence: euroc/MH_01_easy}", "{sequence: ./euroc/MH_01_easy/}").unwrap_err();
-        assert!(e.contains("dataset.test[0]") && e.contains("held out"), "{e}");
+        assert!(e.to_string().contains("dataset.test[0]") && e.to_string().contains("held out"), "{e}");
         assert!(with("{bag: b/x.mcap, end_s: 60}", "{bag: b/x.mcap, start_s: 30}").is_err());
         assert!(with("{bag: b/x.mcap, end_s: 60}", "{bag: b/x.mcap, start_s: 60}").is_ok());
         assert!(with("{sequence: b/x.mcap}", "{bag: b/x.mcap}").is_ok(), "a folder and a bag are not one recording");
@@ -837,7 +842,7 @@ mod tests {
         assert_eq!((cfg.model.batch_norm, cfg.model.restructor_batch_norm), (false, Some(true)));
         assert!(TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3, bogus: 1}\n").is_err());
         let both = TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a, bag: b}]}\ntrain: {epochs: 3}\n").unwrap();
-        assert!(both.validate().unwrap_err().contains("exactly one"));
+        assert!(both.validate().unwrap_err().to_string().contains("exactly one"));
     }
 
     /// `train.seeds` chooses by validation score: it needs a validation set and distinct seeds.
@@ -848,9 +853,9 @@ mod tests {
         };
         let with_val = "{train: [{sequence: a}], validation: [{sequence: a}]}";
         assert!(with(with_val, "[0, 1, 2]").is_ok());
-        assert!(with(with_val, "[0, 1, 0]").unwrap_err().contains("repeats"));
-        assert!(with("{train: [{sequence: a}]}", "[0, 1]").unwrap_err().contains("dataset.validation is empty"));
-        assert!(with("{train: [{sequence: a}], monitor: [{sequence: b}]}", "[0, 1]").unwrap_err().contains("validation"));
+        assert!(with(with_val, "[0, 1, 0]").unwrap_err().to_string().contains("repeats"));
+        assert!(with("{train: [{sequence: a}]}", "[0, 1]").unwrap_err().to_string().contains("dataset.validation is empty"));
+        assert!(with("{train: [{sequence: a}], monitor: [{sequence: b}]}", "[0, 1]").unwrap_err().to_string().contains("validation"));
     }
 
     #[test]
@@ -861,16 +866,22 @@ mod tests {
                 .validate()
         };
         assert!(with("{skip_first_samples: 517}").is_ok());
-        assert!(with("{skip_first_samples: -1}").unwrap_err().contains("skip_first_samples"));
-        assert!(with("{skip_first_increments: -2}").unwrap_err().contains("skip_first_increments"));
-        assert!(with("{increments: []}").unwrap_err().contains("increments"));
-        assert!(with("{increments: [{samples: 0, weight: 1.0}]}").unwrap_err().contains("increments"));
-        assert!(with("{increments: [{samples: 16, weight: -1.0}]}").unwrap_err().contains("increments"));
-        assert!(with("{huber_delta_rad: 0.0}").unwrap_err().contains("huber_delta_rad"));
-        assert!(with("{increments: [{samples: 16, weight: 1.0, huber_delta_rad: 0.0}]}").unwrap_err().contains("huber_delta_rad"));
-        assert!(with("{increments: [{samples: 16, weight: 1.0, huber_delta_rad: .nan}]}").unwrap_err().contains("huber_delta_rad"));
-        assert!(with("{gamma: -1.0}").unwrap_err().contains("gamma"));
-        assert!(with("{reconstruction_weight: -0.5}").unwrap_err().contains("reconstruction_weight"));
+        assert!(with("{skip_first_samples: -1}").unwrap_err().to_string().contains("skip_first_samples"));
+        assert!(with("{skip_first_increments: -2}").unwrap_err().to_string().contains("skip_first_increments"));
+        assert!(with("{increments: []}").unwrap_err().to_string().contains("increments"));
+        assert!(with("{increments: [{samples: 0, weight: 1.0}]}").unwrap_err().to_string().contains("increments"));
+        assert!(with("{increments: [{samples: 16, weight: -1.0}]}").unwrap_err().to_string().contains("increments"));
+        assert!(with("{huber_delta_rad: 0.0}").unwrap_err().to_string().contains("huber_delta_rad"));
+        assert!(with("{increments: [{samples: 16, weight: 1.0, huber_delta_rad: 0.0}]}")
+            .unwrap_err()
+            .to_string()
+            .contains("huber_delta_rad"));
+        assert!(with("{increments: [{samples: 16, weight: 1.0, huber_delta_rad: .nan}]}")
+            .unwrap_err()
+            .to_string()
+            .contains("huber_delta_rad"));
+        assert!(with("{gamma: -1.0}").unwrap_err().to_string().contains("gamma"));
+        assert!(with("{reconstruction_weight: -0.5}").unwrap_err().to_string().contains("reconstruction_weight"));
         let maml = |m: &str| {
             TrainConfig::parse(&format!("model: {{}}\ndataset: {{train: [{{sequence: a}}]}}\ntrain: {{epochs: 3, maml: {m}}}\n"))
                 .unwrap()
@@ -879,7 +890,7 @@ mod tests {
         let removed =
             TrainConfig::parse("model: {}\ndataset: {train: [{sequence: a}]}\ntrain: {epochs: 3, maml: {unadapted_query_weight: 1.0}}\n");
         assert!(removed.unwrap_err().contains("unknown field"), "an experiment's key, removed");
-        assert!(maml("{unadapted_support_weight: -1.0}").unwrap_err().contains("unadapted_support_weight"));
+        assert!(maml("{unadapted_support_weight: -1.0}").unwrap_err().to_string().contains("unadapted_support_weight"));
     }
 
     /// A fine-tune's start (`init_from`) is read against the config's folder.

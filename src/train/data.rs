@@ -674,6 +674,6 @@ mod tests {
         let missing = SourceConfig { simulate: Some(dir.path().join("none.yaml").to_string_lossy().into_owned()), ..Default::default() };
         assert!(read_source(&cfg.dataset.root, &missing).unwrap_err().to_string().contains("none.yaml"));
         let two = "model: {}\ndataset: {train: [{simulate: a.yaml, bag: b.mcap}]}\ntrain: {epochs: 1}\n";
-        assert!(crate::train::TrainConfig::parse(two).unwrap().validate().unwrap_err().contains("exactly one"));
+        assert!(crate::train::TrainConfig::parse(two).unwrap().validate().unwrap_err().to_string().contains("exactly one"));
     }
 }

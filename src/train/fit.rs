@@ -1062,7 +1062,7 @@ mod tests {
         assert!(parse("{batch_tasks: true, shared_inner_step: true}").is_ok());
         for bad in ["{batch_tasks: false, shared_inner_step: true}", "{batch_tasks: true, inner_steps: 2, shared_inner_step: true}"] {
             let e = parse(bad).unwrap_err();
-            assert!(e.contains("shared_inner_step"), "{bad}: {e}");
+            assert!(e.to_string().contains("shared_inner_step"), "{bad}: {e}");
         }
     }
 
