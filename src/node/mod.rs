@@ -14,6 +14,7 @@ mod messages;
 mod params;
 mod peer_check;
 mod power_on;
+mod process_loop;
 mod status;
 mod support_archive;
 
@@ -32,12 +33,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use futures::StreamExt;
 use ros2_client::{NodeName, NodeOptions, ParameterValue};
 
-use crate::adapt::swap::{Buffers, SeqSample, SwapHandle};
+use crate::adapt::swap::{Buffers, SwapHandle};
 use crate::infer::{CorrectedImu, Pipeline};
-use crate::msg::{DiagnosticArray, Imu, Time, Vector3Stamped};
+use crate::msg::{DiagnosticArray, Imu, Time};
 
 #[derive(Debug, thiserror::Error)]
 pub enum NodeError {
@@ -211,11 +211,12 @@ pub async fn run_node_with_adaptation(
     let adapting = Arc::new(AtomicBool::new(false));
     // The adaptation running, if any: its request is answered and its thread stopped at shutdown.
     let job = RunningJob::default();
-    let tap = buffers.as_ref().map(|b| AdaptTap { buffers: b.clone(), adapting: adapting.clone() });
+    let tap = buffers.as_ref().map(|b| process_loop::AdaptTap { buffers: b.clone(), adapting: adapting.clone() });
     // Set by `~/retake_power_on_bias`, taken by the process loop between two samples.
     let retake = Arc::new(AtomicBool::new(false));
-    let controls = LoopControls { tap, retake: retake.clone(), input_writers, participant: participant.clone() };
-    let processing = process_loop(&subscription, &out_pub, &corr_pub, pipeline, stats.clone(), limits, controls);
+    let controls = process_loop::LoopControls { tap, retake: retake.clone(), input_writers, participant: participant.clone() };
+    let topics = process_loop::Topics { input: &subscription, denoised: &out_pub, correction: &corr_pub };
+    let processing = process_loop::process_loop(topics, pipeline, stats.clone(), limits, controls);
     let retake_task = async {
         match &retake_server {
             Some(srv) => power_on::retake_service_loop(srv, &retake).await,
@@ -341,212 +342,11 @@ async fn shutdown_signal() {
     let _ = tokio::signal::ctrl_c().await;
 }
 
-/// What the process loop feeds and reads when the adaptation service is on.
-struct AdaptTap {
-    buffers: Arc<Mutex<Buffers>>,
-    adapting: Arc<AtomicBool>,
-}
-
-/// What reaches the process loop from the services: the adaptation's tap, and the re-take
-/// flag; and the input's writers judged by their discovered type.
-struct LoopControls {
-    tap: Option<AdaptTap>,
-    retake: Arc<AtomicBool>,
-    input_writers: peer_check::InputWriters,
-    participant: ros2_client::dds::rustdds::DomainParticipant,
-}
-
-async fn process_loop(
-    subscription: &ros2_client::Subscription<Imu>,
-    out_pub: &ros2_client::Publisher<Imu>,
-    corr_pub: &ros2_client::Publisher<Vector3Stamped>,
-    mut pipeline: Pipeline,
-    stats: Arc<Mutex<NodeStats>>,
-    limits: RunLimits,
-    controls: LoopControls,
-) {
-    let LoopControls { tap, retake, mut input_writers, participant } = controls;
-    let stream = subscription.async_stream();
-    futures::pin_mut!(stream);
-    let mut published = 0u64;
-    let mut received_any = false;
-    let mut last_frame: Option<String> = None;
-    let mut frame_warnings = FrameWarnings::default();
-    let mut sequences = input_sequence::InputSequences::default();
-    // A peer publishing another type on the input topic errs at its rate: one line a second.
-    let mut decode_log = log_throttle::LogThrottle::new(log_throttle::LOG_EVERY);
-    loop {
-        // Idle counts from the first input, published or dropped (an all-NaN stream ends too).
-        let next = match limits.idle_exit {
-            Some(idle) if received_any => match tokio::time::timeout(idle, stream.next()).await {
-                Ok(x) => x,
-                Err(_) => return,
-            },
-            _ => stream.next().await,
-        };
-        let Some(item) = next else { return };
-        received_any = true;
-        let arrived = Instant::now();
-        let state = tap.as_ref().map(|t| usize::from(t.adapting.load(Ordering::Relaxed)));
-        let (mut msg, source_ns) = match item {
-            Ok((m, info)) => {
-                sequences.observe(info.publisher_gid(), info.sequence_number());
-                let writer = info.publisher_gid().into();
-                let discovered = || participant.discovered_writers().iter().map(peer_check::RemoteEndpoint::writer).collect();
-                if input_writers.refuses(writer, discovered).is_some() {
-                    // Said once, by the peer check on /diagnostics and in the log.
-                    stats.lock().expect("stats lock").dropped_wrong_type += 1;
-                    continue;
-                }
-                (m, info.source_timestamp().map(|t| t.to_nanos()))
-            }
-            Err(e) => {
-                if let Some(n) = decode_log.admit(Instant::now()) {
-                    tracing::warn!("input decode error: {e:?}{}", log_throttle::unsaid(n));
-                }
-                stats.lock().expect("stats lock").decode_errors += 1;
-                continue;
-            }
-        };
-        let sample = msg.sample();
-        if retake.swap(false, Ordering::AcqRel) {
-            power_on::retake(&mut pipeline, &stats);
-        }
-        let result = pipeline.push(&sample);
-        let corrected = Instant::now();
-        let mut frame_changed = false;
-        if last_frame.as_deref() != Some(msg.header.frame_id.as_str()) {
-            frame_changed = last_frame.is_some();
-            if frame_changed {
-                frame_warnings.changed(arrived, last_frame.as_deref().unwrap_or_default(), &msg.header.frame_id);
-            }
-            last_frame = Some(msg.header.frame_id.clone());
-        }
-        if let (Ok(c), Some(t)) = (&result, &tap) {
-            let seq = pipeline.counters().processed;
-            let mut b = t.buffers.lock().expect("buffers lock");
-            b.push_imu(SeqSample { seq, sample, reset_before: c.after_gap });
-            b.model_fed_periods = pipeline.resampling();
-        }
-        let mut publish_times = None;
-        if let Ok(c) = &result {
-            let start = Instant::now();
-            let correction = Vector3Stamped { header: msg.header.clone(), vector: c.correction.into() };
-            fill_denoised(&mut msg, c);
-            if let Err(e) = out_pub.async_publish(msg).await {
-                tracing::warn!("publish: {e:?}");
-            }
-            let denoised_sent = Instant::now();
-            if let Err(e) = corr_pub.async_publish(correction).await {
-                tracing::warn!("publish correction: {e:?}");
-            }
-            publish_times = Some((denoised_sent - start, denoised_sent.elapsed()));
-            published += 1;
-        } else if let Err(why) = result {
-            tracing::debug!("input at {} ns dropped: {why:?}", sample.stamp_ns);
-        }
-        {
-            let mut s = stats.lock().expect("stats lock");
-            let in_node = arrived.elapsed();
-            s.latency.record(in_node);
-            s.stage_latency.correct.record(corrected - arrived);
-            if let Some((denoised, correction)) = publish_times {
-                s.stage_latency.publish_denoised.record(denoised);
-                s.stage_latency.publish_correction.record(correction);
-            }
-            if let Some(src) = source_ns {
-                s.stage_latency.dds_receive.record(Duration::from_nanos((wall_ns(arrived) - src).max(0) as u64));
-            }
-            if let Some(i) = state {
-                s.split_latency.in_node[i].record(in_node);
-                if let Some(src) = source_ns {
-                    // Clamped at 0: the sender's clock is the same host's, but not monotonic.
-                    s.split_latency.write_to_publish[i].record(Duration::from_nanos((wall_ns(Instant::now()) - src).max(0) as u64));
-                }
-            }
-            s.counters = pipeline.counters().clone();
-            s.input_sequences.clone_from(&sequences);
-            if frame_changed {
-                s.frame_changes += 1;
-            }
-            if let Some(f) = &last_frame {
-                if s.frame_id != *f {
-                    s.frame_id.clone_from(f);
-                }
-            }
-            s.last_stamp_ns = sample.stamp_ns;
-            s.last_input_ns = Some(status_clock_ns(arrived));
-            s.warming_up = result.as_ref().is_ok_and(|c| c.warming_up);
-            // Said once in the log when it starts: /diagnostics alone was easy to miss.
-            if pipeline.resampling() != s.resampling {
-                if pipeline.resampling() {
-                    tracing::info!(
-                        "input at {:.1} Hz, the model at {:.1} Hz: the input is fed to the model in its periods (the mean rate over each), and each sample gets the last period's correction",
-                        pipeline.input_rate_hz().unwrap_or(f64::NAN),
-                        pipeline.corrector_rate_hz().unwrap_or(f64::NAN)
-                    );
-                } else {
-                    tracing::info!(
-                        "input back at {:.1} Hz, the model's rate: fed to it sample by sample",
-                        pipeline.input_rate_hz().unwrap_or(f64::NAN)
-                    );
-                }
-            }
-            s.resampling = pipeline.resampling();
-            s.gravity_aided_blocks = pipeline.gravity_aided_blocks();
-            s.take_power_on(&pipeline);
-            if pipeline.rate_off_nominal() && !s.rate_off_nominal && !pipeline.resampling() {
-                tracing::warn!(
-                    "input rate off nominal: {:.1} Hz against the {:.1} Hz {}; a model counts samples, so its window now spans another time",
-                    pipeline.input_rate_hz().unwrap_or(f64::NAN),
-                    pipeline.nominal_rate_hz().unwrap_or(f64::NAN),
-                    if pipeline.corrector_rate_hz().is_some() { "the model was trained at" } else { "first measured" }
-                );
-            }
-            s.rate_off_nominal = pipeline.rate_off_nominal();
-        }
-        if limits.max_messages.is_some_and(|m| published >= m) {
-            return;
-        }
-    }
-}
-
-/// The wall clock at `at` (an instant just taken), ns since the Unix epoch: what a DDS source
-/// timestamp is compared with.
-fn wall_ns(at: Instant) -> i64 {
-    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64);
-    now - i64::try_from(at.elapsed().as_nanos()).unwrap_or(0)
-}
-
 /// The node's status clock: monotonic ns since the first reading (the wall clock may step).
 fn status_clock_ns(at: Instant) -> i64 {
     static EPOCH: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
     let epoch = *EPOCH.get_or_init(Instant::now);
     i64::try_from(at.saturating_duration_since(epoch).as_nanos()).unwrap_or(i64::MAX)
-}
-
-/// The log line for input frame_id changes: the first at once, then at most one every 10 s
-/// with the count between (two IMUs on one topic changed it at every message: 1199 lines in 3 s).
-#[derive(Default)]
-struct FrameWarnings {
-    last_warned: Option<Instant>,
-    since: u64,
-}
-
-impl FrameWarnings {
-    fn changed(&mut self, now: Instant, from: &str, to: &str) {
-        self.since += 1;
-        if self.last_warned.is_none_or(|t| now.duration_since(t) >= Duration::from_secs(10)) {
-            let more = if self.since > 1 {
-                format!(" ({} changes since the last warning: two IMUs on one topic?)", self.since)
-            } else {
-                String::new()
-            };
-            tracing::warn!("input frame_id changed from {from:?} to {to:?}; passed through{more}");
-            self.last_warned = Some(now);
-            self.since = 0;
-        }
-    }
 }
 
 #[cfg(test)]
