@@ -391,6 +391,19 @@ pub fn parameters(term: &Term) -> Option<Vec<f64>> {
     })
 }
 
+/// The term with each parameter moved toward zero by up to `k` of its σ (`sd`, in the atom
+/// order of [`parameters`]), not past zero: within its ±kσ box, the value nearest a plausible
+/// size for every term [`PLAUSIBLE`] measures by size (for `gravity_magnitude`, the nominal g).
+/// `None` for the terms with other parameters, or without σ.
+pub fn nearest_plausible(term: &Term, sd: &[f64], k: f64) -> Option<Term> {
+    let beta = parameters(term)?;
+    if sd.len() != beta.len() {
+        return None;
+    }
+    let shrunk: Vec<f64> = beta.iter().zip(sd).map(|(b, s)| b.signum() * (b.abs() - k * s).max(0.0)).collect();
+    Some(to_term(term.name(), &shrunk, 0.0, 0.0))
+}
+
 /// Parameter names and values of a term as the vocabulary writes them (JSON).
 pub fn params_json(term: &Term) -> serde_json::Value {
     let mut v = serde_json::to_value(term).unwrap_or(serde_json::Value::Null);
@@ -658,6 +671,19 @@ fn short(x: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_nearest_plausible_value_is_the_interval_end_toward_zero() {
+        use physics::{GyroScale, TimeOffset};
+        let t = Term::GyroScale(GyroScale::new([0.06, -0.07, 0.001]));
+        let Some(Term::GyroScale(n)) = nearest_plausible(&t, &[0.005, 0.02, 0.01], 1.96) else { panic!() };
+        assert!((n.scale[0] - (0.06 - 0.0098)).abs() < 1e-12 && (n.scale[1] + (0.07 - 0.0392)).abs() < 1e-12 && n.scale[2] == 0.0, "{n:?}");
+        // A 1.5-sample delay ± 0.4 samples at 100 Hz is beyond one sample at its end too.
+        let d = Term::TimeOffset(TimeOffset { seconds: 0.015 });
+        let near = nearest_plausible(&d, &[0.002], 1.96).unwrap();
+        assert!(implausible(&near, 100.0).is_some());
+        assert!(implausible(&nearest_plausible(&d, &[0.003], 1.96).unwrap(), 100.0).is_none());
+    }
 
     #[test]
     fn parameters_read_back_what_to_term_wrote() {

@@ -418,6 +418,7 @@ fn diagnose_in_frame(
     }
     let mut findings = Vec::new();
     let mut implausible = Vec::new();
+    let mut to_judge = Vec::new();
     let mut terms = Vec::new();
     for (term, sd) in &fitted {
         // A linear fit can land where no sensor can be (a gain 1 + s below 0): that is not a
@@ -445,24 +446,22 @@ fn diagnose_in_frame(
                 ));
             }
         }
-        let why = catalogue::implausible(term, sample_rate_hz);
+        // Judged once the σ are widened (below): implausible only where its whole 95 %
+        // interval is.
         let f = Finding {
             term: term.name().into(),
             params: catalogue::params_json(term),
             uncertainty,
             interval_95: serde_json::Value::Null,
             evidence,
-            implausible: why,
+            implausible: None,
         };
-        if f.implausible.is_some() {
-            implausible.push(f)
-        } else {
-            findings.push(f)
-        }
+        to_judge.push((f, term.clone(), sd.clone(), sample_rate_hz));
         terms.push(term.clone());
     }
+    let mut exact = Vec::new();
     for (term, evidence) in direct {
-        findings.push(Finding {
+        exact.push(Finding {
             term: term.name().into(),
             params: catalogue::params_json(&term),
             uncertainty: serde_json::json!(null),
@@ -518,10 +517,26 @@ fn diagnose_in_frame(
             excess.sqrt()
         ));
     }
-    for f in findings.iter_mut().chain(implausible.iter_mut()) {
+    for (mut f, term, sd, sample_rate_hz) in to_judge {
         scale_numbers(&mut f.uncertainty, excess.sqrt());
         f.interval_95 = interval(&f.params, &f.uncertainty, 1.96);
+        let sd: Vec<f64> = sd.iter().map(|s| s * excess.sqrt()).collect();
+        match plausibility(&term, &sd, sample_rate_hz) {
+            Plausibility::Plausible => findings.push(f),
+            Plausibility::WithinItsInterval(why) => {
+                f.evidence["plausible_within_95"] = serde_json::json!(format!(
+                    "its estimate is beyond the plausible range ({why}); its 95 % interval reaches into it, so it stands as a finding"
+                ));
+                findings.push(f);
+            }
+            Plausibility::Implausible(why) => {
+                f.implausible = Some(why);
+                implausible.push(f);
+            }
+        }
     }
+    // The terms taken out exactly before the fit come after the fitted ones.
+    findings.extend(exact);
     let not_found = detection::detection_limits(&sel, &mask, &opts.select, excess.sqrt());
 
     // The same tests on the residual after the fit: what is left there, the catalogue does
@@ -578,6 +593,26 @@ fn diagnose_in_frame(
         },
         fine_rotvec,
     ))
+}
+
+/// A fitted term's size against its plausible range ([`catalogue::PLAUSIBLE`]).
+enum Plausibility {
+    Plausible,
+    /// Its estimate is beyond the range, its 95 % interval reaches into it (why it is beyond).
+    WithinItsInterval(String),
+    /// Its whole 95 % interval is beyond the range (why).
+    Implausible(String),
+}
+
+/// Judged on the estimate and, where it is beyond the range, on the value of its 95 %
+/// interval (± 1.96 σ per parameter) nearest the range: a size a sensor can have that the
+/// data do not rule out is not called implausible.
+fn plausibility(term: &Term, sd: &[f64], sample_rate_hz: f64) -> Plausibility {
+    let Some(why) = catalogue::implausible(term, sample_rate_hz) else { return Plausibility::Plausible };
+    match catalogue::nearest_plausible(term, sd, 1.96) {
+        Some(nearest) if catalogue::implausible(&nearest, sample_rate_hz).is_none() => Plausibility::WithinItsInterval(why),
+        _ => Plausibility::Implausible(why),
+    }
 }
 
 /// Every number in `v` times `k`.
