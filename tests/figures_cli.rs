@@ -164,7 +164,7 @@ fn diagnose_out_dir_holds_the_figures() {
         assert!(md.contains(&format!("]({f})")), "report.md does not show {f}");
     }
     // report.json keeps its structure (session 40 added the verdict, implausible fits and the
-    // real recording's stamp artefacts).
+    // real recording's stamp artefacts; 2026-12-06 the terms not found with their limits).
     let j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap()).unwrap();
     let mut keys: Vec<&str> = j.as_object().unwrap().keys().map(String::as_str).collect();
     keys.sort_unstable();
@@ -175,6 +175,8 @@ fn diagnose_out_dir_holds_the_figures() {
             "findings_are",
             "implausible",
             "located",
+            "not_found",
+            "not_found_rule",
             "not_judged",
             "notes",
             "recording_artefacts",

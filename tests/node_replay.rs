@@ -67,6 +67,10 @@ fn euroc_bag(dir: &Path) -> Option<PathBuf> {
 fn replay_equals_offline_full_sequence_evaluation() {
     let dir = tempfile::tempdir().unwrap();
     let Some(bag) = euroc_bag(dir.path()) else { return };
+    // The open-loop orientation, checked against offline integration below (gravity aided is
+    // the default: tests/attitude_cli.rs).
+    let open_loop = dir.path().join("open.yaml");
+    std::fs::write(&open_loop, "imu_fsda:\n  ros__parameters:\n    pipeline:\n      orientation: open_loop\n").unwrap();
     // The third: a model with one Ĉ_ω per IMU, run as `euroc`; the fourth: one shared Ĉ_ω and
     // a correction gain for `tumvi` (0.3), run as `tumvi`.
     for (mode, seed, imu) in
@@ -78,7 +82,9 @@ fn replay_equals_offline_full_sequence_evaluation() {
         };
         let out_bag = dir.path().join(format!("replayed-{mode:?}-{seed}.mcap"));
         let out = Command::new(bin())
-            .args(["-v", "replay", "--model-on-new-imu", "--imu", imu.unwrap_or(""), "--model"])
+            .args(["-v", "replay", "--model-on-new-imu", "--imu", imu.unwrap_or(""), "--params"])
+            .arg(&open_loop)
+            .arg("--model")
             .arg(&model)
             .arg(&bag)
             .arg("-o")

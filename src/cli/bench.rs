@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use imu_fsda::core::ImuSample;
-use imu_fsda::infer::{FullWindowCorrector, GyroCorrector, ModelCorrector, PassThrough, Pipeline, PipelineConfig};
+use imu_fsda::infer::{FullWindowCorrector, GyroCorrector, ModelCorrector, OrientationMode, PassThrough, Pipeline, PipelineConfig};
 use imu_fsda::model::export::{export_model, ExportInfo};
 use imu_fsda::model::{Config, Mode, Net, Precision};
 use imu_fsda::msg::{Imu, RosMessage};
@@ -136,6 +136,11 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let bare = throughput(&mut without_stage, stage_input)?;
     let staged = throughput(&mut with_stage, stage_input)?;
     let stage_us = 1e6 / staged - 1e6 / bare;
+    // The gravity-aided orientation (the default) against the open loop, the same way.
+    let open_loop_cfg = PipelineConfig { orientation: OrientationMode::OpenLoop, ..cfg.clone() };
+    let open = throughput(&mut Pipeline::new(Box::new(PassThrough), open_loop_cfg), stage_input)?;
+    let aided = throughput(&mut Pipeline::new(Box::new(PassThrough), cfg.clone()), stage_input)?;
+    let aided_us = 1e6 / aided - 1e6 / open;
 
     out!("model: {} ({:?}), window N = {n}", loaded.metadata.name, loaded.metadata.mode)?;
     out!("decode → correct → integrate → encode, one thread:")?;
@@ -147,6 +152,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     out!(
         "  of which the power-on bias (standstills, bias in motion): {stage_us:.2} µs/sample (no model: {staged:.0} samples/s with it, {bare:.0} without)"
     )?;
+    out!("  of which the gravity-aided orientation: {aided_us:.2} µs/sample (no model: {aided:.0} samples/s, open loop {open:.0})")?;
 
     let mut memory = Vec::new();
     if args.memory_hours > 0.0 {
@@ -181,7 +187,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         let v = serde_json::json!({
             "model": loaded.metadata.name, "window_n": n,
             "incremental_samples_per_s": inc, "reference_f64_samples_per_s": reference_f64, "naive_samples_per_s": nai,
-            "power_on_bias_us_per_sample": stage_us,
+            "power_on_bias_us_per_sample": stage_us, "gravity_aided_us_per_sample": aided_us,
             "memory_kib": memory.iter().map(|(h, k)| serde_json::json!({"hours": h, "rss_kib": k})).collect::<Vec<_>>(),
         });
         std::fs::write(path, serde_json::to_string_pretty(&v)?)?;

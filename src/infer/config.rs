@@ -69,7 +69,7 @@ impl Default for PipelineConfig {
             power_on_bias: true,
             standstill: crate::standstill::StandstillConfig::default(),
             model_on_new_imu: false,
-            orientation: super::OrientationMode::OpenLoop,
+            orientation: super::OrientationMode::GravityAided,
             gravity_aided: super::GravityAidedConfig::default(),
         }
     }

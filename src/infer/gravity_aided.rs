@@ -23,9 +23,11 @@ pub const CHI2_3DOF_999: f64 = 16.27;
 #[serde(rename_all = "snake_case")]
 pub enum OrientationMode {
     /// The corrected gyro integrated from the gravity start-up (the paper's output).
-    #[default]
     OpenLoop,
-    /// The same, its tilt corrected by gravity (this module).
+    /// The same, its tilt corrected by gravity (this module): the default, its tilt lower than
+    /// the open loop's on 19 of the 20 recordings of docs/node.md and its covariance
+    /// consistent on all.
+    #[default]
     GravityAided,
 }
 
@@ -60,15 +62,20 @@ impl Default for GravityAidedConfig {
         let m = MotionBiasConfig::default();
         GravityAidedConfig {
             block_s: m.block_s,
-            accel_stddev: m.accel_stddev,
+            // Twice the motion filter's: a car's bend or braking lasting seconds stays in a
+            // 1-s block's world-frame mean (at 1 m/s² a simulated car hour's tilt NEES was 9.9,
+            // half its errors outside the stated 95 %; docs/node.md, "Gravity aided").
+            accel_stddev: 2.0,
             max_gravity_error: m.max_gravity_error,
             max_block_nis: CHI2_3DOF_999,
             gyro_noise_density: m.gyro_noise_density,
-            // A consumer gyro's scale and cross-axis errors uncalibrated: 1–3 % (the MPU-9250
-            // unit of docs/poweron.md: +2.1 / −2.7 / +1.4 %); what a fitted Ĉ_ω leaves: a few
-            // tenths of a per cent (the ADIS16448's lasting errors, docs/poweron.md).
+            // What a fitted Ĉ_ω leaves: a few tenths of a per cent (the ADIS16448's lasting
+            // errors, docs/poweron.md). Without a model, beyond a consumer gyro's own scale and
+            // cross-axis errors (1–3 %), the block's linearised model (one mean attitude, one
+            // lag per block) errs in proportion to the turn within it: at 2 % a simulated
+            // multirotor hour's tilt NEES was 13, at 10 % 1.0 (docs/node.md).
             rate_error_fraction: 0.005,
-            uncorrected_rate_error_fraction: 0.02,
+            uncorrected_rate_error_fraction: 0.1,
             bias_random_walk: m.bias_random_walk,
             accel_bias_stddev: m.accel_bias_stddev,
         }
@@ -216,10 +223,15 @@ mod tests {
         assert!(within >= 0.95, "{:.0} % of the tilt errors within the stated 95 % bound", 100.0 * within);
         // Heading: gravity says nothing of it; it keeps the start's π² (yaw unknown).
         let (_, p_end) = aided[imu.len() - 1].unwrap();
-        // The tilt's σ stays at a degree or two (the open loop's grows past 10° here).
+        let (_, p_open) = open[imu.len() - 1].unwrap();
+        // The tilt's σ stays bounded where the open loop's grows with time: a few degrees for
+        // a gyro turning this fast with no model (`uncorrected_rate_error_fraction` allows 10 %
+        // of each turn; this one has a bias alone, so the bound is wide here).
         assert!(
-            p_end[(2, 2)] > 0.99 * PipelineConfig::default().initial_yaw_variance && p_end[(0, 0)] < 3f64.to_radians().powi(2),
-            "{p_end}"
+            p_end[(2, 2)] > 0.99 * PipelineConfig::default().initial_yaw_variance
+                && p_end[(0, 0)] < 8f64.to_radians().powi(2)
+                && p_end[(0, 0)] < 0.25 * p_open[(0, 0)],
+            "{p_end} against the open loop's {p_open}"
         );
     }
 

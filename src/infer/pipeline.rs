@@ -397,6 +397,12 @@ mod tests {
     use crate::infer::{BiasCorrector, ModelDomain, PassThrough, CLOCK_JUMP_SAMPLES, RATE_FROM_GAPS};
     use crate::so3::integrate_gyro;
 
+    /// The pipeline's defaults with the open-loop orientation, whose integration these tests
+    /// check against offline (the gravity-aided one is `gravity_aided::tests`').
+    fn open_loop() -> PipelineConfig {
+        PipelineConfig { orientation: OrientationMode::OpenLoop, ..Default::default() }
+    }
+
     fn stream(n: usize, dt_ns: i64) -> Vec<ImuSample> {
         (0..n)
             .map(|k| {
@@ -414,7 +420,7 @@ mod tests {
     fn orientation_equals_offline_integration() {
         let imu = stream(2000, 5_000_000);
         let bias = Vector3::new(0.01, 0.02, 0.03);
-        let mut p = Pipeline::new(Box::new(BiasCorrector { bias }), PipelineConfig { gravity_init_seconds: 0.0, ..Default::default() });
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias }), PipelineConfig { gravity_init_seconds: 0.0, ..open_loop() });
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         let q0 = out[0].orientation.unwrap().0;
         let offline = integrate_gyro(&imu, q0, |n| imu[n].gyro - bias);
@@ -431,7 +437,7 @@ mod tests {
         imu[20].stamp_ns = imu[19].stamp_ns;
         imu[30].stamp_ns = imu[29].stamp_ns - 1;
         imu[40].gyro.z = 1e30;
-        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), open_loop());
         let results: Vec<_> = imu.iter().map(|s| p.push(s)).collect();
         assert_eq!(results[10], Err(Dropped::NonFinite));
         assert_eq!(results[40], Err(Dropped::Implausible));
@@ -457,7 +463,7 @@ mod tests {
     /// the initial 0.01 rad).
     #[test]
     fn an_uncorrected_gyro_states_its_own_bias() {
-        let cfg = PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, standstill: no_motion_bias(), ..Default::default() };
+        let cfg = PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, standstill: no_motion_bias(), ..open_loop() };
         let tilt_sigma = |corrector: Box<dyn GyroCorrector>| {
             let mut p = Pipeline::new(corrector, cfg.clone());
             let last = stream(2001, 5_000_000).iter().map(|s| p.push(s).unwrap()).last().unwrap();
@@ -507,7 +513,7 @@ mod tests {
     fn a_new_imu_runs_the_power_on_bias_not_the_model() {
         let bias = Vector3::new(0.04, -0.06, 0.02);
         let imu = rest_then_motion(bias);
-        let cfg = PipelineConfig { gravity_init_seconds: 0.2, standstill: no_motion_bias(), ..Default::default() };
+        let cfg = PipelineConfig { gravity_init_seconds: 0.2, standstill: no_motion_bias(), ..open_loop() };
         let mut p = Pipeline::new(Box::new(Wrong(ModelDomain::NewImu)), cfg.clone());
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         assert_eq!(p.correction().0, Correction::PowerOnBias);
@@ -541,7 +547,7 @@ mod tests {
     #[test]
     fn a_measured_power_on_bias_states_its_own_sigma() {
         let imu = rest_then_motion(Vector3::new(0.03, 0.0, 0.0));
-        let cfg = PipelineConfig { gravity_init_seconds: 0.2, standstill: no_motion_bias(), ..Default::default() };
+        let cfg = PipelineConfig { gravity_init_seconds: 0.2, standstill: no_motion_bias(), ..open_loop() };
         let sigma_after = |c: Box<dyn GyroCorrector>| {
             let mut p = Pipeline::new(c, cfg.clone());
             imu.iter().map(|s| p.push(s).unwrap()).last().unwrap().orientation.unwrap().1[(0, 0)].sqrt()
@@ -570,7 +576,7 @@ mod tests {
     fn the_bias_seen_in_motion_is_removed_without_a_rest() {
         let bias = Vector3::new(0.05, -0.04, 0.03);
         let imu = crate::motion_bias::tumbling(bias, 120.0, 0.5);
-        let cfg = PipelineConfig { gravity_init_seconds: 0.2, ..Default::default() };
+        let cfg = PipelineConfig { gravity_init_seconds: 0.2, ..open_loop() };
         let mut p = Pipeline::new(Box::new(PassThrough), cfg.clone());
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         assert!(p.power_on_bias().is_none(), "no standstill in a tumble");
@@ -595,7 +601,7 @@ mod tests {
         }
         let mut p = Pipeline::new(
             Box::new(BiasCorrector { bias: Vector3::zeros() }),
-            PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..Default::default() },
+            PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..open_loop() },
         );
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         assert!(out[200].after_gap && !out[199].after_gap && !out[201].after_gap);
@@ -611,7 +617,7 @@ mod tests {
     /// rate and at a stream's own; stamps taken on arrival in bursts count nothing.
     #[test]
     fn holes_shorter_than_a_gap_are_counted() {
-        let cfg = PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..Default::default() };
+        let cfg = PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..open_loop() };
         let bias = || Box::new(BiasCorrector { bias: Vector3::zeros() });
         // 200 Hz, samples 100 and 101 lost (a 15-ms interval): 2 missed, no gap.
         let mut p = Pipeline::new(bias(), cfg.clone());
@@ -648,7 +654,7 @@ mod tests {
         imu[300].stamp_ns -= 1_000_000_000;
         let mut p = Pipeline::new(
             Box::new(BiasCorrector { bias: Vector3::zeros() }),
-            PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..Default::default() },
+            PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..open_loop() },
         );
         let out: Vec<Result<CorrectedImu, Dropped>> = imu.iter().map(|s| p.push(s)).collect();
         assert!(out[100].as_ref().unwrap().after_gap, "the jump ahead is a gap");
@@ -669,7 +675,7 @@ mod tests {
         let slow = stream(100, 50_000_000);
         let mut p = Pipeline::new(
             Box::new(BiasCorrector { bias: Vector3::zeros() }),
-            PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..Default::default() },
+            PipelineConfig { nominal_rate_hz: 200.0, gravity_init_seconds: 0.0, ..open_loop() },
         );
         let out: Vec<CorrectedImu> = slow.iter().map(|s| p.push(s).unwrap()).collect();
         assert!(p.rate_off_nominal() && p.counters().rate_changes == 1, "{:?}", p.counters());
@@ -689,10 +695,8 @@ mod tests {
             s.stamp_ns += t0;
             s
         }));
-        let mut p = Pipeline::new(
-            Box::new(BiasCorrector { bias: Vector3::zeros() }),
-            PipelineConfig { gravity_init_seconds: 0.0, ..Default::default() },
-        );
+        let mut p =
+            Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig { gravity_init_seconds: 0.0, ..open_loop() });
         let out: Vec<CorrectedImu> = burst.iter().map(|s| p.push(s).unwrap()).collect();
         assert_eq!(p.nominal_rate_hz().map(f64::round), Some(200.0));
         assert!(out[100..].iter().all(|c| !c.after_gap), "the orientation is integrated again");
@@ -707,7 +711,7 @@ mod tests {
             s.gyro = Vector3::zeros();
             s.accel = tilt.inverse() * Vector3::new(0.0, 0.0, 9.81);
         }
-        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), open_loop());
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         assert!(out[50].orientation.is_none(), "no orientation before 0.5 s of gravity");
         let k = out.iter().position(|o| o.orientation.is_some()).unwrap();
@@ -727,7 +731,7 @@ mod tests {
         for (k, s) in imu.iter_mut().enumerate() {
             s.accel += Vector3::new(3.0 * (k as f64 * 0.3).sin(), 0.0, 0.0);
         }
-        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), open_loop());
         let (_, moving) = imu.iter().filter_map(|s| p.push(s).unwrap().orientation).next().unwrap();
         assert!(moving[(0, 0)] > 0.03, "{}", moving[(0, 0)]);
     }
@@ -743,7 +747,7 @@ mod tests {
         };
         let mut imu = stream(1200, 5_000_000);
         imu.iter_mut().enumerate().for_each(|(k, s)| bend(s, k < 600));
-        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), open_loop());
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         let k = out.iter().position(|o| o.orientation.is_some()).unwrap();
         assert!(k >= 600, "set at sample {k}, in the bend");
@@ -753,7 +757,7 @@ mod tests {
         // Turning for ever: set after 20 intervals, its stated tilt σ at least the 21.7° it is off.
         let mut imu = stream(3000, 5_000_000);
         imu.iter_mut().for_each(|s| bend(s, true));
-        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), open_loop());
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         let k = out.iter().position(|o| o.orientation.is_some()).unwrap();
         assert!((2000..2200).contains(&k), "{k}");
@@ -782,7 +786,7 @@ mod tests {
                 accel: truth(k).inverse() * Vector3::new(0.0, 0.0, 9.81),
             })
             .collect();
-        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), open_loop());
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         let k = out.iter().position(|o| o.orientation.is_some()).unwrap();
         let (q, _) = out[k].orientation.unwrap();
@@ -801,7 +805,7 @@ mod tests {
         fn imu_stamp(k: usize) -> i64 {
             1_000_000 + 300 * 5_000_000 + (k as i64 - 300) * 2_500_000
         }
-        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), PipelineConfig::default());
+        let mut p = Pipeline::new(Box::new(BiasCorrector { bias: Vector3::zeros() }), open_loop());
         for s in &imu {
             p.push(s).unwrap();
         }
@@ -848,7 +852,7 @@ mod tests {
     #[test]
     fn a_faster_stream_runs_the_model_in_its_periods() {
         let slow = stream(400, 5_000_000);
-        let cfg = PipelineConfig { gravity_init_seconds: 0.0, ..Default::default() };
+        let cfg = PipelineConfig { gravity_init_seconds: 0.0, ..open_loop() };
         let mut at_rate = Pipeline::new(Box::new(WindowMean(Default::default())), cfg.clone());
         let reference: Vec<CorrectedImu> = slow.iter().map(|s| at_rate.push(s).unwrap()).collect();
         assert!(!at_rate.resampling());
@@ -881,7 +885,7 @@ mod tests {
     /// its periods from the tenth sample, one switch (it took 90 samples from the nominal).
     #[test]
     fn a_rate_just_off_is_resampled_from_the_start() {
-        let mut p = Pipeline::new(Box::new(WindowMean(Default::default())), PipelineConfig::default());
+        let mut p = Pipeline::new(Box::new(WindowMean(Default::default())), open_loop());
         for (k, s) in stream(2000, 4_716_981).iter().enumerate() {
             p.push(s).unwrap();
             assert_eq!(p.resampling(), k >= 8, "sample {k}");
@@ -898,7 +902,7 @@ mod tests {
         for (k, s) in imu.iter_mut().enumerate() {
             s.stamp_ns += [1_000_000, -1_000_000, 400_000, -600_000][k % 4];
         }
-        let mut p = Pipeline::new(Box::new(WindowMean(Default::default())), PipelineConfig::default());
+        let mut p = Pipeline::new(Box::new(WindowMean(Default::default())), open_loop());
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         assert!(p.counters().gaps <= 7, "{:?}", p.counters());
         assert!(!out.last().unwrap().warming_up && p.resampling() && p.rate_off_nominal(), "{:?}", p.counters());
@@ -914,7 +918,7 @@ mod tests {
         fast.extend(stream(200, 1_000_000).into_iter().map(|s| ImuSample { stamp_ns: s.stamp_ns + t_end + 1_000_000_000, ..s }));
         let t_end = fast.last().unwrap().stamp_ns;
         let slow = stream(600, 5_000_000);
-        let mut p = Pipeline::new(Box::new(WindowMean(Default::default())), PipelineConfig::default());
+        let mut p = Pipeline::new(Box::new(WindowMean(Default::default())), open_loop());
         let mut out = Vec::new();
         for s in &fast {
             out.push(p.push(s).unwrap());
