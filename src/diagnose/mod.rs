@@ -31,6 +31,7 @@ pub mod bandwidth;
 pub mod catalogue;
 pub mod detection;
 pub mod figures;
+pub mod findings;
 pub mod fit;
 pub mod frame;
 pub mod golden;
@@ -314,48 +315,9 @@ fn diagnose_in_frame(
         notes.push(format!("ground truth smoothed by a local cubic over ±{h} s before ω̇ is taken from it"));
     }
 
-    // Terms read directly off the real samples.
-    let mut direct: Vec<(Term, serde_json::Value)> = Vec::new();
-    // Stamps inside a gap of the real stream hold an interpolation across it, not a sample.
-    let flag = |v: &[bool], i: usize| v.get(i).copied().unwrap_or(false);
-    let mut mask: Vec<bool> = a.left_out().iter().map(|l| !l).collect();
-    let in_gaps = (0..n).filter(|&i| flag(&a.in_real_gap, i)).count();
-    if in_gaps > 0 {
-        notes.push(format!("{in_gaps} sim stamps inside gaps of the real stream left out of the fit"));
-    }
-    let in_reference_gaps = (0..n).filter(|&i| flag(&a.in_reference_gap, i)).count();
-    if in_reference_gaps > 0 {
-        notes.push(format!(
-            "{in_reference_gaps} stamps ({:.1} % of the recording) at or near dropouts of the ground truth left out of the fit: the sim there is made up across the hole, not simulated",
-            100.0 * in_reference_gaps as f64 / n.max(1) as f64
-        ));
-    }
-    let mut white_real = [a.real_variance.0, a.real_variance.1];
+    // Terms read directly off the real samples, and the samples left out of the fit.
+    let OffTheSamples { mut direct, mask, white_real, lsbs } = read_off_the_samples(a, opts, &mut notes);
     let sim_var = [a.sim_variance.0, a.sim_variance.1];
-    let mut ranges = [f64::INFINITY; 2];
-    let mut lsbs = [0.0; 2];
-    for s in (0..2).filter(|s| full_rate && opts.sensors.judges(*s)) {
-        if let Some((range, idx)) = catalogue::detect_saturation(&a.real[3 * s..3 * s + 3], &a.sim[3 * s..3 * s + 3], sim_var[s].sqrt()) {
-            ranges[s] = range;
-            for &i in &idx {
-                mask[i] = false;
-            }
-        }
-        if let Some(lsb) = catalogue::detect_quantization(&a.real[3 * s..3 * s + 3], &a.sim[3 * s..3 * s + 3]) {
-            lsbs[s] = lsb;
-            white_real[s] += lsb * lsb / 12.0;
-        }
-    }
-    if ranges.iter().any(|r| r.is_finite()) {
-        let clipped = mask.iter().filter(|m| !**m).count();
-        let t = Term::Saturation(crate::physics::Saturation { gyro_range: ranges[0], accel_range: ranges[1] });
-        direct.push((t, serde_json::json!({"clipped_samples": clipped, "rule": "≥ 3 real samples at the largest magnitude while the sim exceeds it by > 3σ"})));
-        notes.push(format!("{clipped} clipped samples left out of the fit"));
-    }
-    if lsbs.iter().any(|l| *l > 0.0) {
-        let t = Term::Quantization(crate::physics::Quantization { gyro_lsb: lsbs[0], accel_lsb: lsbs[1] });
-        direct.push((t, serde_json::json!({"rule": "every real sample is a multiple of the step, the sim samples are not"})));
-    }
 
     let temperature =
         a.temperature_c.as_ref().map(|t| t.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(*v), hi.max(*v))));
@@ -416,61 +378,10 @@ fn diagnose_in_frame(
     if ["mount_rotation", "gyro_misalignment", "accel_misalignment"].iter().all(|n| chosen_names.contains(n)) {
         notes.push("mount_rotation, gyro_misalignment and accel_misalignment are all in the fit: a small frame rotation is the antisymmetric part of both misalignments, so how the three split it is not determined by any recording; only their combined effect is".into());
     }
-    let mut findings = Vec::new();
-    let mut implausible = Vec::new();
-    let mut to_judge = Vec::new();
-    let mut terms = Vec::new();
-    for (term, sd) in &fitted {
-        // A linear fit can land where no sensor can be (a gain 1 + s below 0): that is not a
-        // finding, and the patch could not be applied.
-        if let Err(e) = term.validate() {
-            notes.push(format!(
-                "{} was fitted to a value no sensor has ({e}) and is left out: the recordings may not show the same motion, or their frames differ",
-                term.name()
-            ));
-            continue;
-        }
-        let step = sel.steps.iter().rev().find(|s| s.action == "add" && s.term == term.name());
-        let uncertainty = uncertainty_json(term, sd);
-        let mut evidence = serde_json::json!({
-            "heldout_loglik_gain": step.map(|s| s.heldout_gain),
-            "runner_up": step.and_then(|s| s.runner_up.clone()).map(|(t, g)| serde_json::json!({"term": t, "heldout_loglik_gain": g})),
-            "rule": format!("added while the held-out log-likelihood gain exceeded {} + {} per parameter", opts.select.threshold, opts.select.per_param),
-        });
-        // Plausibility is judged at the sensor's own rate, not the comparison's.
-        let sample_rate_hz = a.samples_per_point as f64 / dt;
-        if let (Term::TimeOffset(t), false) = (term, full_rate) {
-            if let Some(f_c) = bandwidth::equivalent_low_pass_hz(t.seconds, 1.0 / sample_rate_hz) {
-                evidence["also_explained_by"] = serde_json::json!(format!(
-                    "a first-order low-pass at {f_c:.1} Hz (its delay), or any mix of a delay and a filter: the two are one effect at the compared bandwidth; the delay is given once, and neither is a finding on its own"
-                ));
-            }
-        }
-        // Judged once the σ are widened (below): implausible only where its whole 95 %
-        // interval is.
-        let f = Finding {
-            term: term.name().into(),
-            params: catalogue::params_json(term),
-            uncertainty,
-            interval_95: serde_json::Value::Null,
-            evidence,
-            implausible: None,
-        };
-        to_judge.push((f, term.clone(), sd.clone(), sample_rate_hz));
-        terms.push(term.clone());
-    }
-    let mut exact = Vec::new();
-    for (term, evidence) in direct {
-        exact.push(Finding {
-            term: term.name().into(),
-            params: catalogue::params_json(&term),
-            uncertainty: serde_json::json!(null),
-            interval_95: serde_json::Value::Null,
-            evidence,
-            implausible: None,
-        });
-        terms.push(term);
-    }
+    let sample_rate_hz = a.samples_per_point as f64 / dt;
+    let (to_judge, mut terms) = findings::fitted(&sel, &fitted, &opts.select, sample_rate_hz, full_rate, &mut notes);
+    let (exact, exact_terms) = findings::taken_out_exactly(direct);
+    terms.extend(exact_terms);
 
     // Locate under the no-term model.
     let w0 = residual::whitened(&y, &sel.baseline_noise, &mask);
@@ -484,17 +395,7 @@ fn diagnose_in_frame(
         after[c] = y_all[c].clone(); // nothing fitted on a sensor that is not judged
     }
     let w1 = residual::whitened(&after, &sel.noise, &mask);
-    let summary = |r: &[Vec<f64>; 6], w: &[Vec<f64>; 6], ll: f64, note: &str| {
-        let mut s = ResidualSummary { heldout_loglik: ll, note: note.into(), ..Default::default() };
-        for c in 0..6 {
-            let m: Vec<f64> = r[c].iter().zip(&mask).filter(|(_, m)| **m).map(|(v, _)| *v).collect();
-            s.rms.insert(CHANNELS[c].into(), (m.iter().map(|v| v * v).sum::<f64>() / m.len().max(1) as f64).sqrt());
-            if judged(c) {
-                s.chi2_per_sample.insert(CHANNELS[c].into(), w[c].iter().map(|v| v * v).sum::<f64>() / m.len().max(1) as f64);
-            }
-        }
-        s
-    };
+    let summary = |r: &[Vec<f64>; 6], w: &[Vec<f64>; 6], ll: f64, note: &str| residual_summary(r, w, &mask, opts.sensors, ll, note);
     let residual_before = summary(&y_all, &w0, sel.baseline.loglik_cv, "real − sim, simulator noise model (bias walk estimated)");
     let residual_after = summary(
         &after,
@@ -505,36 +406,14 @@ fn diagnose_in_frame(
 
     // σ from a noise model the residual exceeds is too small by √(χ²/n): widened by the
     // worst judged channel's excess, and the 95 % intervals from it.
-    let excess = residual_after
-        .chi2_per_sample
-        .iter()
-        .filter(|(c, _)| (0..2).any(|s| opts.sensors.judges(s) && c.starts_with(["gyro", "accel"][s])))
-        .map(|(_, v)| *v)
-        .fold(1.0f64, f64::max);
+    let excess = excess_over_noise_model(&residual_after, opts.sensors);
     if excess > 1.0 {
         notes.push(format!(
             "the residual after the fit has χ²/n up to {excess:.2}: every stated σ is widened by √{excess:.2} = {:.2}",
             excess.sqrt()
         ));
     }
-    for (mut f, term, sd, sample_rate_hz) in to_judge {
-        scale_numbers(&mut f.uncertainty, excess.sqrt());
-        f.interval_95 = interval(&f.params, &f.uncertainty, 1.96);
-        let sd: Vec<f64> = sd.iter().map(|s| s * excess.sqrt()).collect();
-        match plausibility(&term, &sd, sample_rate_hz) {
-            Plausibility::Plausible => findings.push(f),
-            Plausibility::WithinItsInterval(why) => {
-                f.evidence["plausible_within_95"] = serde_json::json!(format!(
-                    "its estimate is beyond the plausible range ({why}); its 95 % interval reaches into it, so it stands as a finding"
-                ));
-                findings.push(f);
-            }
-            Plausibility::Implausible(why) => {
-                f.implausible = Some(why);
-                implausible.push(f);
-            }
-        }
-    }
+    let (mut findings, implausible) = findings::judge(to_judge, excess);
     // The terms taken out exactly before the fit come after the fitted ones.
     findings.extend(exact);
     let not_found = detection::detection_limits(&sel, &mask, &opts.select, excess.sqrt());
@@ -545,32 +424,7 @@ fn diagnose_in_frame(
     located_after.retain(|l| (0..2).any(|s| opts.sensors.judges(s) && l.channel.starts_with(["gyro", "accel"][s])));
     let verdict = adequacy::judge(located_after, &residual_after.chi2_per_sample, terms.len());
 
-    let mut curves = Curves::default();
-    // Left-out samples (gaps, the reference's dropouts, clipping) hold no comparison: the
-    // spectra and Allan curves see the last compared value there, not the spikes.
-    let held = |x: &[f64]| held_over_mask(x, &mask);
-    let (y_all, after): ([Vec<f64>; 6], [Vec<f64>; 6]) =
-        (std::array::from_fn(|c| held(&y_all[c])), std::array::from_fn(|c| held(&after[c])));
-    for c in 0..6 {
-        let ab = allan::allan_deviation(&y_all[c], dt);
-        let aa = allan::allan_deviation(&after[c], dt);
-        curves.allan.push(ab.iter().zip(&aa).map(|(b, a)| (b.0, b.1, a.1)).collect());
-        let ns = sel.noise.sensors[residual::sensor_of(c)];
-        let white = ns.white_sim + ns.white_real * (1.0 - ns.pole) / (1.0 + ns.pole);
-        curves.allan_model.push(ab.iter().map(|(tau, _)| (*tau, allan::model_allan(white, ns.walk, dt, *tau))).collect());
-        let seg = ((20.0 / dt) as usize).next_power_of_two();
-        let (f, pb) = psd::welch(&y_all[c], dt, seg);
-        let (_, pa) = psd::welch(&after[c], dt, seg);
-        curves.psd.push(f.iter().zip(pb.iter().zip(&pa)).map(|(f, (b, a))| (*f, *b, *a)).collect());
-    }
-    // ~300 block means: the slow part of the residual (what a figure of a long recording
-    // can show; the fast part is in the PSD), and a small PNG.
-    let block = n.div_ceil(300).max(1);
-    curves.residual_t = (0..n).step_by(block).map(|i| (i as f64 + (block.min(n - i) as f64 - 1.0) / 2.0) * dt).collect();
-    for c in 0..6 {
-        curves.residual_before[c] = block_means(&y_all[c], &mask, block);
-        curves.residual_after[c] = block_means(&after[c], &mask, block);
-    }
+    let curves = curves_of(&y_all, &after, &mask, &sel.noise, dt);
 
     Ok((
         Diagnosis {
@@ -595,61 +449,128 @@ fn diagnose_in_frame(
     ))
 }
 
-/// A fitted term's size against its plausible range ([`catalogue::PLAUSIBLE`]).
-enum Plausibility {
-    Plausible,
-    /// Its estimate is beyond the range, its 95 % interval reaches into it (why it is beyond).
-    WithinItsInterval(String),
-    /// Its whole 95 % interval is beyond the range (why).
-    Implausible(String),
-}
-
-/// Judged on the estimate and, where it is beyond the range, on the value of its 95 %
-/// interval (± 1.96 σ per parameter) nearest the range: a size a sensor can have that the
-/// data do not rule out is not called implausible.
-fn plausibility(term: &Term, sd: &[f64], sample_rate_hz: f64) -> Plausibility {
-    let Some(why) = catalogue::implausible(term, sample_rate_hz) else { return Plausibility::Plausible };
-    match catalogue::nearest_plausible(term, sd, 1.96) {
-        Some(nearest) if catalogue::implausible(&nearest, sample_rate_hz).is_none() => Plausibility::WithinItsInterval(why),
-        _ => Plausibility::Implausible(why),
+/// RMS per channel of the residual `r` over the samples in the fit, and χ²/n of its whitened
+/// form `w` on the judged channels.
+fn residual_summary(
+    r: &[Vec<f64>; 6],
+    w: &[Vec<f64>; 6],
+    mask: &[bool],
+    sensors: Sensors,
+    heldout_loglik: f64,
+    note: &str,
+) -> ResidualSummary {
+    let mut s = ResidualSummary { heldout_loglik, note: note.into(), ..Default::default() };
+    for c in 0..6 {
+        let m: Vec<f64> = r[c].iter().zip(mask).filter(|(_, m)| **m).map(|(v, _)| *v).collect();
+        s.rms.insert(CHANNELS[c].into(), (m.iter().map(|v| v * v).sum::<f64>() / m.len().max(1) as f64).sqrt());
+        if sensors.judges(residual::sensor_of(c)) {
+            s.chi2_per_sample.insert(CHANNELS[c].into(), w[c].iter().map(|v| v * v).sum::<f64>() / m.len().max(1) as f64);
+        }
     }
+    s
 }
 
-/// Every number in `v` times `k`.
-fn scale_numbers(v: &mut serde_json::Value, k: f64) {
-    match v {
-        serde_json::Value::Number(n) => {
-            if let Some(x) = n.as_f64() {
-                *v = serde_json::json!(x * k);
+/// The worst judged channel's χ²/n after the fit, at least 1: how far every σ the noise
+/// model states falls short.
+fn excess_over_noise_model(after: &ResidualSummary, sensors: Sensors) -> f64 {
+    after
+        .chi2_per_sample
+        .iter()
+        .filter(|(c, _)| (0..2).any(|s| sensors.judges(s) && c.starts_with(["gyro", "accel"][s])))
+        .map(|(_, v)| *v)
+        .fold(1.0f64, f64::max)
+}
+
+/// What the real samples say before any fit: clipping and quantisation (terms read off
+/// them), and the samples the fit leaves out (gaps of the real stream, the reference's
+/// dropouts, clipped samples).
+struct OffTheSamples {
+    direct: Vec<(Term, serde_json::Value)>,
+    /// Per sample: in the fit.
+    mask: Vec<bool>,
+    /// The real white-noise variance per sensor, quantisation included.
+    white_real: [f64; 2],
+    /// The quantisation step per sensor (0: none).
+    lsbs: [f64; 2],
+}
+
+fn read_off_the_samples(a: &Aligned, opts: &DiagnoseOptions, notes: &mut Vec<String>) -> OffTheSamples {
+    let (n, full_rate) = (a.len(), a.samples_per_point == 1);
+    let mut direct: Vec<(Term, serde_json::Value)> = Vec::new();
+    // Stamps inside a gap of the real stream hold an interpolation across it, not a sample.
+    let flag = |v: &[bool], i: usize| v.get(i).copied().unwrap_or(false);
+    let mut mask: Vec<bool> = a.left_out().iter().map(|l| !l).collect();
+    let in_gaps = (0..n).filter(|&i| flag(&a.in_real_gap, i)).count();
+    if in_gaps > 0 {
+        notes.push(format!("{in_gaps} sim stamps inside gaps of the real stream left out of the fit"));
+    }
+    let in_reference_gaps = (0..n).filter(|&i| flag(&a.in_reference_gap, i)).count();
+    if in_reference_gaps > 0 {
+        notes.push(format!(
+            "{in_reference_gaps} stamps ({:.1} % of the recording) at or near dropouts of the ground truth left out of the fit: the sim there is made up across the hole, not simulated",
+            100.0 * in_reference_gaps as f64 / n.max(1) as f64
+        ));
+    }
+    let mut white_real = [a.real_variance.0, a.real_variance.1];
+    let sim_var = [a.sim_variance.0, a.sim_variance.1];
+    let mut ranges = [f64::INFINITY; 2];
+    let mut lsbs = [0.0; 2];
+    for s in (0..2).filter(|s| full_rate && opts.sensors.judges(*s)) {
+        if let Some((range, idx)) = catalogue::detect_saturation(&a.real[3 * s..3 * s + 3], &a.sim[3 * s..3 * s + 3], sim_var[s].sqrt()) {
+            ranges[s] = range;
+            for &i in &idx {
+                mask[i] = false;
             }
         }
-        serde_json::Value::Array(a) => a.iter_mut().for_each(|x| scale_numbers(x, k)),
-        serde_json::Value::Object(o) => o.values_mut().for_each(|x| scale_numbers(x, k)),
-        _ => {}
+        if let Some(lsb) = catalogue::detect_quantization(&a.real[3 * s..3 * s + 3], &a.sim[3 * s..3 * s + 3]) {
+            lsbs[s] = lsb;
+            white_real[s] += lsb * lsb / 12.0;
+        }
     }
+    if ranges.iter().any(|r| r.is_finite()) {
+        let clipped = mask.iter().filter(|m| !**m).count();
+        let t = Term::Saturation(crate::physics::Saturation { gyro_range: ranges[0], accel_range: ranges[1] });
+        direct.push((t, serde_json::json!({"clipped_samples": clipped, "rule": "≥ 3 real samples at the largest magnitude while the sim exceeds it by > 3σ"})));
+        notes.push(format!("{clipped} clipped samples left out of the fit"));
+    }
+    if lsbs.iter().any(|l| *l > 0.0) {
+        let t = Term::Quantization(crate::physics::Quantization { gyro_lsb: lsbs[0], accel_lsb: lsbs[1] });
+        direct.push((t, serde_json::json!({"rule": "every real sample is a multiple of the step, the sim samples are not"})));
+    }
+    OffTheSamples { direct, mask, white_real, lsbs }
 }
 
-/// [p − z·σ, p + z·σ] for every parameter p of `params` with its σ in `sd` (same layout);
-/// null where `sd` gives none.
-fn interval(params: &serde_json::Value, sd: &serde_json::Value, z: f64) -> serde_json::Value {
-    use serde_json::Value;
-    match (params, sd) {
-        (Value::Number(p), Value::Number(s)) => match (p.as_f64(), s.as_f64()) {
-            (Some(p), Some(s)) => serde_json::json!([p - z * s, p + z * s]),
-            _ => Value::Null,
-        },
-        (Value::Array(p), Value::Array(s)) if p.len() == s.len() => Value::Array(p.iter().zip(s).map(|(p, s)| interval(p, s, z)).collect()),
-        (Value::Object(p), Value::Object(s)) => {
-            let o: serde_json::Map<String, Value> =
-                p.iter().filter_map(|(k, pv)| s.get(k).map(|sv| (k.clone(), interval(pv, sv, z)))).filter(|(_, v)| !v.is_null()).collect();
-            if o.is_empty() {
-                Value::Null
-            } else {
-                Value::Object(o)
-            }
-        }
-        _ => Value::Null,
+/// The data behind the figures: Allan deviations and spectra of the residual before and
+/// after the fit (with the noise model's Allan curve), and ~300 block means of each.
+fn curves_of(y_all: &[Vec<f64>; 6], after: &[Vec<f64>; 6], mask: &[bool], noise: &NoiseModel, dt: f64) -> Curves {
+    let mut curves = Curves::default();
+    // Left-out samples (gaps, the reference's dropouts, clipping) hold no comparison: the
+    // spectra and Allan curves see the last compared value there, not the spikes.
+    let held = |x: &[f64]| held_over_mask(x, mask);
+    let (y_all, after): ([Vec<f64>; 6], [Vec<f64>; 6]) =
+        (std::array::from_fn(|c| held(&y_all[c])), std::array::from_fn(|c| held(&after[c])));
+    let n = y_all[0].len();
+    for c in 0..6 {
+        let ab = allan::allan_deviation(&y_all[c], dt);
+        let aa = allan::allan_deviation(&after[c], dt);
+        curves.allan.push(ab.iter().zip(&aa).map(|(b, a)| (b.0, b.1, a.1)).collect());
+        let ns = noise.sensors[residual::sensor_of(c)];
+        let white = ns.white_sim + ns.white_real * (1.0 - ns.pole) / (1.0 + ns.pole);
+        curves.allan_model.push(ab.iter().map(|(tau, _)| (*tau, allan::model_allan(white, ns.walk, dt, *tau))).collect());
+        let seg = ((20.0 / dt) as usize).next_power_of_two();
+        let (f, pb) = psd::welch(&y_all[c], dt, seg);
+        let (_, pa) = psd::welch(&after[c], dt, seg);
+        curves.psd.push(f.iter().zip(pb.iter().zip(&pa)).map(|(f, (b, a))| (*f, *b, *a)).collect());
     }
+    // ~300 block means: the slow part of the residual (what a figure of a long recording
+    // can show; the fast part is in the PSD), and a small PNG.
+    let block = n.div_ceil(300).max(1);
+    curves.residual_t = (0..n).step_by(block).map(|i| (i as f64 + (block.min(n - i) as f64 - 1.0) / 2.0) * dt).collect();
+    for c in 0..6 {
+        curves.residual_before[c] = block_means(&y_all[c], mask, block);
+        curves.residual_after[c] = block_means(&after[c], mask, block);
+    }
+    curves
 }
 
 /// `x` with every sample where `mask` is false replaced by the last one where it is true
@@ -693,41 +614,6 @@ fn heldout_residual(sel: &Selection, bl: &[std::ops::Range<usize>]) -> [Vec<f64>
         }
     }
     out
-}
-
-/// Uncertainty in the layout of the term's params (per fitted parameter, 1 σ).
-fn uncertainty_json(term: &Term, sd: &[f64]) -> serde_json::Value {
-    use serde_json::json;
-    if sd.is_empty() {
-        return json!(null);
-    }
-    let v = |o: usize| json!([sd[o], sd[o + 1], sd[o + 2]]);
-    match term {
-        Term::GyroBias(_) | Term::AccelBias(_) => json!({"bias": v(0)}),
-        Term::GyroScale(_) | Term::AccelScale(_) => json!({"scale": v(0)}),
-        Term::GyroMisalignment(_) | Term::AccelMisalignment(_) => {
-            let mut m = [[0.0; 3]; 3];
-            for (k, &(r, c)) in catalogue::OFF_DIAGONAL.iter().enumerate() {
-                m[r][c] = sd[k];
-            }
-            json!({ "matrix": m })
-        }
-        Term::GyroGSensitivity(_) => json!({"matrix": [[sd[0], sd[1], sd[2]], [sd[3], sd[4], sd[5]], [sd[6], sd[7], sd[8]]]}),
-        Term::GyroBiasTemperature(_) => json!({"coefficient": v(0)}),
-        Term::MountRotation(_) => json!({"rotvec": v(0)}),
-        Term::LeverArm(_) => json!({"offset": v(0)}),
-        Term::TimeOffset(_) => json!({"seconds": sd[0]}),
-        Term::GravityMagnitude(_) => json!({"g": sd[0]}),
-        Term::EarthRotation(e) => {
-            // Delta method on φ = atan2(s, c) at unit magnitude.
-            let (c, s) = (e.latitude_rad.cos(), e.latitude_rad.sin());
-            json!({"latitude_rad": ((s * sd[0]).powi(2) + (c * sd[1]).powi(2)).sqrt()})
-        }
-        Term::Vibration(_) => {
-            json!({"accel_amplitude": [sd[0].hypot(sd[3]) / std::f64::consts::SQRT_2, sd[1].hypot(sd[4]) / std::f64::consts::SQRT_2, sd[2].hypot(sd[5]) / std::f64::consts::SQRT_2]})
-        }
-        _ => json!(sd),
-    }
 }
 
 #[cfg(test)]
