@@ -21,6 +21,13 @@ fn room2() -> Option<PathBuf> {
     shared_data().map(|d| d.join("tumvi/dataset-room2_512_16"))
 }
 
+/// room2 imported into `dir` as `room2.mcap` (None where ../shared is not there).
+fn imported_room2(dir: &Path) -> Option<PathBuf> {
+    let bag = dir.join("room2.mcap");
+    run(Command::new(bin()).arg("import").arg(room2()?).arg("-o").arg(&bag));
+    Some(bag)
+}
+
 fn run(cmd: &mut Command) -> String {
     let out = cmd.output().expect("spawn");
     assert!(out.status.success(), "{cmd:?} failed: {}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
@@ -77,10 +84,8 @@ fn fitted(r: &serde_json::Value) -> Vec<serde_json::Value> {
 
 #[test]
 fn a_known_calibration_is_found_on_a_real_recording_and_none_on_the_calibrated_stream() {
-    let Some(seq) = room2() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let calibrated = dir.path().join("room2.mcap");
-    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&calibrated));
+    let Some(calibrated) = imported_room2(dir.path()) else { return };
     let raw = dir.path().join("room2_uncalibrated.mcap");
     uncalibrated(&calibrated, &raw);
 
@@ -125,10 +130,8 @@ fn a_known_calibration_is_found_on_a_real_recording_and_none_on_the_calibrated_s
 /// found, to within 20 % of their effect, and nothing else is reported beyond the control.
 #[test]
 fn injected_scales_and_biases_are_scored_against_the_control() {
-    let Some(seq) = room2() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let bag = dir.path().join("room2.mcap");
-    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag));
+    let Some(bag) = imported_room2(dir.path()) else { return };
     let out = dir.path().join("score");
     let noise = Path::new(env!("CARGO_MANIFEST_DIR")).join("params/noise/bmi160_tumvi.yaml");
     run(Command::new(bin())
@@ -163,10 +166,8 @@ fn injected_scales_and_biases_are_scored_against_the_control() {
 /// as stamped finds, not a delay or a scale made of the offset.
 #[test]
 fn a_reference_half_a_second_late_is_lined_up_and_said() {
-    let Some(seq) = room2() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let bag = dir.path().join("room2.mcap");
-    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag));
+    let Some(bag) = imported_room2(dir.path()) else { return };
     let (mut rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
     rec.ground_truth.iter_mut().for_each(|p| p.stamp_ns += 500_000_000);
     let late = dir.path().join("late.mcap");
@@ -200,10 +201,8 @@ fn drift_ppm(r: &serde_json::Value) -> Option<(f64, f64)> {
 /// the drift becomes no sensor term: the terms fitted are those of the recording as stamped.
 #[test]
 fn a_drifting_reference_clock_is_found_and_taken_out() {
-    let Some(seq) = room2() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let bag = dir.path().join("room2.mcap");
-    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag));
+    let Some(bag) = imported_room2(dir.path()) else { return };
     let (mut rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
     const INJECTED_PPM: f64 = 60.0;
     // A pose stamped later by 60 ppm of its time from the recording's middle (its clock runs
@@ -238,10 +237,8 @@ fn a_drifting_reference_clock_is_found_and_taken_out() {
 /// out), which are the recording's, not made up.
 #[test]
 fn a_20_hz_or_a_short_reference_gives_no_term_of_its_own() {
-    let Some(seq) = room2() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let bag = dir.path().join("room2.mcap");
-    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag));
+    let Some(bag) = imported_room2(dir.path()) else { return };
     let (rec, _) = read_recording(&bag, &RecordingTopics::default()).unwrap();
     let coarse = imu_fsda::core::Recording { ground_truth: rec.ground_truth.iter().step_by(6).copied().collect(), ..rec.clone() };
     let t0 = rec.imu[0].stamp_ns;
@@ -267,10 +264,8 @@ fn a_20_hz_or_a_short_reference_gives_no_term_of_its_own() {
 /// sensor has none).
 #[test]
 fn the_stated_detection_limit_holds_on_a_real_recording() {
-    let Some(seq) = room2() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let bag = dir.path().join("room2.mcap");
-    run(Command::new(bin()).arg("import").arg(&seq).arg("-o").arg(&bag));
+    let Some(bag) = imported_room2(dir.path()) else { return };
     let control = diagnose(dir.path(), &bag, "control");
     let scale = control["not_found"].as_array().unwrap().iter().find(|l| l["term"] == "gyro_scale").cloned();
     let scale = scale.unwrap_or_else(|| panic!("the control states no limit for gyro_scale: {:#}", control["not_found"]));
