@@ -60,57 +60,8 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let (corrector, status) = load_corrector(&params.model, &params.imu_calibration)?;
     let mut pipeline = Pipeline::new(corrector, params.pipeline.clone());
     let (topics, read_error) = imu_fsda::bag::bag_info(&args.input);
-    let listing = || topics.iter().map(|t| format!("{} [{}]", t.topic, t.type_name)).collect::<Vec<_>>().join(", ");
-    let has = |t: &str| topics.iter().any(|i| i.topic == t && i.type_name == Imu::TYPE_NAME);
-    let input_topic = match &args.input_topic {
-        Some(t) => t.clone(),
-        None if has(&params.input_topic) => params.input_topic.clone(),
-        None => imu_fsda::bag::IMU_TOPIC.to_string(),
-    };
-    match topics.iter().find(|t| t.topic == input_topic) {
-        Some(t) if t.type_name == Imu::TYPE_NAME => {}
-        Some(t) => anyhow::bail!(
-            "{}: {input_topic} holds {}, not {}; pass the raw IMU's topic with --input-topic",
-            args.input.display(),
-            t.type_name,
-            Imu::TYPE_NAME
-        ),
-        // A missing or unreadable bag, not a bag without the topic.
-        None if topics.is_empty() && read_error.is_some() => return Err(read_error.expect("checked").into()),
-        None => anyhow::bail!(
-            "{}: no {input_topic} holding {} (topics: {}); pass --input-topic",
-            args.input.display(),
-            Imu::TYPE_NAME,
-            listing()
-        ),
-    }
-    // The node's streams must not land on a stream the bag already has (a bag recorded beside
-    // the live node holds its /imu/denoised): two publishers mixed on one topic. Other nodes'
-    // /diagnostics are the same type and share the topic, as on a live system.
-    // Every clash at once: one per run made a user run three times.
-    let clashes: Vec<String> = [("output_topic", &params.output_topic), ("correction_topic", &params.correction_topic)]
-        .into_iter()
-        .filter_map(|(key, topic)| {
-            topics.iter().find(|t| t.topic == *topic).map(|t| {
-                format!(
-                    "{topic} ({} messages of {}): the node's {key} would be mixed into it; remap it, e.g. -r {topic}:={topic}_replay",
-                    t.count, t.type_name
-                )
-            })
-        })
-        .collect();
-    if !clashes.is_empty() {
-        anyhow::bail!("{}: the bag already holds {}", args.input.display(), clashes.join("; and "));
-    }
-    if let Some(t) = topics.iter().find(|t| t.topic == params.diagnostics_topic && t.type_name != DiagnosticArray::TYPE_NAME) {
-        anyhow::bail!(
-            "{}: the bag's {} holds {}, not {}; remap diagnostics_topic",
-            args.input.display(),
-            t.topic,
-            t.type_name,
-            DiagnosticArray::TYPE_NAME
-        );
-    }
+    let input_topic = input_topic_of(&args, &params, &topics, read_error)?;
+    refuse_clashes(&args, &params, &topics)?;
     super::refuse_overwriting_input(&args.output, &[&args.input])?;
     // From the moment the output exists, a signal finishes it.
     super::interrupts::catch();
@@ -209,12 +160,93 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     if super::interrupts::requested() {
         return Err(super::interrupts::Interrupted(kept()).into());
     }
+    say_how_it_ran(&args, &params, &pipeline, &stats, live.input_rate_hz, decode_errors, &input_topic)
+}
+
+/// The raw IMU's topic: `--input-topic`, else the node's input topic if the bag has it, else
+/// the bag layout's; refused where it is missing or holds another type.
+fn input_topic_of(
+    args: &ReplayArgs,
+    params: &imu_fsda::node::NodeParams,
+    topics: &[imu_fsda::bag::TopicInfo],
+    read_error: Option<imu_fsda::bag::BagError>,
+) -> anyhow::Result<String> {
+    let listing = || topics.iter().map(|t| format!("{} [{}]", t.topic, t.type_name)).collect::<Vec<_>>().join(", ");
+    let has = |t: &str| topics.iter().any(|i| i.topic == t && i.type_name == Imu::TYPE_NAME);
+    let input_topic = match &args.input_topic {
+        Some(t) => t.clone(),
+        None if has(&params.input_topic) => params.input_topic.clone(),
+        None => imu_fsda::bag::IMU_TOPIC.to_string(),
+    };
+    match topics.iter().find(|t| t.topic == input_topic) {
+        Some(t) if t.type_name == Imu::TYPE_NAME => {}
+        Some(t) => anyhow::bail!(
+            "{}: {input_topic} holds {}, not {}; pass the raw IMU's topic with --input-topic",
+            args.input.display(),
+            t.type_name,
+            Imu::TYPE_NAME
+        ),
+        // A missing or unreadable bag, not a bag without the topic.
+        None if topics.is_empty() && read_error.is_some() => return Err(read_error.expect("checked").into()),
+        None => anyhow::bail!(
+            "{}: no {input_topic} holding {} (topics: {}); pass --input-topic",
+            args.input.display(),
+            Imu::TYPE_NAME,
+            listing()
+        ),
+    }
+    Ok(input_topic)
+}
+
+/// Refuses a bag that already holds a stream the replay would write.
+fn refuse_clashes(args: &ReplayArgs, params: &imu_fsda::node::NodeParams, topics: &[imu_fsda::bag::TopicInfo]) -> anyhow::Result<()> {
+    // The node's streams must not land on a stream the bag already has (a bag recorded beside
+    // the live node holds its /imu/denoised): two publishers mixed on one topic. Other nodes'
+    // /diagnostics are the same type and share the topic, as on a live system.
+    // Every clash at once: one per run made a user run three times.
+    let clashes: Vec<String> = [("output_topic", &params.output_topic), ("correction_topic", &params.correction_topic)]
+        .into_iter()
+        .filter_map(|(key, topic)| {
+            topics.iter().find(|t| t.topic == *topic).map(|t| {
+                format!(
+                    "{topic} ({} messages of {}): the node's {key} would be mixed into it; remap it, e.g. -r {topic}:={topic}_replay",
+                    t.count, t.type_name
+                )
+            })
+        })
+        .collect();
+    if !clashes.is_empty() {
+        anyhow::bail!("{}: the bag already holds {}", args.input.display(), clashes.join("; and "));
+    }
+    if let Some(t) = topics.iter().find(|t| t.topic == params.diagnostics_topic && t.type_name != DiagnosticArray::TYPE_NAME) {
+        anyhow::bail!(
+            "{}: the bag's {} holds {}, not {}; remap diagnostics_topic",
+            args.input.display(),
+            t.topic,
+            t.type_name,
+            DiagnosticArray::TYPE_NAME
+        );
+    }
+    Ok(())
+}
+
+/// What the replay says at its end: how the input's rate was met, stamps that are not the
+/// samples' times, an input nothing could be read from, and the counts.
+fn say_how_it_ran(
+    args: &ReplayArgs,
+    params: &imu_fsda::node::NodeParams,
+    pipeline: &Pipeline,
+    stats: &NodeStats,
+    input_rate_hz: f64,
+    decode_errors: u64,
+    input_topic: &str,
+) -> anyhow::Result<()> {
     let switches = pipeline.counters().resampling_switches;
     if pipeline.resampling() || switches > 0 {
         tracing::info!(
             "{}: the input ({:.1} Hz at the end) was fed to the {:.1} Hz model in its periods {} ({switches} switches)",
             args.input.display(),
-            live.input_rate_hz,
+            input_rate_hz,
             pipeline.corrector_rate_hz().unwrap_or(f64::NAN),
             if pipeline.resampling() { "at the end" } else { "for part of the bag" }
         );
@@ -222,7 +254,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         tracing::warn!(
             "{}: the input rate ({:.1} Hz at the end) is off the nominal {:.1} Hz by more than {:.0} %: a model runs at the rate it was trained at (its window spans another time)",
             args.input.display(),
-            live.input_rate_hz,
+            input_rate_hz,
             pipeline.nominal_rate_hz().unwrap_or(f64::NAN),
             params.pipeline.rate_tolerance * 100.0
         );
