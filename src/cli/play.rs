@@ -131,40 +131,7 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
         let present: Vec<&str> = topics.iter().map(|b| b.topic.as_str()).collect();
         anyhow::bail!("--topic {t}: not in {} (its topics: {})", args.input.display(), present.join(", "));
     }
-    let mut pubs: HashMap<String, AnyPublisher> = HashMap::new();
-    for t in &topics {
-        if !args.topics.is_empty() && !args.topics.contains(&t.topic) {
-            continue;
-        }
-        let out = remap.get(&t.topic).cloned().unwrap_or_else(|| t.topic.clone());
-        let name = Name::parse(&out).map_err(|e| anyhow::anyhow!("topic {out}: {e:?}"))?;
-        let topic = node.create_topic(&name, ros_type_name(&t.type_name), &qos).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        macro_rules! mk {
-            ($v:ident, $t:ty) => {
-                AnyPublisher::$v(node.create_publisher::<$t>(&topic, Some(qos.clone())).map_err(|e| anyhow::anyhow!("{e:?}"))?)
-            };
-        }
-        let p = match t.type_name.as_str() {
-            x if x == Imu::TYPE_NAME => mk!(Imu, Imu),
-            x if x == PoseStamped::TYPE_NAME => mk!(Pose, PoseStamped),
-            x if x == Odometry::TYPE_NAME => mk!(Odom, Odometry),
-            x if x == Temperature::TYPE_NAME => mk!(Temp, Temperature),
-            x if x == Vector3Stamped::TYPE_NAME => mk!(Vec3, Vector3Stamped),
-            x if x == DiagnosticArray::TYPE_NAME => mk!(Diag, DiagnosticArray),
-            other => {
-                // Asked for by name, it is an error; among all of a bag's topics, a note.
-                if args.topics.contains(&t.topic) {
-                    anyhow::bail!(
-                        "--topic {}: its type {other} is not one play publishes (sensor_msgs Imu and Temperature, geometry_msgs PoseStamped and Vector3Stamped, nav_msgs Odometry, diagnostic_msgs DiagnosticArray)",
-                        t.topic
-                    );
-                }
-                tracing::warn!("{}: type {other} is not played", t.topic);
-                continue;
-            }
-        };
-        pubs.insert(t.topic.clone(), p);
-    }
+    let pubs = create_publishers(&mut node, &topics, &args.topics, &remap, &qos)?;
     anyhow::ensure!(!pubs.is_empty(), "{}: none of its topics has a type play publishes", args.input.display());
     let clock_pub = if args.clock {
         let topic = node
@@ -194,24 +161,7 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
         let _ = spinner.spin().await;
     });
     if !args.wait_for_subscribers_s.is_zero() {
-        let deadline = Instant::now() + args.wait_for_subscribers_s;
-        for (topic, p) in &pubs {
-            let wait = async {
-                match p {
-                    AnyPublisher::Imu(p) => p.wait_for_subscription(&node).await,
-                    AnyPublisher::Pose(p) => p.wait_for_subscription(&node).await,
-                    AnyPublisher::Odom(p) => p.wait_for_subscription(&node).await,
-                    AnyPublisher::Temp(p) => p.wait_for_subscription(&node).await,
-                    AnyPublisher::Vec3(p) => p.wait_for_subscription(&node).await,
-                    AnyPublisher::Diag(p) => p.wait_for_subscription(&node).await,
-                }
-            };
-            if tokio::time::timeout(deadline.saturating_duration_since(Instant::now()), wait).await.is_err() {
-                tracing::warn!("no subscriber on {topic} after {:?}; playing anyway", args.wait_for_subscribers_s);
-            }
-        }
-        // Matching is not the end of discovery on the other side: give it a moment.
-        tokio::time::sleep(Duration::from_millis(300)).await;
+        wait_for_subscribers(&node, &pubs, args.wait_for_subscribers_s).await;
     }
 
     let measuring = latency_sub.map(|sub| {
@@ -300,4 +250,73 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
         return Err(super::interrupts::Interrupted(format!("stopped after {sent} messages")).into());
     }
     Ok(())
+}
+
+/// A publisher per played topic (`asked`, or every topic of a type play publishes), on its
+/// remapped name; a topic asked for by name whose type play does not publish is an error.
+fn create_publishers(
+    node: &mut ros2_client::Node,
+    topics: &[imu_fsda::bag::TopicInfo],
+    asked: &[String],
+    remap: &HashMap<String, String>,
+    qos: &QosProfile,
+) -> anyhow::Result<HashMap<String, AnyPublisher>> {
+    let mut pubs: HashMap<String, AnyPublisher> = HashMap::new();
+    for t in topics {
+        if !asked.is_empty() && !asked.contains(&t.topic) {
+            continue;
+        }
+        let out = remap.get(&t.topic).cloned().unwrap_or_else(|| t.topic.clone());
+        let name = Name::parse(&out).map_err(|e| anyhow::anyhow!("topic {out}: {e:?}"))?;
+        let topic = node.create_topic(&name, ros_type_name(&t.type_name), qos).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        macro_rules! mk {
+            ($v:ident, $t:ty) => {
+                AnyPublisher::$v(node.create_publisher::<$t>(&topic, Some(qos.clone())).map_err(|e| anyhow::anyhow!("{e:?}"))?)
+            };
+        }
+        let p = match t.type_name.as_str() {
+            x if x == Imu::TYPE_NAME => mk!(Imu, Imu),
+            x if x == PoseStamped::TYPE_NAME => mk!(Pose, PoseStamped),
+            x if x == Odometry::TYPE_NAME => mk!(Odom, Odometry),
+            x if x == Temperature::TYPE_NAME => mk!(Temp, Temperature),
+            x if x == Vector3Stamped::TYPE_NAME => mk!(Vec3, Vector3Stamped),
+            x if x == DiagnosticArray::TYPE_NAME => mk!(Diag, DiagnosticArray),
+            other => {
+                // Asked for by name, it is an error; among all of a bag's topics, a note.
+                if asked.contains(&t.topic) {
+                    anyhow::bail!(
+                        "--topic {}: its type {other} is not one play publishes (sensor_msgs Imu and Temperature, geometry_msgs PoseStamped and Vector3Stamped, nav_msgs Odometry, diagnostic_msgs DiagnosticArray)",
+                        t.topic
+                    );
+                }
+                tracing::warn!("{}: type {other} is not played", t.topic);
+                continue;
+            }
+        };
+        pubs.insert(t.topic.clone(), p);
+    }
+    Ok(pubs)
+}
+
+/// Waits up to `patience` for a subscriber on each topic (playing anyway after it, said), then a
+/// moment for discovery on the other side to finish.
+async fn wait_for_subscribers(node: &ros2_client::Node, pubs: &HashMap<String, AnyPublisher>, patience: Duration) {
+    let deadline = Instant::now() + patience;
+    for (topic, p) in pubs {
+        let wait = async {
+            match p {
+                AnyPublisher::Imu(p) => p.wait_for_subscription(node).await,
+                AnyPublisher::Pose(p) => p.wait_for_subscription(node).await,
+                AnyPublisher::Odom(p) => p.wait_for_subscription(node).await,
+                AnyPublisher::Temp(p) => p.wait_for_subscription(node).await,
+                AnyPublisher::Vec3(p) => p.wait_for_subscription(node).await,
+                AnyPublisher::Diag(p) => p.wait_for_subscription(node).await,
+            }
+        };
+        if tokio::time::timeout(deadline.saturating_duration_since(Instant::now()), wait).await.is_err() {
+            tracing::warn!("no subscriber on {topic} after {patience:?}; playing anyway");
+        }
+    }
+    // Matching is not the end of discovery on the other side: give it a moment.
+    tokio::time::sleep(Duration::from_millis(300)).await;
 }
