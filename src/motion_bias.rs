@@ -96,7 +96,8 @@ impl Default for MotionBiasConfig {
 }
 
 impl MotionBiasConfig {
-    /// Refuses settings the filter cannot run with, naming the key.
+    /// Refuses settings the filter cannot run with, naming the key within this section (the
+    /// caller names the section: `standstill.motion`, `gravity_aided`).
     pub fn validate(&self) -> Result<(), InvalidSetting> {
         for (key, value) in [
             ("block_s", self.block_s),
@@ -112,23 +113,23 @@ impl MotionBiasConfig {
             ("max_accel_bias_sigmas", self.max_accel_bias_sigmas),
         ] {
             if !(value.is_finite() && value > 0.0) {
-                return Err(format!("in_motion.{key} must be finite and > 0, not {value}").into());
+                return Err(format!("{key} must be finite and > 0, not {value}").into());
             }
         }
         if !(self.rate_error_fraction.is_finite() && self.rate_error_fraction >= 0.0) {
-            return Err(format!("in_motion.rate_error_fraction must be finite and ≥ 0, not {}", self.rate_error_fraction).into());
+            return Err(format!("rate_error_fraction must be finite and ≥ 0, not {}", self.rate_error_fraction).into());
         }
         if self.max_block_nis.is_nan() || self.max_block_nis <= 0.0 {
-            return Err(format!("in_motion.max_block_nis must be > 0 (.inf: no gate), not {}", self.max_block_nis).into());
+            return Err(format!("max_block_nis must be > 0 (.inf: no gate), not {}", self.max_block_nis).into());
         }
         if self.fit_blocks == 0 {
-            return Err("in_motion.fit_blocks must be ≥ 1".into());
+            return Err("fit_blocks must be ≥ 1".into());
         }
         if !(self.apply_min_z.is_finite() && self.apply_min_z >= 0.0) {
-            return Err(format!("in_motion.apply_min_z must be finite and ≥ 0, not {}", self.apply_min_z).into());
+            return Err(format!("apply_min_z must be finite and ≥ 0, not {}", self.apply_min_z).into());
         }
         if !(self.bias_random_walk.is_finite() && self.bias_random_walk >= 0.0) {
-            return Err(format!("in_motion.bias_random_walk must be finite and ≥ 0, not {}", self.bias_random_walk).into());
+            return Err(format!("bias_random_walk must be finite and ≥ 0, not {}", self.bias_random_walk).into());
         }
         Ok(())
     }

@@ -131,7 +131,7 @@ impl StandstillConfig {
         if !(2..=MAX_BLOCKS).contains(&self.blocks) {
             return Err(format!("standstill.blocks must be 2 … {MAX_BLOCKS}, not {}", self.blocks).into());
         }
-        self.motion.validate().map_err(|e| e.within("standstill"))
+        self.motion.validate().map_err(|e| e.within("motion").within("standstill"))
     }
 }
 
@@ -965,6 +965,14 @@ mod tests {
         assert!(e.to_string().contains("standstill.blocks"), "{e}");
         let e = StandstillConfig { max_bias: f64::NAN, ..Default::default() }.validate().unwrap_err();
         assert!(e.to_string().contains("standstill.max_bias"), "{e}");
+    }
+
+    /// The motion filter's settings sit under `standstill: motion:` in the parameter file.
+    #[test]
+    fn a_bad_motion_setting_names_its_key_as_the_file_has_it() {
+        let motion = MotionBiasConfig { accel_stddev: -1.0, ..Default::default() };
+        let e = StandstillConfig { motion, ..Default::default() }.validate().unwrap_err();
+        assert!(e.to_string().starts_with("standstill.motion.accel_stddev must be"), "{e}");
     }
 
     proptest! {

@@ -86,9 +86,7 @@ impl GravityAidedConfig {
     /// Refuses settings the filter cannot run with, naming the key.
     pub fn validate(&self) -> Result<(), InvalidSetting> {
         for fraction in [self.rate_error_fraction, self.uncorrected_rate_error_fraction] {
-            self.filter_config(1e-3, fraction)
-                .validate()
-                .map_err(|e| InvalidSetting::from(e.to_string().replace("in_motion.", "gravity_aided.")))?;
+            self.filter_config(1e-3, fraction).validate().map_err(|e| e.within("gravity_aided"))?;
         }
         Ok(())
     }
