@@ -37,7 +37,7 @@ use ros2_client::{NodeName, NodeOptions, ParameterValue};
 
 use crate::adapt::swap::{Buffers, SwapHandle};
 use crate::infer::{CorrectedImu, Pipeline};
-use crate::msg::{DiagnosticArray, Imu, Time};
+use crate::msg::{DiagnosticArray, Imu, Time, Vector3Stamped};
 
 #[derive(Debug, thiserror::Error)]
 pub enum NodeError {
@@ -246,6 +246,7 @@ pub async fn run_node_with_adaptation(
             memory_writer: memory_writer.clone(),
             participant,
             peer_check,
+            outputs: OutputPublishers { denoised: &out_pub, correction: &corr_pub },
         },
         &node,
         &diag_pub,
@@ -295,12 +296,19 @@ struct DiagnosticsTask<'a> {
     memory_writer: Arc<Mutex<Option<power_on::BiasMemoryWriter>>>,
     participant: ros2_client::dds::rustdds::DomainParticipant,
     peer_check: peer_check::PeerCheck,
+    outputs: OutputPublishers<'a>,
+}
+
+/// The output topics whose matched readers /diagnostics counts.
+struct OutputPublishers<'a> {
+    denoised: &'a ros2_client::Publisher<Imu>,
+    correction: &'a ros2_client::Publisher<Vector3Stamped>,
 }
 
 /// Each period: the peers on the node's topics checked against what discovery holds, the
 /// status published on /diagnostics, the bias memory saved when it moved.
 async fn publish_diagnostics(task: DiagnosticsTask<'_>, node: &ros2_client::Node, diag_pub: &ros2_client::Publisher<DiagnosticArray>) {
-    let DiagnosticsTask { period, node_name, stats, memory_writer, participant, mut peer_check } = task;
+    let DiagnosticsTask { period, node_name, stats, memory_writer, participant, mut peer_check, outputs } = task;
     let mut tick = tokio::time::interval(period);
     let mut clock = StatusClock::default();
     loop {
@@ -316,6 +324,10 @@ async fn publish_diagnostics(task: DiagnosticsTask<'_>, node: &ros2_client::Node
             let mut s = stats.lock().expect("stats lock");
             let (present, described) = peer_check.present();
             s.incompatible_peers = IncompatiblePeers { said: peer_check.count(), present, described: described.to_vec() };
+            s.subscription_counts = SubscriptionCounts {
+                denoised: outputs.denoised.get_subscription_count(node),
+                correction: outputs.correction.get_subscription_count(node),
+            };
             let live = clock.tick(&s, status_clock_ns(Instant::now()));
             diagnostics_message(&s, &live, node_name, stamp)
         };

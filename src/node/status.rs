@@ -74,6 +74,17 @@ pub struct NodeStats {
     pub adaptation_abandoned: bool,
     /// Peers on the node's topics that cannot work with it ([`super::peer_check`]).
     pub incompatible_peers: IncompatiblePeers,
+    /// Readers matched to /imu/denoised and /imu/gyro_correction at the last diagnostics tick.
+    /// A sample published before a reader is matched is, by DDS's volatile durability, not
+    /// for it: a peer that must see every output waits for its own reader to be counted here.
+    pub subscription_counts: SubscriptionCounts,
+}
+
+/// How many readers each output topic has matched (ROS's "subscription count").
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct SubscriptionCounts {
+    pub denoised: usize,
+    pub correction: usize,
 }
 
 /// What [`super::peer_check::PeerCheck`] found, as the status shows it.
@@ -234,6 +245,8 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("decode_errors", stats.decode_errors.to_string()),
         kv("dropped_wrong_type", stats.dropped_wrong_type.to_string()),
         kv("input_writers", stats.input_sequences.writers().to_string()),
+        kv("denoised_subscription_count", stats.subscription_counts.denoised.to_string()),
+        kv("correction_subscription_count", stats.subscription_counts.correction.to_string()),
         kv("input_published_before_first", stats.input_sequences.before_first.to_string()),
         kv("input_lost", stats.input_sequences.lost.to_string()),
         kv("input_out_of_order", stats.input_sequences.out_of_order.to_string()),

@@ -50,7 +50,7 @@ from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
-from dds_peer import (DiagnosticArray, Header, Imu, InvalidSample, Quaternion, Time, fbits, header_json,
+from dds_peer import (DiagnosticArray, outputs_matched, Header, Imu, InvalidSample, Quaternion, Time, fbits, header_json,
                       make_imu, read_euroc_csv, vec_json)
 
 
@@ -267,9 +267,9 @@ def main() -> int:
             return 2
         time.sleep(0.002)
     result.update({"matched": True, "all_matched_s": now()})
-    # As in dds_peer.py: a first /diagnostics says the node's writers took in our readers
-    # (before it, an output is for nobody: the first /imu/denoised was lost so under load).
-    while not diagnostics and now() < args.match_timeout_s:
+    # As in dds_peer.py: a /diagnostics counting a reader on /imu/denoised says the node's
+    # writer took in ours (before it, an output is for nobody: one was lost so under load).
+    while not outputs_matched(diagnostics, ["denoised_subscription_count"]) and now() < args.match_timeout_s:
         drain()
         time.sleep(0.01)
     result["node_heard_s"] = now()

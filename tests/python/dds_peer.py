@@ -122,6 +122,12 @@ class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::Diagnosti
 
 # ---- helpers ------------------------------------------------------------------------------
 
+def outputs_matched(diagnostics: list[dict], keys: list[str]) -> bool:
+    """A /diagnostics received says the node's output writers have each matched a reader
+    (ours: the tests run one peer per node)."""
+    return any(all(int(st["values"].get(k, "0")) >= 1 for k in keys) for d in diagnostics for st in d["status"])
+
+
 def fbits(x: float) -> str:
     """The float64's bit pattern as 16 hex digits (exact, NaN-safe)."""
     return struct.pack(">d", x).hex()
@@ -324,11 +330,12 @@ def main() -> int:
     result["first_match_s"] = first_match
     result["all_matched_s"] = time.monotonic() - t_start
     # Our readers matched the node's writers; whether the node's writers matched our readers
-    # we cannot observe, except by receiving from one: a first /diagnostics (published from the
-    # start, "no input yet") says the node has taken in our readers. A sample published
-    # before that is, by DDS's volatile durability, for nobody (the first output was lost so
-    # on a loaded machine).
-    while not diagnostics and time.monotonic() - t_start < args.match_timeout_s:
+    # we cannot observe, except through the node: its /diagnostics (published from the start,
+    # "no input yet") counts the readers each output writer has matched. A sample published
+    # before that is, by DDS's volatile durability, for nobody (an early output was lost so on
+    # a loaded machine, once after the first /diagnostics had come).
+    while (not outputs_matched(diagnostics, ["denoised_subscription_count", "correction_subscription_count"])
+           and time.monotonic() - t_start < args.match_timeout_s):
         drain()
         time.sleep(0.01)
     result["node_heard_s"] = time.monotonic() - t_start
