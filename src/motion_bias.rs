@@ -66,6 +66,13 @@ pub struct MotionBiasConfig {
     /// acceleration: a car braking, a launch); infinite: every block within
     /// `max_gravity_error` is.
     pub max_block_nis: f64,
+    /// The bias about the body's mean up direction is applied only once the body has turned
+    /// away from that direction by this much (RMS over the blocks used), rad. About gravity
+    /// the bias is seen only through tilts, and a level platform's tilts come with its own
+    /// accelerations (a multirotor tilts to accelerate, a car rolls in a bend): the two are
+    /// confounded, and the estimate about up is confidently wrong. A standstill's bias
+    /// ([`MotionBias::seed`]) is exempt.
+    pub min_tilt_about_up: f64,
 }
 
 impl Default for MotionBiasConfig {
@@ -86,11 +93,12 @@ impl Default for MotionBiasConfig {
             max_sample_gap_s: 0.1,
             apply_max_stddev: 0.02,
             apply_min_z: 3.0,
-            max_mean_nis: 6.0,
+            max_mean_nis: 4.5,
             fit_blocks: 30,
             max_accel_bias_sigmas: 2.0,
             rate_error_fraction: 0.0,
             max_block_nis: f64::INFINITY,
+            min_tilt_about_up: 0.5,
         }
     }
 }
@@ -124,6 +132,9 @@ impl MotionBiasConfig {
         }
         if self.fit_blocks == 0 {
             return Err("fit_blocks must be ≥ 1".into());
+        }
+        if !(self.min_tilt_about_up.is_finite() && self.min_tilt_about_up >= 0.0) {
+            return Err(format!("min_tilt_about_up must be finite and ≥ 0, not {}", self.min_tilt_about_up).into());
         }
         if !(self.apply_min_z.is_finite() && self.apply_min_z >= 0.0) {
             return Err(format!("apply_min_z must be finite and ≥ 0, not {}", self.apply_min_z).into());
@@ -187,6 +198,8 @@ pub struct MotionBias {
     misfit: bool,
     /// A standstill set the bias ([`Self::seed`]): it is applied without waiting for the fit.
     seeded: bool,
+    /// Σ u uᵀ over the blocks used, u the up direction in the body (IMU axes).
+    up_scatter: Matrix3<f64>,
 }
 
 impl MotionBias {
@@ -208,6 +221,7 @@ impl MotionBias {
             nis: 3.0,
             misfit: false,
             seeded: false,
+            up_scatter: Matrix3::zeros(),
         }
     }
 
@@ -269,7 +283,26 @@ impl MotionBias {
             let left = if known { sigma * sigma } else { self.cfg.prior_stddev.powi(2).max(sigma * sigma) };
             variance += v * v.transpose() * left;
         }
+        if let (false, Some(up)) = (self.seeded, self.level_up()) {
+            // Not applied about up: what is left there is the whole bias along it.
+            let across = Matrix3::identity() - up * up.transpose();
+            bias = across * bias;
+            variance = across * variance * across + up * up.transpose() * self.cfg.prior_stddev.powi(2);
+        }
         self.applied = (bias, variance.diagonal());
+    }
+
+    /// The body's mean up direction (IMU axes) while the body has stayed within
+    /// `min_tilt_about_up` (RMS) of it; `None` once it has turned farther.
+    fn level_up(&self) -> Option<Vector3<f64>> {
+        if self.used_blocks == 0 {
+            return None;
+        }
+        let eig = nalgebra::SymmetricEigen::new(self.up_scatter / self.used_blocks as f64);
+        let i = eig.eigenvalues.imax();
+        // 1 − λ_max: the mean squared sine of the tilt away from the principal up.
+        let tilt_rms = (1.0 - eig.eigenvalues[i]).max(0.0).sqrt().asin();
+        (tilt_rms < self.cfg.min_tilt_about_up).then(|| eig.eigenvectors.column(i).into_owned())
     }
 
     /// The attitude (`world_from_body`, heading from where it started) once started.
@@ -461,6 +494,9 @@ impl MotionBias {
         self.bias += Vector3::new(dx[3], dx[4], dx[5]);
         self.accel_bias += Vector3::new(dx[6], dx[7], dx[8]);
         self.used_blocks += 1;
+        let up = b.rotation.transpose() * Vector3::z();
+        let up = up.try_normalize(1e-9).unwrap_or_else(Vector3::z);
+        self.up_scatter += up * up.transpose();
         if self.nis > self.cfg.max_mean_nis || self.accel_bias.amax() > self.cfg.max_accel_bias_sigmas * self.cfg.accel_bias_stddev {
             self.misfit = true;
         }
@@ -509,6 +545,8 @@ mod tests {
             assert!(err[i].abs() < 4.0 * sigma[i] && err[i].abs() < 0.005, "axis {i}: error {} σ {}", err[i], sigma[i]);
         }
         assert!(f.blocks().0 >= 100, "{:?}", f.blocks());
+        // A body that turns over sees its bias about every axis: all of it is removed.
+        assert!((f.applied().0 - bias).amax() < 0.005, "{:?}", f.applied());
     }
 
     /// About gravity alone the bias is not seen: it stays at its prior, its variance too.
@@ -526,6 +564,49 @@ mod tests {
         assert!((f.bias_variance().z.sqrt() - 0.1).abs() < 0.01, "{:?}", f.bias_variance());
         // The level axes are measured: held at zero with a small σ.
         assert!(f.bias().xy().norm() < 1e-4 && f.bias_variance().x.sqrt() < 0.01);
+    }
+
+    /// A multirotor: level on average, yawing, tilting by up to 0.25 rad to accelerate, its
+    /// specific force along its thrust (body z). Its tilts reveal the bias about up only
+    /// together with the accelerations they cause.
+    fn multirotor(bias: Vector3<f64>, seconds: f64) -> Vec<ImuSample> {
+        let dt = 0.005;
+        let attitude = |t: f64| {
+            UnitQuaternion::from_euler_angles(0.18 * (1.3 * t).sin(), 0.18 * (0.9 * t + 1.0).sin(), 0.4 * (0.11 * t).sin() + 0.2 * t)
+        };
+        (0..(seconds / dt) as usize)
+            .map(|k| {
+                let t = k as f64 * dt;
+                let (q, q_next) = (attitude(t), attitude(t + dt));
+                let rate = (q.inverse() * q_next).scaled_axis() / dt;
+                let thrust_up = q * Vector3::z();
+                let f_world = thrust_up * (STANDARD_GRAVITY / thrust_up.z);
+                ImuSample { stamp_ns: 1_000_000_000 + (t * 1e9) as i64, gyro: rate + bias, accel: q.inverse() * f_world }
+            })
+            .collect()
+    }
+
+    /// What the filter removes on the multirotor: (bias applied, its variance per axis).
+    fn applied_on_multirotor(cfg: MotionBiasConfig, bias: Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+        let mut f = MotionBias::new(cfg);
+        for s in multirotor(bias, 180.0) {
+            f.push(&s);
+        }
+        assert!(!f.misfit(), "the model check passes on this motion (mean NIS {})", f.nis());
+        f.applied()
+    }
+
+    #[test]
+    fn the_bias_about_up_is_not_removed_while_the_body_stays_near_level() {
+        let bias = Vector3::new(0.03, -0.03, 0.03);
+        let (applied, variance) = applied_on_multirotor(MotionBiasConfig::default(), bias);
+        assert!(applied.z.abs() < 2e-3, "removed about up: {applied:?}");
+        assert!((applied.xy() - bias.xy()).norm() < 0.01, "across up the bias is removed: {applied:?} for {bias:?}");
+        assert!(variance.z.sqrt() >= 0.09, "the bias left about up is stated at its prior: {variance:?}");
+        // Without the rule, what the tilts showed about up is removed with confidence, and it
+        // is not the bias (−0.06 rad/s for +0.03).
+        let (without, _) = applied_on_multirotor(MotionBiasConfig { min_tilt_about_up: 0.0, ..Default::default() }, bias);
+        assert!((without.z - bias.z).abs() > 0.05, "{without:?}");
     }
 
     /// The structured Φ P Φᵀ equals the dense product.
