@@ -6,8 +6,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use imu_fsda::adapt::{adapt, keep_without_judge, save_adapted, split_recording, AdaptConfig, CarryOver, FramePolicy};
+use imu_fsda::adapt::{adapt, keep_without_judge, save_adapted, split_recording, AdaptConfig, AdaptReport, CarryOver, FramePolicy};
 use imu_fsda::bag::{read_recording, RecordingTopics, GROUND_TRUTH_TOPIC, IMU_TOPIC};
+use imu_fsda::core::Recording;
 use imu_fsda::model::export::{load_metadata, load_net};
 use imu_fsda::model::predict::metadata_path;
 
@@ -144,7 +145,53 @@ fn check_output(dir: &Path, name: &str) -> anyhow::Result<()> {
 
 pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     tch::set_num_threads(1);
-    let mut cfg = match &args.config {
+    let cfg = config_of(&args)?;
+    // Before the model and the bag are read.
+    cfg.validate().map_err(|e| anyhow::anyhow!("{e}{}", args.config.as_ref().map_or(String::new(), |p| format!(" ({})", p.display()))))?;
+    let (dir, name) = output_name(&args.output)?;
+    let meta = metadata_path(&args.model);
+    let weights = args.model.with_extension("ot");
+    let mut inputs = vec![args.model.as_path(), &meta, &weights, &args.bag];
+    inputs.extend(args.judges.iter().map(PathBuf::as_path));
+    for ext in ["pt", "ot", "json", "adapt.json"] {
+        super::refuse_overwriting_input(&dir.join(format!("{name}.{ext}")), &inputs)?;
+    }
+    check_output(&dir, &name)?;
+    // The node's start-up check (TorchScript against the weights, as run on this IMU): an
+    // edited `.json` would otherwise adapt from another IMU's Ĉ_ω.
+    super::corrector::check_model_files(&args.model, args.imu.as_deref())?;
+    let loaded = load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading model {}", args.model.display()))?;
+    loaded.select_imu(args.imu.as_deref())?;
+    super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
+    let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
+    let (support, query) = support_and_query(&args, &topics, &cfg)?;
+    // Ctrl-C: the adaptation runs to its end (seconds), then nothing is written.
+    super::interrupts::catch();
+    let mut outcome = adapt(&loaded, &support, &query, &cfg)?;
+    if super::interrupts::requested() {
+        return Err(super::interrupts::Interrupted("nothing written".into()).into());
+    }
+    if args.judges.is_empty() {
+        outcome = keep_without_judge(outcome, &cfg);
+    } else {
+        judge_on_other_recordings(&args, &topics, &loaded, &mut outcome, &cfg)?;
+    }
+    let r = &outcome.report;
+    if args.json {
+        out!("{}", serde_json::to_string_pretty(r)?)?;
+    }
+    print_report(r, &cfg);
+    let Some(adapted) = outcome.adapted else {
+        anyhow::bail!("{} (nothing written)", r.verdict);
+    };
+    let paths = save_adapted(&adapted, r, &dir, &name)?;
+    eprintln!("accepted: wrote {} (+ .ot, .json, .adapt.json)", paths.torchscript.display());
+    Ok(())
+}
+
+/// The adaptation's settings: `--config`'s (or the defaults), the flags over them.
+fn config_of(args: &AdaptArgs) -> anyhow::Result<AdaptConfig> {
+    let mut cfg: AdaptConfig = match &args.config {
         Some(p) => serde_yaml::from_str(&std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?)
             .with_context(|| format!("{}: not an adaptation config", p.display()))?,
         None => AdaptConfig::default(),
@@ -170,25 +217,13 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     if let Some(k) = args.keep {
         cfg.keep = k;
     }
-    // Before the model and the bag are read.
-    cfg.validate().map_err(|e| anyhow::anyhow!("{e}{}", args.config.as_ref().map_or(String::new(), |p| format!(" ({})", p.display()))))?;
-    let (dir, name) = output_name(&args.output)?;
-    let meta = metadata_path(&args.model);
-    let weights = args.model.with_extension("ot");
-    let mut inputs = vec![args.model.as_path(), &meta, &weights, &args.bag];
-    inputs.extend(args.judges.iter().map(PathBuf::as_path));
-    for ext in ["pt", "ot", "json", "adapt.json"] {
-        super::refuse_overwriting_input(&dir.join(format!("{name}.{ext}")), &inputs)?;
-    }
-    check_output(&dir, &name)?;
-    // The node's start-up check (TorchScript against the weights, as run on this IMU): an
-    // edited `.json` would otherwise adapt from another IMU's Ĉ_ω.
-    super::corrector::check_model_files(&args.model, args.imu.as_deref())?;
-    let loaded = load_net(&meta, tch::Device::Cpu).with_context(|| format!("loading model {}", args.model.display()))?;
-    loaded.select_imu(args.imu.as_deref())?;
-    super::refuse_imu_as_ground_truth(&args.imu_topic, &args.ground_truth_topic)?;
-    let topics = RecordingTopics { imu: args.imu_topic.clone(), ground_truth: Some(args.ground_truth_topic.clone()), temperature: None };
-    let (rec, report) = read_recording(&args.bag, &topics).with_context(|| format!("reading {}", args.bag.display()))?;
+    Ok(cfg)
+}
+
+/// The bag read and checked (stamps, finite samples, ground truth present), split into the
+/// support set and the query set the adaptation is judged on.
+fn support_and_query(args: &AdaptArgs, topics: &RecordingTopics, cfg: &AdaptConfig) -> anyhow::Result<(Recording, Recording)> {
+    let (rec, report) = read_recording(&args.bag, topics).with_context(|| format!("reading {}", args.bag.display()))?;
     if let Some(problem) = report.stamp_problem_above(0.1).or_else(|| imu_fsda::core::burst_stamps(&rec.imu)) {
         anyhow::bail!("{}: {problem}", args.bag.display());
     }
@@ -208,7 +243,7 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
         args.bag.display(),
         args.ground_truth_topic
     );
-    let (support, query) = split_recording(&rec, args.support_seconds, args.query_seconds, &cfg);
+    let (support, query) = split_recording(&rec, args.support_seconds, args.query_seconds, cfg);
     anyhow::ensure!(
         !query.imu.is_empty(),
         "{}: nothing left after the {} s support set to judge the adaptation on (the bag has {:.1} s of IMU, {})",
@@ -220,21 +255,12 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
             _ => "no ground truth".into(),
         }
     );
-    // Ctrl-C: the adaptation runs to its end (seconds), then nothing is written.
-    super::interrupts::catch();
-    let mut outcome = adapt(&loaded, &support, &query, &cfg)?;
-    if super::interrupts::requested() {
-        return Err(super::interrupts::Interrupted("nothing written".into()).into());
-    }
-    if args.judges.is_empty() {
-        outcome = keep_without_judge(outcome, &cfg);
-    } else {
-        judge_on_other_recordings(&args, &topics, &loaded, &mut outcome, &cfg)?;
-    }
-    let r = &outcome.report;
-    if args.json {
-        out!("{}", serde_json::to_string_pretty(r)?)?;
-    }
+    Ok((support, query))
+}
+
+/// What the adaptation found, on stderr: the frame check, the power-on biases, the judged
+/// recordings, the query's figures and each candidate's.
+fn print_report(r: &AdaptReport, cfg: &AdaptConfig) {
     if r.frame.is_none() && cfg.frame_policy != FramePolicy::Ignore {
         eprintln!(
             "frame check: not possible (fewer than 3 of the support's 0.25- to 4-s increments turn by 0.05 rad): the motion is too gentle to tell another frame or inverted quaternions"
@@ -322,12 +348,6 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
             r.query_raw.aoe_deg
         );
     }
-    let Some(adapted) = outcome.adapted else {
-        anyhow::bail!("{} (nothing written)", r.verdict);
-    };
-    let paths = save_adapted(&adapted, r, &dir, &name)?;
-    eprintln!("accepted: wrote {} (+ .ot, .json, .adapt.json)", paths.torchscript.display());
-    Ok(())
 }
 
 /// `--judge`: scores each candidate that passed the query on each other recording, keeps the
