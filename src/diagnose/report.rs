@@ -69,6 +69,20 @@ pub fn markdown(d: &Diagnosis) -> String {
 pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>, String>>) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# Sim-vs-real diagnosis\n");
+    inputs_section(&mut s, d);
+    verdict_section(&mut s, d);
+    findings_section(&mut s, d);
+    not_found_section(&mut s, d);
+    selection_section(&mut s, d);
+    located_section(&mut s, d);
+    residual_section(&mut s, d);
+    figures_section(&mut s, figures);
+    let _ = writeln!(s, "Diagnosis took {:.2} s.", d.seconds);
+    s
+}
+
+/// What the recordings showed that is not physics: driver artefacts and input notes.
+fn inputs_section(s: &mut String, d: &Diagnosis) {
     if !d.artefacts.is_empty() {
         let _ = writeln!(s, "## Recording artefacts (driver / recording, not physics)\n");
         for a in &d.artefacts {
@@ -83,6 +97,10 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
         }
         s.push('\n');
     }
+}
+
+/// The verdict, and what the fit left unexplained.
+fn verdict_section(s: &mut String, d: &Diagnosis) {
     let _ = writeln!(s, "## Verdict\n");
     let _ = writeln!(s, "**{}**\n", d.verdict.statement);
     if !d.verdict.explained {
@@ -97,6 +115,10 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
         }
         s.push('\n');
     }
+}
+
+/// The terms found (or the best fit where nothing explains the residual), and those fitted but not plausible.
+fn findings_section(s: &mut String, d: &Diagnosis) {
     let heading = if d.verdict.explained { "What was left out" } else { "Best catalogue fit (not a diagnosis)" };
     let _ = writeln!(s, "## {heading}\n");
     if d.findings.is_empty() {
@@ -135,6 +157,10 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
         }
         s.push('\n');
     }
+}
+
+/// Per term judged and not found, the smallest value this recording would have shown.
+fn not_found_section(s: &mut String, d: &Diagnosis) {
     if !d.not_found.is_empty() {
         let _ = writeln!(
             s,
@@ -158,6 +184,10 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
         }
         s.push('\n');
     }
+}
+
+/// The held-out selection's steps and the terms it could not judge.
+fn selection_section(s: &mut String, d: &Diagnosis) {
     let _ = writeln!(s, "## Selection steps\n");
     for st in &d.steps {
         let _ = writeln!(
@@ -172,6 +202,10 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
     for (t, why) in &d.excluded {
         let _ = writeln!(s, "- not judged: `{t}` ({why})");
     }
+}
+
+/// Where the residual of the no-term model differs, by kind, channel and span.
+fn located_section(s: &mut String, d: &Diagnosis) {
     let _ = writeln!(s, "\n## Where the residual differs (no-term model)\n");
     if d.located.is_empty() {
         let _ = writeln!(s, "Nowhere beyond the simulator's noise model (α = {} family-wise per kind).", super::locate::ALPHA);
@@ -185,6 +219,10 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
             );
         }
     }
+}
+
+/// The residual before and after the fit, on the held-out blocks.
+fn residual_section(s: &mut String, d: &Diagnosis) {
     let _ = writeln!(s, "\n## Residual before and after (held-out blocks)\n");
     let _ = writeln!(s, "| channel | RMS before | RMS after | χ²/n before | χ²/n after |\n|---|---|---|---|---|");
     for (k, v) in &d.residual_before.rms {
@@ -202,6 +240,10 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
         d.residual_before.heldout_loglik, d.residual_after.heldout_loglik
     );
     let _ = writeln!(s, "Curves: `allan.csv` (Allan deviation before/after and the noise model's), `psd.csv` (Welch PSD before/after).\n");
+}
+
+/// The figures written beside the report, or why they could not be.
+fn figures_section(s: &mut String, figures: Option<&Result<Vec<String>, String>>) {
     match figures {
         Some(Ok(files)) if !files.is_empty() => {
             let _ = writeln!(s, "## Figures\n");
@@ -220,8 +262,6 @@ pub fn markdown_with_figures(d: &Diagnosis, figures: Option<&Result<Vec<String>,
         }
         _ => {}
     }
-    let _ = writeln!(s, "Diagnosis took {:.2} s.", d.seconds);
-    s
 }
 
 /// The CSVs behind the plots.
