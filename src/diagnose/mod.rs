@@ -321,19 +321,7 @@ fn diagnose_in_frame(
 
     let temperature =
         a.temperature_c.as_ref().map(|t| t.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(*v), hi.max(*v))));
-    let mut catalogue = Catalogue::build(&base, a.world_from_imu.is_some(), temperature.map(|(lo, hi)| hi - lo))?;
-    catalogue.restrict(opts.sensors);
-    if let Some((gyro_rate, accel_rate)) = bandwidth::window_mean_derivatives(a, opts.gt_smoothing_s) {
-        catalogue.set_time_offset_derivatives(&gyro_rate, &accel_rate);
-    }
-    if !full_rate {
-        catalogue.candidates.retain(|c| !bandwidth::NOT_JUDGED.contains(&c.name));
-        for t in bandwidth::NOT_JUDGED {
-            catalogue
-                .excluded
-                .push((t.into(), format!("compared as means over {} samples: the term lives above that bandwidth", a.samples_per_point)));
-        }
-    }
+    let catalogue = catalogue_for(a, &base, opts, temperature)?;
     let excluded = catalogue.excluded.clone();
     let sensor_noise = |s: usize| ChannelNoise { white_sim: sim_var[s], white_real: white_real[s], pole: 0.0, walk: sim_var[s] * 1e-6 };
     let noise = NoiseModel { sensors: [sensor_noise(0), sensor_noise(1)] };
@@ -356,22 +344,7 @@ fn diagnose_in_frame(
 
     // Findings. A gross rotation is composed with the fitted one (real = R_fitᵀ R_grossᵀ sim).
     let mut fitted = select::terms_of(&sel);
-    let fine = fitted.iter().position(|(t, _)| matches!(t, Term::MountRotation(_)));
-    let fine_rotvec = fitted
-        .iter()
-        .find_map(|(t, _)| if let Term::MountRotation(m) = t { Some(nalgebra::Vector3::from(m.rotvec)) } else { None })
-        .unwrap_or_else(nalgebra::Vector3::zeros);
-    if let Some(g) = &gross {
-        let total = crate::so3::log(&(g.body_from_imu * crate::so3::exp(&fine_rotvec)));
-        let term = Term::MountRotation(crate::physics::MountRotation { rotvec: total.into() });
-        match fine {
-            Some(i) => fitted[i].0 = term,
-            None => direct.push((
-                term,
-                serde_json::json!({"rule": "a rotation too large for the catalogue's linear term, taken out exactly before the fit (found by mapping the sim's gyro and accelerometer onto the real's, or by a first fit)", "angle_deg": g.angle_deg(), "misfit_ratio": g.misfit_ratio}),
-            )),
-        }
-    }
+    let fine_rotvec = compose_gross_rotation(&mut fitted, &mut direct, gross.as_ref());
     // A frame rotation and both sensors' misalignments share a null space: a small rotation
     // δ is the antisymmetric part [δ]× of each, so only their sum is determined.
     let chosen_names: Vec<&str> = fitted.iter().map(|(t, _)| t.name()).collect();
@@ -447,6 +420,57 @@ fn diagnose_in_frame(
         },
         fine_rotvec,
     ))
+}
+
+/// The catalogue of terms judged on this pair: those the sensors and the recording determine
+/// (a temperature span, a ground-truth attitude), less those above the compared bandwidth.
+fn catalogue_for(
+    a: &Aligned,
+    base: &ImuSignals,
+    opts: &DiagnoseOptions,
+    temperature: Option<(f64, f64)>,
+) -> Result<Catalogue, DiagnoseError> {
+    let mut catalogue = Catalogue::build(base, a.world_from_imu.is_some(), temperature.map(|(lo, hi)| hi - lo))?;
+    catalogue.restrict(opts.sensors);
+    if let Some((gyro_rate, accel_rate)) = bandwidth::window_mean_derivatives(a, opts.gt_smoothing_s) {
+        catalogue.set_time_offset_derivatives(&gyro_rate, &accel_rate);
+    }
+    if a.samples_per_point != 1 {
+        catalogue.candidates.retain(|c| !bandwidth::NOT_JUDGED.contains(&c.name));
+        for t in bandwidth::NOT_JUDGED {
+            catalogue
+                .excluded
+                .push((t.into(), format!("compared as means over {} samples: the term lives above that bandwidth", a.samples_per_point)));
+        }
+    }
+    Ok(catalogue)
+}
+
+/// A gross rotation taken out before the fit composed with the fitted `mount_rotation`
+/// (real = R_fitᵀ R_grossᵀ sim), or added as a term taken out exactly where none was fitted.
+/// Returns the fitted rotation vector alone (zero if none).
+fn compose_gross_rotation(
+    fitted: &mut [(Term, Vec<f64>)],
+    direct: &mut Vec<(Term, serde_json::Value)>,
+    gross: Option<&frame::GrossRotation>,
+) -> nalgebra::Vector3<f64> {
+    let fine = fitted.iter().position(|(t, _)| matches!(t, Term::MountRotation(_)));
+    let fine_rotvec = fitted
+        .iter()
+        .find_map(|(t, _)| if let Term::MountRotation(m) = t { Some(nalgebra::Vector3::from(m.rotvec)) } else { None })
+        .unwrap_or_else(nalgebra::Vector3::zeros);
+    if let Some(g) = gross {
+        let total = crate::so3::log(&(g.body_from_imu * crate::so3::exp(&fine_rotvec)));
+        let term = Term::MountRotation(crate::physics::MountRotation { rotvec: total.into() });
+        match fine {
+            Some(i) => fitted[i].0 = term,
+            None => direct.push((
+                term,
+                serde_json::json!({"rule": "a rotation too large for the catalogue's linear term, taken out exactly before the fit (found by mapping the sim's gyro and accelerometer onto the real's, or by a first fit)", "angle_deg": g.angle_deg(), "misfit_ratio": g.misfit_ratio}),
+            )),
+        }
+    }
+    fine_rotvec
 }
 
 /// RMS per channel of the residual `r` over the samples in the fit, and χ²/n of its whitened
