@@ -91,7 +91,8 @@ pub(super) async fn process_loop(
             let mut s = stats.lock().expect("stats lock");
             let timing = Timing { arrived, corrected, publish_times, source_ns, adaptation_state };
             record_latency(&mut s, &timing);
-            record_status(&mut s, &pipeline, &intake.sequences, &frames, frame_changed, &sample, arrived, &result);
+            let handled = Handled { sample: &sample, arrived, result: &result, frame_changed };
+            record_status(&mut s, &pipeline, &intake.sequences, &frames, &handled);
         }
         if limits.max_messages.is_some_and(|m| published >= m) {
             return;
@@ -197,18 +198,23 @@ fn record_latency(s: &mut NodeStats, t: &Timing) {
     }
 }
 
+/// One input as the loop handled it: what the status records of it.
+struct Handled<'a> {
+    sample: &'a ImuSample,
+    arrived: Instant,
+    result: &'a Result<CorrectedImu, crate::infer::Dropped>,
+    frame_changed: bool,
+}
+
 /// The pipeline's state after one message, into the statistics /diagnostics reads.
-#[allow(clippy::too_many_arguments)]
 fn record_status(
     s: &mut NodeStats,
     pipeline: &Pipeline,
     sequences: &input_sequence::InputSequences,
     frames: &FrameTracker,
-    frame_changed: bool,
-    sample: &ImuSample,
-    arrived: Instant,
-    result: &Result<CorrectedImu, crate::infer::Dropped>,
+    handled: &Handled<'_>,
 ) {
+    let Handled { sample, arrived, result, frame_changed } = *handled;
     s.counters = pipeline.counters().clone();
     s.input_sequences.clone_from(sequences);
     if frame_changed {
