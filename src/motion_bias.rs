@@ -200,6 +200,8 @@ pub struct MotionBias {
     seeded: bool,
     /// Σ u uᵀ over the blocks used, u the up direction in the body (IMU axes).
     up_scatter: Matrix3<f64>,
+    /// The bias about the body's mean up is left out of [`Self::applied`] (`min_tilt_about_up`).
+    about_up_withheld: bool,
 }
 
 impl MotionBias {
@@ -222,6 +224,7 @@ impl MotionBias {
             misfit: false,
             seeded: false,
             up_scatter: Matrix3::zeros(),
+            about_up_withheld: false,
         }
     }
 
@@ -258,6 +261,12 @@ impl MotionBias {
         self.applied
     }
 
+    /// True while the bias about the body's mean up is left out of [`Self::applied`]: the body
+    /// has stayed within `min_tilt_about_up` of level (`min_tilt_about_up`).
+    pub fn withholds_about_up(&self) -> bool {
+        self.about_up_withheld
+    }
+
     /// True once some direction of the bias is known well enough to be applied.
     pub fn applies_any(&self) -> bool {
         self.applied.0 != Vector3::zeros()
@@ -283,7 +292,9 @@ impl MotionBias {
             let left = if known { sigma * sigma } else { self.cfg.prior_stddev.powi(2).max(sigma * sigma) };
             variance += v * v.transpose() * left;
         }
-        if let (false, Some(up)) = (self.seeded, self.level_up()) {
+        let level_up = if self.seeded { None } else { self.level_up() };
+        self.about_up_withheld = level_up.is_some();
+        if let Some(up) = level_up {
             // Not applied about up: what is left there is the whole bias along it.
             let across = Matrix3::identity() - up * up.transpose();
             bias = across * bias;
@@ -546,7 +557,7 @@ mod tests {
         }
         assert!(f.blocks().0 >= 100, "{:?}", f.blocks());
         // A body that turns over sees its bias about every axis: all of it is removed.
-        assert!((f.applied().0 - bias).amax() < 0.005, "{:?}", f.applied());
+        assert!((f.applied().0 - bias).amax() < 0.005 && !f.withholds_about_up(), "{:?}", f.applied());
     }
 
     /// About gravity alone the bias is not seen: it stays at its prior, its variance too.
@@ -586,27 +597,29 @@ mod tests {
             .collect()
     }
 
-    /// What the filter removes on the multirotor: (bias applied, its variance per axis).
-    fn applied_on_multirotor(cfg: MotionBiasConfig, bias: Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    /// What the filter removes on the multirotor: (bias applied, its variance per axis), and
+    /// whether it withheld the bias about up.
+    fn applied_on_multirotor(cfg: MotionBiasConfig, bias: Vector3<f64>) -> (Vector3<f64>, Vector3<f64>, bool) {
         let mut f = MotionBias::new(cfg);
         for s in multirotor(bias, 180.0) {
             f.push(&s);
         }
         assert!(!f.misfit(), "the model check passes on this motion (mean NIS {})", f.nis());
-        f.applied()
+        (f.applied().0, f.applied().1, f.withholds_about_up())
     }
 
     #[test]
     fn the_bias_about_up_is_not_removed_while_the_body_stays_near_level() {
         let bias = Vector3::new(0.03, -0.03, 0.03);
-        let (applied, variance) = applied_on_multirotor(MotionBiasConfig::default(), bias);
+        let (applied, variance, withheld) = applied_on_multirotor(MotionBiasConfig::default(), bias);
+        assert!(withheld);
         assert!(applied.z.abs() < 2e-3, "removed about up: {applied:?}");
         assert!((applied.xy() - bias.xy()).norm() < 0.01, "across up the bias is removed: {applied:?} for {bias:?}");
         assert!(variance.z.sqrt() >= 0.09, "the bias left about up is stated at its prior: {variance:?}");
         // Without the rule, what the tilts showed about up is removed with confidence, and it
         // is not the bias (−0.06 rad/s for +0.03).
-        let (without, _) = applied_on_multirotor(MotionBiasConfig { min_tilt_about_up: 0.0, ..Default::default() }, bias);
-        assert!((without.z - bias.z).abs() > 0.05, "{without:?}");
+        let (without, _, withheld) = applied_on_multirotor(MotionBiasConfig { min_tilt_about_up: 0.0, ..Default::default() }, bias);
+        assert!(!withheld && (without.z - bias.z).abs() > 0.05, "{without:?}");
     }
 
     /// The structured Φ P Φᵀ equals the dense product.

@@ -394,7 +394,8 @@ impl PowerOnBias {
     }
 
     /// Where [`Self::in_force`] comes from: `standstill`, `memory` (earlier power-ons),
-    /// `motion`, or "" (nothing yet).
+    /// `motion`, `motion, across up` (not about the up of a body that stayed near level), or ""
+    /// (nothing yet).
     pub fn source(&self) -> &'static str {
         if self.estimate.is_none() && self.cfg.remembered.is_some_and(|r| r.applies_any()) {
             return "memory";
@@ -404,6 +405,11 @@ impl PowerOnBias {
         match (self.cfg.in_motion, applies, self.estimate.is_some()) {
             (InMotion::Always, _, true) if fits => "standstill, then motion",
             (_, _, true) => "standstill",
+            (InMotion::Always | InMotion::UntilStandstill, true, false)
+                if self.motion.as_ref().is_some_and(MotionBias::withholds_about_up) =>
+            {
+                "motion, across up"
+            }
             (InMotion::Always | InMotion::UntilStandstill, true, false) => "motion",
             _ => "",
         }
