@@ -86,6 +86,13 @@ pub struct EvalArgs {
     pub plot_dir: Option<PathBuf>,
 }
 
+/// One bag being scored: its recording, its name in the rows and the notes every row gets.
+struct BagScoring<'a> {
+    rec: &'a Recording,
+    name: &'a str,
+    notes: &'a [String],
+}
+
 /// A method's corrected gyro and note, or why it has none.
 type Stream = Result<(Vec<Vector3<f64>>, String), String>;
 
@@ -227,6 +234,7 @@ impl<'a> Evaluation<'a> {
         let scored = self.read_for_scoring(bag)?;
         let rec = &scored.rec;
         let notes = self.recording_notes(&scored, bag, name);
+        let scoring = BagScoring { rec, name, notes: &notes };
         let source = scored.whole.as_ref().unwrap_or(rec);
         let span = scored_span(source, rec);
         // Each stream scored as soon as it is made and then dropped: one at a time in memory.
@@ -238,28 +246,26 @@ impl<'a> Evaluation<'a> {
                 Err(imu_fsda::eval::EvalError::Method { why, .. }) => Err(why),
                 Err(e) => Err(e.to_string()),
             };
-            self.score_stream(rec, name, m.name().into(), got, &notes, rows, &mut paths);
+            self.score_stream(&scoring, m.name().into(), got, rows, &mut paths);
         }
         let mut streams: Vec<(String, Stream)> = Vec::new();
         self.model_streams(source, &span, bag, name, &standstill, &mut streams)?;
         for (method, got) in streams {
-            self.score_stream(rec, name, method, got, &notes, rows, &mut paths);
+            self.score_stream(&scoring, method, got, rows, &mut paths);
         }
         self.figures(name, rec, &paths)
     }
 
     /// One method's or model's row (or why it has none), its path kept for the figures.
-    #[allow(clippy::too_many_arguments)]
     fn score_stream(
         &self,
-        rec: &Recording,
-        name: &str,
+        scoring: &BagScoring<'_>,
         method: String,
         got: Stream,
-        notes: &[String],
         rows: &mut Vec<Row>,
         paths: &mut Vec<(String, OrientationPath)>,
     ) {
+        let BagScoring { rec, name, notes } = *scoring;
         let (gyro, mut note) = match got {
             Ok(g) => g,
             Err(why) => {
