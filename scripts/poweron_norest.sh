@@ -21,12 +21,7 @@ power_ons="${POWER_ONS:-8}"
 work="$IMU_FSDA_CACHE/poweron-norest"
 rm -rf "$work"; mkdir -p "$work"
 params=(); [[ -n "${PARAMS:-}" ]] && params=(--params "$PARAMS")
-lasting() { # grade → the lasting terms of one unit of it (as scripts/poweron.sh)
-  case "$1" in
-    mpu-9250) echo "{term: gyro_scale, scale: [0.021, -0.027, 0.014]}|{term: gyro_misalignment, matrix: [[0, 0.012, -0.008], [-0.015, 0, 0.010], [0.006, -0.011, 0]]}|{term: gyro_g_sensitivity, matrix: [[1.5e-4, 0, 0], [0, -1.2e-4, 0], [0, 0, 0.8e-4]]}" ;;
-    adis16448) echo "{term: gyro_scale, scale: [0.002, -0.003, 0.001]}|{term: gyro_misalignment, matrix: [[0, 0.0009, -0.0006], [-0.0011, 0, 0.0008], [0.0005, -0.0009, 0]]}|{term: gyro_g_sensitivity, matrix: [[1.0e-5, 0, 0], [0, -1.2e-5, 0], [0, 0, 0.8e-5]]}" ;;
-  esac
-}
+source "$here/scripts/poweron_units.sh"
 one() { # profile grade k
   local name="$1-$2-$3" terms term_args=()
   IFS='|' read -ra terms <<< "$(lasting "$2")"
