@@ -215,7 +215,9 @@ fn a_fast_dds_peer_gets_every_sample_back_as_replay_computes_it() {
 /// and match the writer only a second later (docs/interop.md), so the samples of that second
 /// never reach the node. Whatever the race does, every sample is accounted for: what the node
 /// received, plus what the writer's sequence numbers say it published before its first sample
-/// arrived, plus the gaps after it, is what the peer sent; every sample received is answered.
+/// arrived, plus the gaps after it, is what the peer sent; every sample received is answered,
+/// but for answers the node published before its writer had matched the peer's reader (it
+/// counts them: `denoised_published_before_a_reader`).
 #[test]
 fn samples_a_fast_dds_peer_published_before_the_match_are_counted() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -229,7 +231,15 @@ fn samples_a_fast_dds_peer_published_before_the_match_are_counted() {
         let received = r.node_stats["counters"]["received"].as_u64().unwrap_or_else(|| panic!("{}", r.node_stats));
         let (b, lost) = (r.node("input_published_before_first"), r.node("input_lost"));
         assert_eq!(received + b + lost, COUNT as u64, "run {k}: received {received} + before the first {b} + lost {lost}\n{logs}");
-        assert_eq!(r.denoised.len() as u64, received, "run {k}: every sample received is answered\n{logs}");
+        // Every sample received is answered; an answer published before the node's writer had
+        // matched the peer's reader (counted by the node) is, by volatile durability, for
+        // nobody. The count is taken from the node's graph, which hears of a match just after
+        // the writer makes it: it can count an answer that did arrive, never miss one that did not.
+        let (answered, unheard) = (r.denoised.len() as u64, r.node("denoised_published_before_a_reader"));
+        assert!(
+            answered <= received && answered + unheard >= received,
+            "run {k}: {answered} answers for {received} samples received, {unheard} published before a reader\n{logs}"
+        );
         before.push(b);
     }
     eprintln!("dds_fastdds: the driver up first, samples it published before the first reached the node: {before:?} of {COUNT}");

@@ -155,7 +155,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
                 "latency_by_adaptation_state": stats.split_latency.summary_json(),
                 "latency_by_stage": stats.stage_latency.summary_json(),
                 "correction": stats.correction, "power_on_bias": stats.power_on_bias, "power_on_bias_from": stats.power_on_bias_from, "power_on_bias_retakes": stats.power_on_bias_retakes, "power_on_bias_memory": stats.power_on_bias_memory,
-                "incompatible_peers": stats.incompatible_peers, "subscription_counts": stats.subscription_counts,
+                "incompatible_peers": stats.incompatible_peers, "subscription_counts": stats.subscription_counts, "denoised_published_before_a_reader": stats.denoised_before_a_reader,
             })
         )?;
     }

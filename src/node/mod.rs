@@ -215,7 +215,7 @@ pub async fn run_node_with_adaptation(
     // Set by `~/retake_power_on_bias`, taken by the process loop between two samples.
     let retake = Arc::new(AtomicBool::new(false));
     let controls = process_loop::LoopControls { tap, retake: retake.clone(), input_writers, participant: participant.clone() };
-    let topics = process_loop::Topics { input: &subscription, denoised: &out_pub, correction: &corr_pub };
+    let topics = process_loop::Topics { node: &node, input: &subscription, denoised: &out_pub, correction: &corr_pub };
     let processing = process_loop::process_loop(topics, pipeline, stats.clone(), limits, controls);
     let retake_task = async {
         match &retake_server {

@@ -29,8 +29,9 @@ pub(super) struct LoopControls {
     pub(super) participant: ros2_client::dds::rustdds::DomainParticipant,
 }
 
-/// The node's three data topics.
+/// The node's three data topics, and the node that made them (it counts their readers).
 pub(super) struct Topics<'a> {
+    pub(super) node: &'a ros2_client::Node,
     pub(super) input: &'a ros2_client::Subscription<Imu>,
     pub(super) denoised: &'a ros2_client::Publisher<Imu>,
     pub(super) correction: &'a ros2_client::Publisher<Vector3Stamped>,
@@ -51,6 +52,7 @@ pub(super) async fn process_loop(
     let mut intake = Intake::new(input_writers, participant);
     let mut frames = FrameTracker::default();
     let mut published = 0u64;
+    let mut reader_matched = false;
     loop {
         // Idle counts from the first input, published or dropped (an all-NaN stream ends too).
         let next = match limits.idle_exit {
@@ -77,9 +79,13 @@ pub(super) async fn process_loop(
             b.push_imu(SeqSample { seq: pipeline.counters().processed, sample, reset_before: c.after_gap });
             b.model_fed_periods = pipeline.resampling();
         }
+        // Until a reader has matched /imu/denoised, an output is for nobody (volatile): counted.
+        let mut unheard = false;
         let publish_times = match &result {
             Ok(c) => {
                 published += 1;
+                reader_matched = reader_matched || topics.denoised.get_subscription_count(topics.node) > 0;
+                unheard = !reader_matched;
                 Some(publish(&topics, msg, c).await)
             }
             Err(why) => {
@@ -91,6 +97,7 @@ pub(super) async fn process_loop(
             let mut s = stats.lock().expect("stats lock");
             let timing = Timing { arrived, corrected, publish_times, source_ns, adaptation_state };
             record_latency(&mut s, &timing);
+            s.denoised_before_a_reader += u64::from(unheard);
             let handled = Handled { sample: &sample, arrived, result: &result, frame_changed };
             record_status(&mut s, &pipeline, &intake.sequences, &frames, &handled);
         }

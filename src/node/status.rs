@@ -78,6 +78,8 @@ pub struct NodeStats {
     /// A sample published before a reader is matched is, by DDS's volatile durability, not
     /// for it: a peer that must see every output waits for its own reader to be counted here.
     pub subscription_counts: SubscriptionCounts,
+    /// Outputs published on /imu/denoised before any reader had matched it (nobody got them).
+    pub denoised_before_a_reader: u64,
 }
 
 /// How many readers each output topic has matched (ROS's "subscription count").
@@ -247,6 +249,7 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("input_writers", stats.input_sequences.writers().to_string()),
         kv("denoised_subscription_count", stats.subscription_counts.denoised.to_string()),
         kv("correction_subscription_count", stats.subscription_counts.correction.to_string()),
+        kv("denoised_published_before_a_reader", stats.denoised_before_a_reader.to_string()),
         kv("input_published_before_first", stats.input_sequences.before_first.to_string()),
         kv("input_lost", stats.input_sequences.lost.to_string()),
         kv("input_out_of_order", stats.input_sequences.out_of_order.to_string()),
