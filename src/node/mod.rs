@@ -215,7 +215,8 @@ pub async fn run_node_with_adaptation(
     // Set by `~/retake_power_on_bias`, taken by the process loop between two samples.
     let retake = Arc::new(AtomicBool::new(false));
     let controls = process_loop::LoopControls { tap, retake: retake.clone(), input_writers, participant: participant.clone() };
-    let topics = process_loop::Topics { node: &node, input: &subscription, denoised: &out_pub, correction: &corr_pub };
+    let heard = HeardOutputs::default();
+    let topics = process_loop::Topics { denoised_heard: &heard.denoised, input: &subscription, denoised: &out_pub, correction: &corr_pub };
     let processing = process_loop::process_loop(topics, pipeline, stats.clone(), limits, controls);
     let retake_task = async {
         match &retake_server {
@@ -246,11 +247,12 @@ pub async fn run_node_with_adaptation(
             memory_writer: memory_writer.clone(),
             participant,
             peer_check,
-            outputs: OutputPublishers { denoised: &out_pub, correction: &corr_pub },
+            outputs: OutputPublishers { denoised: &out_pub, correction: &corr_pub, heard: &heard },
         },
         &node,
         &diag_pub,
     );
+    let hearing = heard.wait(&node, &out_pub, &corr_pub);
     let shutdown = shutdown_signal();
     tokio::select! {
         _ = processing => {}
@@ -258,6 +260,7 @@ pub async fn run_node_with_adaptation(
         _ = gt_task => {}
         _ = service_task => {}
         _ = retake_task => {}
+        _ = hearing => {}
         _ = shutdown => tracing::info!("shutting down"),
     }
     let open = job.request.lock().expect("request lock").take();
@@ -303,6 +306,48 @@ struct DiagnosticsTask<'a> {
 struct OutputPublishers<'a> {
     denoised: &'a ros2_client::Publisher<Imu>,
     correction: &'a ros2_client::Publisher<Vector3Stamped>,
+    heard: &'a HeardOutputs,
+}
+
+impl OutputPublishers<'_> {
+    /// The readers each output has matched. Asked of the node only once one has: before,
+    /// ros2-client logs an error at every call for a writer it holds no match for.
+    fn subscription_counts(&self, node: &ros2_client::Node) -> SubscriptionCounts {
+        let heard = |flag: &AtomicBool| flag.load(Ordering::Relaxed);
+        SubscriptionCounts {
+            denoised: if heard(&self.heard.denoised) { self.denoised.get_subscription_count(node) } else { 0 },
+            correction: if heard(&self.heard.correction) { self.correction.get_subscription_count(node) } else { 0 },
+        }
+    }
+}
+
+/// Set once a reader has matched each output (ros2-client's wait for a subscription), read by
+/// the process loop per sample without asking the node.
+#[derive(Default)]
+struct HeardOutputs {
+    denoised: AtomicBool,
+    correction: AtomicBool,
+}
+
+impl HeardOutputs {
+    /// Sets each flag when its first reader matches, then waits for ever (a `select!` arm).
+    async fn wait(
+        &self,
+        node: &ros2_client::Node,
+        denoised: &ros2_client::Publisher<Imu>,
+        correction: &ros2_client::Publisher<Vector3Stamped>,
+    ) {
+        let first = async {
+            denoised.wait_for_subscription(node).await;
+            self.denoised.store(true, Ordering::Relaxed);
+        };
+        let second = async {
+            correction.wait_for_subscription(node).await;
+            self.correction.store(true, Ordering::Relaxed);
+        };
+        futures::join!(first, second);
+        std::future::pending::<()>().await;
+    }
 }
 
 /// Each period: the peers on the node's topics checked against what discovery holds, the
@@ -324,10 +369,7 @@ async fn publish_diagnostics(task: DiagnosticsTask<'_>, node: &ros2_client::Node
             let mut s = stats.lock().expect("stats lock");
             let (present, described) = peer_check.present();
             s.incompatible_peers = IncompatiblePeers { said: peer_check.count(), present, described: described.to_vec() };
-            s.subscription_counts = SubscriptionCounts {
-                denoised: outputs.denoised.get_subscription_count(node),
-                correction: outputs.correction.get_subscription_count(node),
-            };
+            s.subscription_counts = outputs.subscription_counts(node);
             let live = clock.tick(&s, status_clock_ns(Instant::now()));
             diagnostics_message(&s, &live, node_name, stamp)
         };

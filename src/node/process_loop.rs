@@ -29,9 +29,9 @@ pub(super) struct LoopControls {
     pub(super) participant: ros2_client::dds::rustdds::DomainParticipant,
 }
 
-/// The node's three data topics, and the node that made them (it counts their readers).
+/// The node's three data topics, and whether a reader has matched /imu/denoised yet.
 pub(super) struct Topics<'a> {
-    pub(super) node: &'a ros2_client::Node,
+    pub(super) denoised_heard: &'a AtomicBool,
     pub(super) input: &'a ros2_client::Subscription<Imu>,
     pub(super) denoised: &'a ros2_client::Publisher<Imu>,
     pub(super) correction: &'a ros2_client::Publisher<Vector3Stamped>,
@@ -52,7 +52,6 @@ pub(super) async fn process_loop(
     let mut intake = Intake::new(input_writers, participant);
     let mut frames = FrameTracker::default();
     let mut published = 0u64;
-    let mut reader_matched = false;
     loop {
         // Idle counts from the first input, published or dropped (an all-NaN stream ends too).
         let next = match limits.idle_exit {
@@ -84,8 +83,7 @@ pub(super) async fn process_loop(
         let publish_times = match &result {
             Ok(c) => {
                 published += 1;
-                reader_matched = reader_matched || topics.denoised.get_subscription_count(topics.node) > 0;
-                unheard = !reader_matched;
+                unheard = !topics.denoised_heard.load(Ordering::Relaxed);
                 Some(publish(&topics, msg, c).await)
             }
             Err(why) => {
