@@ -405,12 +405,13 @@ impl PowerOnBias {
         match (self.cfg.in_motion, applies, self.estimate.is_some()) {
             (InMotion::Always, _, true) if fits => "standstill, then motion",
             (_, _, true) => "standstill",
-            (InMotion::Always | InMotion::UntilStandstill, true, false)
-                if self.motion.as_ref().is_some_and(MotionBias::withholds_about_up) =>
-            {
-                "motion, across up"
+            (InMotion::Always | InMotion::UntilStandstill, true, false) => {
+                if self.motion.as_ref().is_some_and(MotionBias::withholds_about_up) {
+                    "motion, across up"
+                } else {
+                    "motion"
+                }
             }
-            (InMotion::Always | InMotion::UntilStandstill, true, false) => "motion",
             _ => "",
         }
     }

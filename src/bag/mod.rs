@@ -65,7 +65,7 @@ pub enum BagError {
     NotMcap { path: PathBuf, what: String },
 }
 
-pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BagError + '_ {
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BagError + '_ {
     move |source| BagError::Io { path: path.to_path_buf(), source }
 }
 

@@ -306,7 +306,7 @@ const INTERLEAVED_SWITCHES: usize = 10;
 /// rename, rare glitched frame_ids (another frame under a tenth of the samples), or frame_ids
 /// alternating on one continuous signal (consecutive samples of different frames no further
 /// apart than samples two apart of one frame).
-pub(super) fn interleaved_sensor(imu: &[(u64, (ImuSample, usize))]) -> Option<usize> {
+fn interleaved_sensor(imu: &[(u64, (ImuSample, usize))]) -> Option<usize> {
     let frame = |k: usize| imu[k].1 .1;
     let switches = imu.windows(2).filter(|w| w[0].1 .1 != w[1].1 .1).count();
     if switches < INTERLEAVED_SWITCHES {
