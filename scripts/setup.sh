@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Idempotent set-up for a fresh machine: the torch venv (libtorch for tch, and the Python
-# test peers: mcap, rosbags, cyclonedds), Debian's Fast DDS for the C++ peer, then a release
-# build of imu-fsda.
+# test peers: mcap, rosbags, cyclonedds), Debian's Fast DDS for the C++ peer, OpenSSL for DDS
+# Security, then a release build of imu-fsda.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$here/scripts/env.sh"
@@ -24,6 +24,10 @@ fi
 if [ ! -f /usr/include/fastdds/dds/domain/DomainParticipant.hpp ] || ! command -v g++ >/dev/null; then
   echo "[setup] installing Fast DDS 2.9 (libfastrtps-dev) and g++: the Fast DDS peer of tests/dds_fastdds.rs"
   (apt-get update -qq && apt-get install -y -qq --no-install-recommends libfastrtps-dev libfastcdr-dev g++) >/dev/null 2>&1 || echo "[setup] could not install libfastrtps-dev; the Fast DDS test will skip loudly (fail under CI)"
+fi
+if [ ! -f /usr/include/openssl/ssl.h ] || ! command -v pkg-config >/dev/null || ! command -v openssl >/dev/null; then
+  echo "[setup] installing libssl-dev, pkg-config and openssl: DDS Security (SROS2) in the node, and scripts/sros2_keystore.sh"
+  (apt-get update -qq && apt-get install -y -qq --no-install-recommends libssl-dev pkg-config openssl) >/dev/null 2>&1 || echo "[setup] could not install libssl-dev; the build needs OpenSSL's headers"
 fi
 cd "$here"
 # IMU_FSDA_NO_BUILD=1: venv and system packages only (scripts given a prebuilt IMU_FSDA_BIN).

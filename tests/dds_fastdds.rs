@@ -9,143 +9,19 @@
 
 mod common;
 
-use std::ffi::OsStr;
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::PathBuf;
 use std::sync::Mutex;
-use std::time::Duration;
 
+use common::fastdds_peer::{fastdds_peer, run, Order, Setup};
+use common::prerequisites;
 use common::replay_reference::{euroc_csv, imu_fields, reference, slice_sequence, Reference};
-use common::{manifest_dir, prerequisites, run_in_namespace, tail};
-use serde_json::Value;
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
-const NODE_NAME: &str = "imu_fsda";
 const COUNT: usize = 2000;
-/// Bound of one namespace run (node + peer); a passing run takes ~10 s.
-const RUN_TIMEOUT: Duration = Duration::from_secs(60);
 
 fn skip_or_fail(why: &str) {
     common::skip_or_fail("dds_fastdds", why);
-}
-
-/// The peer's executable, compiled when missing or older than its source.
-fn fastdds_peer() -> Result<PathBuf, String> {
-    let src = manifest_dir().join("tests/fastdds/imu_peer.cpp");
-    let exe = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fastdds_imu_peer");
-    let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
-    if modified(&exe).is_some_and(|e| modified(&src).is_some_and(|s| e >= s)) {
-        return Ok(exe);
-    }
-    if !Path::new("/usr/include/fastdds/dds/domain/DomainParticipant.hpp").is_file() {
-        return Err("no Fast DDS headers (/usr/include/fastdds; scripts/setup.sh installs libfastrtps-dev)".into());
-    }
-    let out = Command::new("g++")
-        .args(["-O2", "-std=c++17"])
-        .arg(&src)
-        .arg("-o")
-        .arg(&exe)
-        .args(["-lfastrtps", "-lfastcdr"])
-        .output()
-        .map_err(|e| format!("cannot run g++: {e}"))?;
-    if !out.status.success() {
-        // Headers present but the peer does not build: a real failure, not a skip.
-        panic!("building {}:\n{}", src.display(), String::from_utf8_lossy(&out.stderr));
-    }
-    Ok(exe)
-}
-
-/// What one run produced: the peer's summary and the /imu/denoised it read, the node's stats.
-struct Run {
-    summary: std::collections::BTreeMap<String, String>,
-    /// (stamp ns, frame_id, the 37 doubles' bits)
-    denoised: Vec<(i64, String, Vec<u64>)>,
-    node_stats: Value,
-    rc: Vec<i32>,
-    logs: String,
-}
-
-impl Run {
-    fn summary(&self, key: &str) -> u64 {
-        self.summary.get(key).and_then(|v| v.parse().ok()).unwrap_or_else(|| panic!("peer summary has no {key}\n{}", self.logs))
-    }
-    fn node(&self, key: &str) -> u64 {
-        self.node_stats[key].as_u64().unwrap_or_else(|| panic!("node stats have no {key}: {}", self.node_stats))
-    }
-}
-
-/// Who starts first.
-#[derive(Clone, Copy)]
-enum Order {
-    /// The node, then the peer, which publishes a second after its writer and reader matched.
-    NodeFirst,
-    /// The peer (a driver already up), then the node a second later; the peer publishes the
-    /// moment its writer matched.
-    PeerFirst,
-}
-
-fn run(peer: &Path, dir: &Path, tag: &str, csv: &Path, order: Order) -> Run {
-    let out = dir.join(tag);
-    std::fs::create_dir_all(&out).unwrap();
-    // `~/adapt` offered (it answers "no model is loaded" at once: the call's mapping is what is tested).
-    std::fs::write(out.join("params.yaml"), format!("{NODE_NAME}:\n  ros__parameters:\n    adapt_enabled: true\n")).unwrap();
-    let node = r#"timeout -k 2 40 "$IMU_FSDA_BIN" node --node-name "$NODE_NAME" --params "$OUT/params.yaml" --model '' --idle-exit-s 3 --stats-json >"$OUT/node.out" 2>"$OUT/node.err" </dev/null"#;
-    let peer_cmd = r#"timeout -k 2 40 "$PEER" "$@" --out "$OUT/peer.txt" >"$OUT/peer.out" 2>"$OUT/peer.err" </dev/null"#;
-    let script = match order {
-        Order::NodeFirst => format!(
-            "{node} &\nNODE=$!\n{peer_cmd}\nPEER_RC=$?\n[ \"$PEER_RC\" -ne 0 ] && kill -TERM \"$NODE\" 2>/dev/null\nwait \"$NODE\"\necho \"$PEER_RC $?\" >\"$OUT/rc\"\n"
-        ),
-        Order::PeerFirst => format!(
-            "{peer_cmd} &\nPEER=$!\nsleep 1\n{node}\nNODE_RC=$?\nwait \"$PEER\"\necho \"$? $NODE_RC\" >\"$OUT/rc\"\n"
-        ),
-    };
-    let count = COUNT.to_string();
-    let (after, wait_for) = match order {
-        Order::NodeFirst => ("1", "both"),
-        Order::PeerFirst => ("0", "writer"),
-    };
-    let mut args =
-        vec!["--csv", csv.to_str().unwrap(), "--count", &count, "--rate", "400", "--after-match-s", after, "--wait-for", wait_for];
-    if matches!(order, Order::NodeFirst) {
-        args.extend(["--adapt-node", NODE_NAME, "--adapt-at", "1000"]);
-    }
-    let envs: [(&str, &OsStr); 3] = [("NODE_NAME", NODE_NAME.as_ref()), ("PEER", peer.as_os_str()), ("OUT", out.as_os_str())];
-    let (st, _) = run_in_namespace(&script, &args, &envs, RUN_TIMEOUT);
-    let read = |f: &str| std::fs::read_to_string(out.join(f)).unwrap_or_default();
-    let logs = format!(
-        "--- node stdout\n{}\n--- node stderr (tail)\n{}\n--- peer stderr\n{}",
-        read("node.out"),
-        tail(&read("node.err"), 30),
-        tail(&read("peer.err"), 30)
-    );
-    let Some(st) = st else { panic!("{tag}: node + peer did not finish within {RUN_TIMEOUT:?}\n{logs}") };
-    assert!(st.success(), "{tag}: namespace script failed ({st}); exit 90 = could not set up lo\n{logs}");
-    let rc = read("rc").split_whitespace().map(|s| s.parse().unwrap()).collect();
-    let text = read("peer.txt");
-    let mut lines = text.lines();
-    let mut summary: std::collections::BTreeMap<String, String> = lines
-        .next()
-        .unwrap_or_default()
-        .split_whitespace()
-        .filter_map(|kv| kv.split_once('='))
-        .map(|(k, v)| (k.into(), v.into()))
-        .collect();
-    let mut lines = lines.peekable();
-    if let Some(message) = lines.peek().and_then(|l| l.strip_prefix("reply_message ")) {
-        summary.insert("reply_message".into(), message.into());
-        lines.next();
-    }
-    let denoised = lines
-        .map(|l| {
-            let mut w = l.split_whitespace();
-            let stamp = w.next().unwrap().parse().unwrap();
-            let frame = w.next().unwrap().to_string();
-            (stamp, frame, w.map(|b| u64::from_str_radix(b, 16).unwrap()).collect())
-        })
-        .collect();
-    let node_stats = common::last_json_line(&read("node.out")).unwrap_or(Value::Null);
-    Run { summary, denoised, node_stats, rc, logs }
 }
 
 /// Prerequisites, the peer, a slice of MH_04 and its replay. `None`: skipped.
@@ -183,7 +59,7 @@ fn prepare() -> Option<(PathBuf, tempfile::TempDir, PathBuf, Reference)> {
 fn a_fast_dds_peer_gets_every_sample_back_as_replay_computes_it() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let Some((peer, dir, slice, reference)) = prepare() else { return };
-    let r = run(&peer, dir.path(), "node_first", &slice, Order::NodeFirst);
+    let r = run(&peer, dir.path(), "node_first", &slice, COUNT, Order::NodeFirst, &Setup::default());
     let logs = &r.logs;
     assert_eq!(r.rc, vec![0, 0], "peer / node exit codes\n{logs}");
     assert_eq!(r.summary("matched"), 1, "{logs}");
@@ -224,7 +100,7 @@ fn samples_a_fast_dds_peer_published_before_the_match_are_counted() {
     let Some((peer, dir, slice, _)) = prepare() else { return };
     let mut before = Vec::new();
     for k in 0..3 {
-        let r = run(&peer, dir.path(), &format!("peer_first_{k}"), &slice, Order::PeerFirst);
+        let r = run(&peer, dir.path(), &format!("peer_first_{k}"), &slice, COUNT, Order::PeerFirst, &Setup::default());
         let logs = &r.logs;
         assert_eq!(r.rc, vec![0, 0], "run {k}: peer / node exit codes\n{logs}");
         assert_eq!(r.summary("sent"), COUNT as u64, "{logs}");

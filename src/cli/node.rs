@@ -27,6 +27,10 @@ pub struct NodeArgs {
     /// incremental model (same outputs up to f32, cost proportional to N).
     #[arg(long)]
     pub naive_full_window: bool,
+    /// The SROS2 enclave whose security files the node uses when `ROS_SECURITY_ENABLE=true`
+    /// (rcl's `--ros-args --enclave`; `ROS_SECURITY_ENCLAVE_OVERRIDE` wins; default `/`).
+    #[arg(long)]
+    pub enclave: Option<String>,
 }
 
 /// What configures the node's pipeline, shared by `node` and `replay`.
@@ -83,7 +87,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
     if let Some(note) = params.take_bias_memory(true)? {
         tracing::info!("power_on_bias_memory {}: {note}", params.power_on_bias_memory);
     }
-    let env = RosEnvironment::from_env()?;
+    let env = RosEnvironment::from_env(args.enclave.as_deref())?;
     let (corrector, status) = if args.naive_full_window {
         anyhow::ensure!(!params.model.is_empty(), "--naive-full-window needs a model");
         let loaded = imu_fsda::model::export::load_net(
@@ -154,7 +158,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
                 "model": stats.model, "adaptation": stats.adapt_status, "adapt_requested_by": stats.adapt_requested_by, "adapt_calls_refused": stats.adapt_calls_refused, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
                 "latency_by_adaptation_state": stats.split_latency.summary_json(),
                 "latency_by_stage": stats.stage_latency.summary_json(),
-                "correction": stats.correction, "power_on_bias": stats.power_on_bias, "power_on_bias_from": stats.power_on_bias_from, "power_on_bias_retakes": stats.power_on_bias_retakes, "power_on_bias_memory": stats.power_on_bias_memory,
+                "correction": stats.correction, "power_on_bias": stats.power_on_bias, "power_on_bias_from": stats.power_on_bias_from, "power_on_bias_retakes": stats.power_on_bias_retakes, "power_on_bias_memory": stats.power_on_bias_memory, "security": stats.security,
                 "incompatible_peers": stats.incompatible_peers, "subscription_counts": stats.subscription_counts, "denoised_published_before_a_reader": stats.denoised_before_a_reader,
             })
         )?;

@@ -38,6 +38,10 @@ pub struct PlayArgs {
     /// matched by header stamp. Prints p50/p99 at the end.
     #[arg(long)]
     pub latency_topic: Option<String>,
+    /// The SROS2 enclave whose security files the player uses when `ROS_SECURITY_ENABLE=true`
+    /// (rcl's `--ros-args --enclave`; `ROS_SECURITY_ENCLAVE_OVERRIDE` wins; default `/`).
+    #[arg(long)]
+    pub enclave: Option<String>,
 }
 
 /// 0 (as fast as possible) or a finite factor of at least 1e-3: slower than that, the
@@ -94,7 +98,7 @@ impl AnyPublisher {
 }
 
 pub fn run(args: PlayArgs) -> anyhow::Result<()> {
-    let env = RosEnvironment::from_env()?;
+    let env = RosEnvironment::from_env(args.enclave.as_deref())?;
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("tokio runtime")?;
     rt.block_on(play(args, env))
 }

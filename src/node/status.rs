@@ -50,7 +50,7 @@ pub struct NodeStats {
     pub model_status: String,
     /// Adaptation (empty when the service is off): idle / running / the last result.
     pub adapt_status: String,
-    /// DDS Security asked for by the environment and not run ([`super::RosEnvironment`]).
+    /// DDS Security as the environment set it up ([`super::RosEnvironment`]): empty when not asked for.
     pub security: String,
     /// The input writers' sequence numbers: what DDS lost before and after the first sample.
     pub input_sequences: super::InputSequences,

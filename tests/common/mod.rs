@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+pub mod fastdds_peer;
 pub mod replay_reference;
 
 pub fn bin() -> &'static str {

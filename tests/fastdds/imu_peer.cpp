@@ -6,7 +6,12 @@
 // from rmw_fastrtps's (request id as the related sample identity).
 //
 //   imu_peer --csv EUROC_IMU_CSV --count N --rate HZ --after-match-s S --out FILE
-//            [--wait-for both|writer] [--adapt-node NAME --adapt-at K]
+//            [--wait-for both|writer] [--adapt-node NAME --adapt-at K] [--security DIR]
+//
+// With --security, the participant runs DDS Security's builtin plugins (PKI-DH authentication,
+// permissions access control, AES-GCM-GMAC crypto) on the files of an SROS2 enclave folder
+// DIR, with the property names rmw_fastrtps sets. With --send-unmatched 1, it publishes (and
+// calls) after the match timeout all the same, as a stranger on the domain would try.
 //
 // With --adapt-node, calls NAME's ~/adapt (std_srvs/Trigger) after the K-th sample, as
 // rmw_fastrtps's client does: rq/NAME/adaptRequest written with the related sample identity's
@@ -218,6 +223,20 @@ int main(int argc, char** argv) {
 
     DomainParticipantQos pqos;
     pqos.name("imu_peer");
+    const std::string security = arg(argc, argv, "--security", "");
+    if (!security.empty()) {
+        auto& props = pqos.properties().properties();
+        const std::string file = "file://" + security + "/";
+        props.emplace_back("dds.sec.auth.plugin", "builtin.PKI-DH");
+        props.emplace_back("dds.sec.auth.builtin.PKI-DH.identity_ca", file + "identity_ca.cert.pem");
+        props.emplace_back("dds.sec.auth.builtin.PKI-DH.identity_certificate", file + "cert.pem");
+        props.emplace_back("dds.sec.auth.builtin.PKI-DH.private_key", file + "key.pem");
+        props.emplace_back("dds.sec.access.plugin", "builtin.Access-Permissions");
+        props.emplace_back("dds.sec.access.builtin.Access-Permissions.permissions_ca", file + "permissions_ca.cert.pem");
+        props.emplace_back("dds.sec.access.builtin.Access-Permissions.governance", file + "governance.p7s");
+        props.emplace_back("dds.sec.access.builtin.Access-Permissions.permissions", file + "permissions.p7s");
+        props.emplace_back("dds.sec.crypto.plugin", "builtin.AES-GCM-GMAC");
+    }
     DomainParticipant* participant = DomainParticipantFactory::get_instance()->create_participant(domain, pqos);
     if (!participant) return 3;
     TypeSupport type = imu_type();
@@ -330,8 +349,9 @@ int main(int argc, char** argv) {
         }
     };
     size_t sent = 0;
+    const bool send = matched || arg(argc, argv, "--send-unmatched", "0") == "1";
     const auto start = clock::now();
-    for (size_t i = 0; matched && i < rows.size(); ++i) {
+    for (size_t i = 0; send && i < rows.size(); ++i) {
         const Row& r = rows[i];
         Imu m;
         m.sec = static_cast<int32_t>(r.stamp_ns / 1000000000);
@@ -351,7 +371,7 @@ int main(int argc, char** argv) {
         std::this_thread::sleep_until(start + std::chrono::duration<double>((i + 1) / rate));
     }
     auto last = clock::now();
-    while (matched && (received.size() < sent || (called && !replied)) && since(last) < 3.0) {
+    while (send && (received.size() < sent || (called && !replied)) && since(last) < 3.0) {
         size_t before = received.size();
         drain();
         take_reply();
