@@ -9,47 +9,14 @@
 
 mod common;
 
-use std::path::PathBuf;
 use std::sync::Mutex;
 
-use common::fastdds_peer::{fastdds_peer, run, Order, Setup};
-use common::prerequisites;
-use common::replay_reference::{euroc_csv, imu_fields, reference, slice_sequence, Reference};
+use common::fastdds_peer::{prepare, run, Order, Setup};
+use common::replay_reference::imu_fields;
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
 const COUNT: usize = 2000;
-
-fn skip_or_fail(why: &str) {
-    common::skip_or_fail("dds_fastdds", why);
-}
-
-/// Prerequisites, the peer, a slice of MH_04 and its replay. `None`: skipped.
-fn prepare() -> Option<(PathBuf, tempfile::TempDir, PathBuf, Reference)> {
-    if let Err(why) = prerequisites() {
-        skip_or_fail(&why);
-        return None;
-    }
-    let peer = match fastdds_peer() {
-        Ok(p) => p,
-        Err(why) => {
-            skip_or_fail(&why);
-            return None;
-        }
-    };
-    let csv = match euroc_csv("MH_04_difficult") {
-        Ok(c) => c,
-        Err(why) => {
-            skip_or_fail(&why);
-            return None;
-        }
-    };
-    let dir = tempfile::tempdir().unwrap();
-    let slice = slice_sequence(&csv, 0, COUNT, dir.path());
-    let reference = reference(&dir.path().join("seq"), dir.path());
-    assert_eq!(reference.inputs.len(), COUNT);
-    Some((peer, dir, slice, reference))
-}
 
 /// A Fast DDS driver that starts publishing a second after it matched the node: all 2000
 /// samples come back on /imu/denoised, every float equal to the offline replay's bits, and the
@@ -58,7 +25,7 @@ fn prepare() -> Option<(PathBuf, tempfile::TempDir, PathBuf, Reference)> {
 #[test]
 fn a_fast_dds_peer_gets_every_sample_back_as_replay_computes_it() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some((peer, dir, slice, reference)) = prepare() else { return };
+    let Some(common::fastdds_peer::Prepared { peer, dir, slice, reference }) = prepare("dds_fastdds", COUNT) else { return };
     let r = run(&peer, dir.path(), "node_first", &slice, COUNT, Order::NodeFirst, &Setup::default());
     let logs = &r.logs;
     assert_eq!(r.rc, vec![0, 0], "peer / node exit codes\n{logs}");
@@ -97,7 +64,7 @@ fn a_fast_dds_peer_gets_every_sample_back_as_replay_computes_it() {
 #[test]
 fn samples_a_fast_dds_peer_published_before_the_match_are_counted() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some((peer, dir, slice, _)) = prepare() else { return };
+    let Some(common::fastdds_peer::Prepared { peer, dir, slice, .. }) = prepare("dds_fastdds", COUNT) else { return };
     let mut before = Vec::new();
     for k in 0..3 {
         let r = run(&peer, dir.path(), &format!("peer_first_{k}"), &slice, COUNT, Order::PeerFirst, &Setup::default());

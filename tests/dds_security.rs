@@ -10,9 +10,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::Mutex;
 
-use common::fastdds_peer::{fastdds_peer, run, Order, Run, Setup, NODE_NAME};
-use common::replay_reference::{euroc_csv, imu_fields, reference, slice_sequence, Reference};
-use common::{manifest_dir, prerequisites};
+use common::fastdds_peer::{self, run, Order, Prepared, Run, Setup, NODE_NAME};
+use common::manifest_dir;
+use common::replay_reference::imu_fields;
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
@@ -45,45 +45,25 @@ fn enforced(keystore: &Path) -> Vec<(&'static str, String)> {
     ]
 }
 
-struct Prepared {
-    peer: PathBuf,
-    dir: tempfile::TempDir,
-    slice: PathBuf,
-    reference: Reference,
-    /// The robot's keystore as `ros2 security` makes it: the node's enclave and the IMU driver's.
+/// The Fast DDS test set-up, and two keystores of the robot's enclaves (the node's and the IMU
+/// driver's): as `ros2 security` makes it, and with the payload not encrypted a second time
+/// (the submessage still is).
+struct Keystores {
     robot: PathBuf,
-    /// The same enclaves, the payload not encrypted a second time (the submessage still is).
     robot_payload_clear: PathBuf,
 }
 
-/// Prerequisites, the peer, a slice of MH_04 and its replay, the keystores. `None`: skipped.
-fn prepare() -> Option<Prepared> {
-    let ready = prerequisites().and_then(|_| fastdds_peer()).and_then(|peer| {
-        Command::new("openssl").arg("version").output().map_err(|e| format!("no openssl: {e}"))?;
-        Ok(peer)
-    });
-    let peer = match ready {
-        Ok(p) => p,
-        Err(why) => {
-            skip_or_fail(&why);
-            return None;
-        }
-    };
-    let csv = match euroc_csv("MH_04_difficult") {
-        Ok(c) => c,
-        Err(why) => {
-            skip_or_fail(&why);
-            return None;
-        }
-    };
-    let dir = tempfile::tempdir().unwrap();
-    let slice = slice_sequence(&csv, 0, COUNT, dir.path());
-    let reference = reference(&dir.path().join("seq"), dir.path());
+fn prepare() -> Option<(Prepared, Keystores)> {
+    if let Err(why) = Command::new("openssl").arg("version").output() {
+        skip_or_fail(&format!("no openssl: {why}"));
+        return None;
+    }
+    let p = fastdds_peer::prepare("dds_security", COUNT)?;
     // The driver may publish the IMU and call ~/adapt, and read the node's output and replies.
     let driver = format!("/imu_driver:rt/imu/data_raw,rq/{NODE_NAME}/adaptRequest:rt/imu/denoised,rr/{NODE_NAME}/adaptReply");
-    let robot = keystore(&dir.path().join("keystore"), "ENCRYPT", &["/imu_fsda", &driver]);
-    let robot_payload_clear = keystore(&dir.path().join("keystore_payload_clear"), "NONE", &["/imu_fsda", &driver]);
-    Some(Prepared { peer, dir, slice, reference, robot, robot_payload_clear })
+    let robot = keystore(&p.dir.path().join("keystore"), "ENCRYPT", &["/imu_fsda", &driver]);
+    let robot_payload_clear = keystore(&p.dir.path().join("keystore_payload_clear"), "NONE", &["/imu_fsda", &driver]);
+    Some((p, Keystores { robot, robot_payload_clear }))
 }
 
 fn secured_node(robot: &Path) -> Setup {
@@ -101,8 +81,8 @@ fn secured_node(robot: &Path) -> Setup {
 #[test]
 fn a_secured_node_serves_the_peer_its_keystore_admits() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(p) = prepare() else { return };
-    for (tag, keystore) in [("sros2_governance", &p.robot), ("payload_clear", &p.robot_payload_clear)] {
+    let Some((p, keys)) = prepare() else { return };
+    for (tag, keystore) in [("sros2_governance", &keys.robot), ("payload_clear", &keys.robot_payload_clear)] {
         let mut setup = secured_node(keystore);
         setup.peer_args = vec!["--security".into(), keystore.join("enclaves/imu_driver").display().to_string()];
         let r = run(&p.peer, p.dir.path(), tag, &p.slice, COUNT, Order::NodeFirst, &setup);
@@ -143,9 +123,9 @@ fn assert_shut_out(r: &Run, who: &str) {
 #[test]
 fn a_secured_node_accepts_nothing_from_a_stranger() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(p) = prepare() else { return };
+    let Some((p, keys)) = prepare() else { return };
     let stranger = ["--match-timeout-s", "8", "--send-unmatched", "1"].map(String::from).to_vec();
-    let mut setup = secured_node(&p.robot);
+    let mut setup = secured_node(&keys.robot);
     setup.peer_args = stranger.clone();
     let plain = run(&p.peer, p.dir.path(), "plain_peer", &p.slice, COUNT, Order::NodeFirst, &setup);
     assert_shut_out(&plain, "a peer without security");
@@ -161,8 +141,8 @@ fn a_secured_node_accepts_nothing_from_a_stranger() {
 #[test]
 fn an_enforced_node_without_its_enclave_does_not_start() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(p) = prepare() else { return };
-    let mut setup = secured_node(&p.robot);
+    let Some((p, keys)) = prepare() else { return };
+    let mut setup = secured_node(&keys.robot);
     setup.node_args = vec!["--enclave".into(), "/not_in_the_keystore".into()];
     setup.peer_args = ["--match-timeout-s", "3"].map(String::from).to_vec();
     let r = run(&p.peer, p.dir.path(), "no_enclave", &p.slice, COUNT, Order::NodeFirst, &setup);

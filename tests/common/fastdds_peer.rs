@@ -8,7 +8,8 @@ use std::time::Duration;
 
 use serde_json::Value;
 
-use super::{manifest_dir, run_in_namespace, tail};
+use super::replay_reference::{euroc_csv, reference, slice_sequence, Reference};
+use super::{manifest_dir, prerequisites, run_in_namespace, skip_or_fail, tail};
 
 pub const NODE_NAME: &str = "imu_fsda";
 /// Bound of one namespace run (node + peer); a passing run takes ~10 s.
@@ -160,4 +161,30 @@ fn peer_file(text: &str) -> (std::collections::BTreeMap<String, String>, Vec<(i6
         })
         .collect();
     (summary, denoised)
+}
+
+/// What a Fast DDS test runs on: the peer, `count` rows of MH_04 and their offline replay.
+pub struct Prepared {
+    pub peer: PathBuf,
+    pub dir: tempfile::TempDir,
+    pub slice: PathBuf,
+    pub reference: Reference,
+}
+
+/// Prerequisites, the peer, a slice of MH_04 and its replay. `None`: skipped (loudly; a
+/// failure under `CI`), `test` naming who skipped.
+pub fn prepare(test: &str, count: usize) -> Option<Prepared> {
+    let ready = prerequisites().and_then(|_| fastdds_peer()).and_then(|peer| euroc_csv("MH_04_difficult").map(|csv| (peer, csv)));
+    let (peer, csv) = match ready {
+        Ok(found) => found,
+        Err(why) => {
+            skip_or_fail(test, &why);
+            return None;
+        }
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let slice = slice_sequence(&csv, 0, count, dir.path());
+    let reference = reference(&dir.path().join("seq"), dir.path());
+    assert_eq!(reference.inputs.len(), count);
+    Some(Prepared { peer, dir, slice, reference })
 }
