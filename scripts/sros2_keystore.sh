@@ -8,19 +8,20 @@
 #
 # PUBLISH and SUBSCRIBE are comma-separated DDS topic names or patterns (ROS topic /imu/data_raw
 # is DDS topic rt/imu/data_raw; a service ~/adapt of node imu_fsda is rq/imu_fsda/adaptRequest
-# and rr/imu_fsda/adaptReply); given the enclave alone, both are "*" (every topic), what `ros2 security
-# create_enclave` grants without a policy; an empty list gives no rule of that kind.
+# and rr/imu_fsda/adaptReply); an empty list gives no rule of that kind.
 # The layout is rcl's: KEYSTORE/enclaves/<enclave>/{identity_ca.cert.pem, cert.pem, key.pem,
 # permissions_ca.cert.pem, governance.p7s, permissions.p7s}, the CA under KEYSTORE/public and
 # KEYSTORE/private. Running it again adds enclaves to the same CA.
 #
-# The governance is `ros2 security`'s: RTPS messages signed, discovery, liveliness and each
-# topic's submessages encrypted (metadata_protection_kind ENCRYPT: the whole DATA submessage,
-# payload included) and the payload encrypted again (data_protection_kind ENCRYPT).
+# The governance is `ros2 security`'s: RTPS messages, discovery, liveliness and each topic's
+# submessages encrypted (metadata_protection_kind ENCRYPT: the whole DATA submessage, payload
+# included) and the payload encrypted again (data_protection_kind ENCRYPT). An enclave given
+# alone gets what `ros2 security create_enclave` grants without a policy: every ROS topic,
+# service and action (rt/*, rq/*Request, rr/*Reply, …) and ros_discovery_info, in two rules.
 # SROS2_DATA_PROTECTION=NONE drops that second layer (docs/interop.md, "Security", says why a
 # Fast DDS service client needs it with this node).
 set -euo pipefail
-[ $# -ge 2 ] || { sed -n 2,16p "$0"; exit 2; }
+[ $# -ge 2 ] || { sed -n 2,22p "$0"; exit 2; }
 keystore="$1"; shift
 case "${SROS2_DATA_PROTECTION:-ENCRYPT}" in ENCRYPT|SIGN|NONE) ;; *) echo "sros2_keystore: SROS2_DATA_PROTECTION is ENCRYPT, SIGN or NONE" >&2; exit 2;; esac
 command -v openssl >/dev/null || { echo "sros2_keystore: openssl is needed" >&2; exit 1; }
@@ -52,7 +53,7 @@ if [ ! -f "$keystore/enclaves/governance.p7s" ]; then
       <enable_join_access_control>true</enable_join_access_control>
       <discovery_protection_kind>ENCRYPT</discovery_protection_kind>
       <liveliness_protection_kind>ENCRYPT</liveliness_protection_kind>
-      <rtps_protection_kind>SIGN</rtps_protection_kind>
+      <rtps_protection_kind>ENCRYPT</rtps_protection_kind>
       <topic_access_rules>
         <topic_rule>
           <topic_expression>*</topic_expression>
@@ -80,8 +81,8 @@ topics_xml() { # "a,b" → <topic>a</topic><topic>b</topic>; a pattern is writte
 for spec in "$@"; do
   IFS=: read -r enclave publish subscribe <<<"$spec"
   [ "${enclave:0:1}" = / ] || { echo "sros2_keystore: an enclave is an absolute name (/imu_fsda), not $enclave" >&2; exit 2; }
-  publish="${publish-*}"; subscribe="${subscribe-*}"
-  [ "$spec" = "$enclave" ] && { publish='*'; subscribe='*'; }
+  ros_topics='rt/*,rq/*Request,rr/*Reply,rq/*/_action/cancel_goalRequest,rq/*/_action/get_resultRequest,rq/*/_action/send_goalRequest,rr/*/_action/cancel_goalReply,rr/*/_action/get_resultReply,rr/*/_action/send_goalReply,rt/*/_action/feedback,rt/*/_action/status'
+  [ "$spec" = "$enclave" ] && { publish="$ros_topics"; subscribe="$ros_topics"; }
   dir="$keystore/enclaves${enclave}"
   mkdir -p "$dir"
   # PKCS#8, as sros2 writes it (RustDDS reads no other form)
@@ -107,6 +108,11 @@ for spec in "$@"; do
       <allow_rule>
         <domains><id_range><min>0</min><max>232</max></id_range></domains>
         ${rules}
+      </allow_rule>
+      <allow_rule>
+        <domains><id_range><min>0</min><max>232</max></id_range></domains>
+        <publish><topics><topic>ros_discovery_info</topic></topics></publish>
+        <subscribe><topics><topic>ros_discovery_info</topic></topics></subscribe>
       </allow_rule>
       <default>DENY</default>
     </grant>
