@@ -104,15 +104,7 @@ pub fn run(args: PlayArgs) -> anyhow::Result<()> {
 }
 
 async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
-    let remap: HashMap<String, String> = args
-        .remaps
-        .iter()
-        .map(|r| {
-            r.split_once(":=")
-                .map(|(a, b)| (a.to_string(), b.to_string()))
-                .ok_or_else(|| anyhow::anyhow!("remapping {r:?} is not from:=to"))
-        })
-        .collect::<Result<_, _>>()?;
+    let remap = remappings(&args.remaps)?;
     let context = env.context()?;
     let mut node = context
         .new_node(NodeName::new("/", "imu_fsda_player").map_err(|e| anyhow::anyhow!("{e:?}"))?, NodeOptions::new().enable_rosout(false))
@@ -137,27 +129,9 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     }
     let pubs = create_publishers(&mut node, &topics, &args.topics, &remap, &qos)?;
     anyhow::ensure!(!pubs.is_empty(), "{}: none of its topics has a type play publishes", args.input.display());
-    let clock_pub = if args.clock {
-        let topic = node
-            .create_topic(
-                &Name::parse("/clock").map_err(|e| anyhow::anyhow!("{e:?}"))?,
-                MessageTypeName::new("rosgraph_msgs", "Clock"),
-                &QosProfile::publisher_default(),
-            )
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        Some(node.create_publisher::<Clock>(&topic, None).map_err(|e| anyhow::anyhow!("{e:?}"))?)
-    } else {
-        None
-    };
-    let sent_at: Arc<Mutex<HashMap<i64, Instant>>> = Arc::default();
-    let latency: Arc<Mutex<(LatencyHistogram, u64)>> = Arc::default();
-    let latency_sub = match &args.latency_topic {
-        Some(t) => {
-            let name = Name::parse(t).map_err(|e| anyhow::anyhow!("topic {t}: {e:?}"))?;
-            let reliable = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 1000 });
-            let topic = node.create_topic(&name, ros_type_name(Imu::TYPE_NAME), &reliable).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            Some(node.create_subscription::<Imu>(&topic, Some(reliable)).map_err(|e| anyhow::anyhow!("{e:?}"))?)
-        }
+    let clock = if args.clock { Some(clock_publisher(&mut node)?) } else { None };
+    let probe = match &args.latency_topic {
+        Some(t) => Some(LatencyProbe::subscribe(&mut node, t)?),
         None => None,
     };
     let spinner = node.spinner().map_err(|e| anyhow::anyhow!("{e:?}"))?;
@@ -167,10 +141,72 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     if !args.wait_for_subscribers_s.is_zero() {
         wait_for_subscribers(&node, &pubs, args.wait_for_subscribers_s).await;
     }
+    let probe = probe.map(LatencyProbe::start);
 
-    let measuring = latency_sub.map(|sub| {
-        let (sent_at, latency) = (sent_at.clone(), latency.clone());
-        tokio::spawn(async move {
+    let played = Playback { args: &args, pubs: &pubs, clock: clock.as_ref(), probe: probe.as_ref() }.run(&topics).await?;
+    // Let reliable writers flush (and late outputs arrive) before the participant goes away.
+    tokio::time::sleep(Duration::from_millis(if probe.is_some() { 1500 } else { 500 })).await;
+    node.stop_spinner();
+    spin.abort();
+    out!("played {} messages from {} in {:.2} s", played.sent, args.input.display(), played.elapsed_s)?;
+    if let Some(e) = played.read_error {
+        return Err(e).context(format!("the bag is damaged ({} messages played before it)", played.sent));
+    }
+    if let (Some(t), Some(probe)) = (&args.latency_topic, probe) {
+        out!("latency publish → {t}: {}", probe.finish())?;
+    }
+    if super::interrupts::requested() {
+        return Err(super::interrupts::Interrupted(format!("stopped after {} messages", played.sent)).into());
+    }
+    Ok(())
+}
+
+/// `from:=to` pairs.
+fn remappings(remaps: &[String]) -> anyhow::Result<HashMap<String, String>> {
+    remaps
+        .iter()
+        .map(|r| {
+            r.split_once(":=")
+                .map(|(a, b)| (a.to_string(), b.to_string()))
+                .ok_or_else(|| anyhow::anyhow!("remapping {r:?} is not from:=to"))
+        })
+        .collect()
+}
+
+fn clock_publisher(node: &mut ros2_client::Node) -> anyhow::Result<Publisher<Clock>> {
+    let topic = node
+        .create_topic(
+            &Name::parse("/clock").map_err(|e| anyhow::anyhow!("{e:?}"))?,
+            MessageTypeName::new("rosgraph_msgs", "Clock"),
+            &QosProfile::publisher_default(),
+        )
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    node.create_publisher::<Clock>(&topic, None).map_err(|e| anyhow::anyhow!("{e:?}"))
+}
+
+/// End-to-end latency: each published `sensor_msgs/Imu`'s stamp and time, matched by stamp to
+/// the output read back on a topic (the node's `/imu/denoised`).
+struct LatencyProbe {
+    subscription: Option<ros2_client::Subscription<Imu>>,
+    sent_at: Arc<Mutex<HashMap<i64, Instant>>>,
+    latency: Arc<Mutex<(LatencyHistogram, u64)>>,
+    task: Option<tokio::task::JoinHandle<()>>,
+}
+
+impl LatencyProbe {
+    fn subscribe(node: &mut ros2_client::Node, topic: &str) -> anyhow::Result<Self> {
+        let name = Name::parse(topic).map_err(|e| anyhow::anyhow!("topic {topic}: {e:?}"))?;
+        let reliable = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 1000 });
+        let t = node.create_topic(&name, ros_type_name(Imu::TYPE_NAME), &reliable).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        let subscription = node.create_subscription::<Imu>(&t, Some(reliable)).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        Ok(LatencyProbe { subscription: Some(subscription), sent_at: Arc::default(), latency: Arc::default(), task: None })
+    }
+
+    /// Reads the outputs from now on.
+    fn start(mut self) -> Self {
+        let (sent_at, latency) = (self.sent_at.clone(), self.latency.clone());
+        let sub = self.subscription.take().expect("started once");
+        self.task = Some(tokio::spawn(async move {
             let stream = sub.async_stream();
             futures::pin_mut!(stream);
             while let Some(item) = futures::StreamExt::next(&mut stream).await {
@@ -182,78 +218,99 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
                     l.1 += 1;
                 }
             }
-        })
-    });
-    let start = Instant::now();
-    let mut first_log: Option<u64> = None;
-    let mut sent = 0u64;
-    let mut read_error = None;
-    // Ctrl-C / SIGTERM stops at the next message (or within 0.1 s of a wait) and still says
-    // what was played and measured.
-    super::interrupts::catch();
-    // In log-time order, as it was received when recorded (and as the schedule assumes).
-    for m in imu_fsda::bag::messages_in_log_time_order(&args.input, &topics)? {
-        if super::interrupts::requested() {
-            break;
-        }
-        let m = match m {
-            Ok(m) => m,
-            Err(e) => {
-                read_error = Some(e);
-                break;
-            }
-        };
-        let Some(p) = pubs.get(&*m.topic) else { continue };
-        let t0 = *first_log.get_or_insert(m.log_time_ns);
-        if args.rate > 0.0 {
-            let due = Duration::from_secs_f64((m.log_time_ns.saturating_sub(t0)) as f64 * 1e-9 / args.rate);
-            while let Some(wait) = due.checked_sub(start.elapsed()).filter(|w| !w.is_zero()) {
-                if super::interrupts::requested() {
-                    break;
-                }
-                tokio::time::sleep(wait.min(Duration::from_millis(100))).await;
-            }
-            if super::interrupts::requested() {
-                break;
-            }
-        }
-        if let Some(c) = &clock_pub {
-            let _ = c.async_publish(Clock { clock: Time::from_ns(m.log_time_ns as i64) }).await;
-        }
-        if measuring.is_some() && matches!(p, AnyPublisher::Imu(_)) {
-            if let Ok(msg) = Imu::decode(&m.data) {
-                sent_at.lock().expect("lock").insert(msg.header.stamp.to_ns(), Instant::now());
-            }
-        }
-        p.publish(&m.data).await.with_context(|| format!("{} message at {} ns", m.topic, m.log_time_ns))?;
-        sent += 1;
+        }));
+        self
     }
-    let elapsed = start.elapsed().as_secs_f64();
-    // Let reliable writers flush (and late outputs arrive) before the participant goes away.
-    tokio::time::sleep(Duration::from_millis(if measuring.is_some() { 1500 } else { 500 })).await;
-    if let Some(task) = measuring {
-        task.abort();
+
+    /// An `Imu` about to be published.
+    fn sent(&self, data: &[u8]) {
+        if let Ok(msg) = Imu::decode(data) {
+            self.sent_at.lock().expect("lock").insert(msg.header.stamp.to_ns(), Instant::now());
+        }
     }
-    node.stop_spinner();
-    spin.abort();
-    out!("played {sent} messages from {} in {elapsed:.2} s", args.input.display())?;
-    if let Some(e) = read_error {
-        return Err(e).context(format!("the bag is damaged ({sent} messages played before it)"));
-    }
-    if let Some(t) = &args.latency_topic {
-        let l = latency.lock().expect("lock");
-        let missing = sent_at.lock().expect("lock").len();
-        out!(
-            "latency publish → {t}: {} outputs matched, {missing} inputs without output; p50 {:.0} µs, p99 {:.0} µs",
+
+    fn finish(self) -> String {
+        if let Some(task) = &self.task {
+            task.abort();
+        }
+        let l = self.latency.lock().expect("lock");
+        let missing = self.sent_at.lock().expect("lock").len();
+        format!(
+            "{} outputs matched, {missing} inputs without output; p50 {:.0} µs, p99 {:.0} µs",
             l.1,
             l.0.quantile_us(0.5),
             l.0.quantile_us(0.99)
-        )?;
+        )
     }
-    if super::interrupts::requested() {
-        return Err(super::interrupts::Interrupted(format!("stopped after {sent} messages")).into());
+}
+
+/// The bag's messages published in log-time order on the recorded schedule (× `rate`).
+struct Playback<'a> {
+    args: &'a PlayArgs,
+    pubs: &'a HashMap<String, AnyPublisher>,
+    clock: Option<&'a Publisher<Clock>>,
+    probe: Option<&'a LatencyProbe>,
+}
+
+/// What a playback did: messages sent, its wall time, and a read error that ended it.
+struct Played {
+    sent: u64,
+    elapsed_s: f64,
+    read_error: Option<imu_fsda::bag::BagError>,
+}
+
+impl Playback<'_> {
+    async fn run(&self, topics: &[imu_fsda::bag::TopicInfo]) -> anyhow::Result<Played> {
+        let start = Instant::now();
+        let mut first_log: Option<u64> = None;
+        let mut played = Played { sent: 0, elapsed_s: 0.0, read_error: None };
+        // Ctrl-C / SIGTERM stops at the next message (or within 0.1 s of a wait) and still says
+        // what was played and measured.
+        super::interrupts::catch();
+        // In log-time order, as it was received when recorded (and as the schedule assumes).
+        for m in imu_fsda::bag::messages_in_log_time_order(&self.args.input, topics)? {
+            if super::interrupts::requested() {
+                break;
+            }
+            let m = match m {
+                Ok(m) => m,
+                Err(e) => {
+                    played.read_error = Some(e);
+                    break;
+                }
+            };
+            let Some(p) = self.pubs.get(&*m.topic) else { continue };
+            let t0 = *first_log.get_or_insert(m.log_time_ns);
+            if !self.wait_until_due(start, m.log_time_ns.saturating_sub(t0)).await {
+                break;
+            }
+            if let Some(c) = self.clock {
+                let _ = c.async_publish(Clock { clock: Time::from_ns(m.log_time_ns as i64) }).await;
+            }
+            if let (Some(probe), AnyPublisher::Imu(_)) = (self.probe, p) {
+                probe.sent(&m.data);
+            }
+            p.publish(&m.data).await.with_context(|| format!("{} message at {} ns", m.topic, m.log_time_ns))?;
+            played.sent += 1;
+        }
+        played.elapsed_s = start.elapsed().as_secs_f64();
+        Ok(played)
     }
-    Ok(())
+
+    /// Sleeps until `since_first_ns` of bag time (÷ rate) has passed since `start`; false when
+    /// interrupted.
+    async fn wait_until_due(&self, start: Instant, since_first_ns: u64) -> bool {
+        if self.args.rate > 0.0 {
+            let due = Duration::from_secs_f64(since_first_ns as f64 * 1e-9 / self.args.rate);
+            while let Some(wait) = due.checked_sub(start.elapsed()).filter(|w| !w.is_zero()) {
+                if super::interrupts::requested() {
+                    return false;
+                }
+                tokio::time::sleep(wait.min(Duration::from_millis(100))).await;
+            }
+        }
+        !super::interrupts::requested()
+    }
 }
 
 /// A publisher per played topic (`asked`, or every topic of a type play publishes), on its
