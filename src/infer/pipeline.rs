@@ -194,6 +194,19 @@ impl Pipeline {
         self.hold_from = None;
     }
 
+    /// Turns the power-on bias on or off while running (`ros2 param set … pipeline.power_on_bias`):
+    /// off, the gyro is corrected as without it and nothing is measured; on again, the
+    /// estimate measured before is kept and measuring resumes.
+    pub fn set_power_on_bias(&mut self, on: bool) {
+        self.cfg.power_on_bias = on;
+        self.hold_from = None;
+    }
+
+    /// Runs the model on an IMU it was neither trained nor adapted on, or not ([`super::choose`]).
+    pub fn set_model_on_new_imu(&mut self, on: bool) {
+        self.cfg.model_on_new_imu = on;
+    }
+
     /// True while the smoothed input rate is off nominal by more than the tolerance.
     pub fn rate_off_nominal(&self) -> bool {
         self.rate.rate_off

@@ -15,6 +15,7 @@ mod params;
 mod peer_check;
 mod power_on;
 mod process_loop;
+mod ros_parameters;
 mod status;
 mod support_archive;
 
@@ -33,7 +34,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use ros2_client::{NodeName, NodeOptions, ParameterValue};
+use ros2_client::{NodeName, NodeOptions};
 
 use crate::adapt::swap::{Buffers, SwapHandle};
 use crate::infer::{CorrectedImu, Pipeline};
@@ -151,10 +152,9 @@ pub async fn run_node_with_adaptation(
     adapt: AdaptService,
 ) -> Result<NodeStats, NodeError> {
     let context = env.context()?;
-    let mut options = NodeOptions::new().enable_rosout(false);
-    if params.use_sim_time {
-        options = options.declare_parameter("use_sim_time", ParameterValue::Boolean(true));
-    }
+    // Every parameter on the graph (`ros2 param get`), two settable while running.
+    let parameter_changes = Arc::new(ros_parameters::PendingChanges::default());
+    let options = ros_parameters::declare(NodeOptions::new().enable_rosout(false), &params, parameter_changes.clone());
     let ros_node_name = NodeName::new("/", node_name).map_err(|e| NodeError::Invalid {
         what: "node name",
         value: node_name.into(),
@@ -214,7 +214,8 @@ pub async fn run_node_with_adaptation(
     let tap = buffers.as_ref().map(|b| process_loop::AdaptTap { buffers: b.clone(), adapting: adapting.clone() });
     // Set by `~/retake_power_on_bias`, taken by the process loop between two samples.
     let retake = Arc::new(AtomicBool::new(false));
-    let controls = process_loop::LoopControls { tap, retake: retake.clone(), input_writers, participant: participant.clone() };
+    let controls =
+        process_loop::LoopControls { tap, retake: retake.clone(), parameter_changes, input_writers, participant: participant.clone() };
     let heard = HeardOutputs::default();
     let topics = process_loop::Topics { denoised_heard: &heard.denoised, input: &subscription, denoised: &out_pub, correction: &corr_pub };
     let processing = process_loop::process_loop(topics, pipeline, stats.clone(), limits, controls);

@@ -25,6 +25,8 @@ pub(super) struct AdaptTap {
 pub(super) struct LoopControls {
     pub(super) tap: Option<AdaptTap>,
     pub(super) retake: Arc<AtomicBool>,
+    /// What clients set of the run-time parameters ([`super::ros_parameters::AT_RUN_TIME`]).
+    pub(super) parameter_changes: Arc<super::ros_parameters::PendingChanges>,
     pub(super) input_writers: peer_check::InputWriters,
     pub(super) participant: ros2_client::dds::rustdds::DomainParticipant,
 }
@@ -46,7 +48,7 @@ pub(super) async fn process_loop(
     limits: RunLimits,
     controls: LoopControls,
 ) {
-    let LoopControls { tap, retake, input_writers, participant } = controls;
+    let LoopControls { tap, retake, parameter_changes, input_writers, participant } = controls;
     let stream = topics.input.async_stream();
     futures::pin_mut!(stream);
     let mut intake = Intake::new(input_writers, participant);
@@ -69,6 +71,9 @@ pub(super) async fn process_loop(
         let sample = msg.sample();
         if retake.swap(false, Ordering::AcqRel) {
             power_on::retake(&mut pipeline, &stats);
+        }
+        for change in parameter_changes.take() {
+            super::ros_parameters::apply(&mut pipeline, change, &stats);
         }
         let result = pipeline.push(&sample);
         let corrected = Instant::now();

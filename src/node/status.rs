@@ -42,6 +42,8 @@ pub struct NodeStats {
     pub standing: bool,
     /// Times `~/retake_power_on_bias` made the node forget the power-on bias.
     pub power_on_bias_retakes: u64,
+    /// Run-time parameters set by clients (`ros2 param set`) since the start.
+    pub parameters_set: u64,
     /// What the bias memory (`power_on_bias_memory`) predicted at start and whether this
     /// power-on's bias was saved to it (empty: no memory).
     pub power_on_bias_memory: String,
@@ -235,6 +237,7 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("standing", stats.standing.to_string()),
         kv("standstill_windows", stats.standstills.still_windows.to_string()),
         kv("power_on_bias_retakes", stats.power_on_bias_retakes.to_string()),
+        kv("parameters_set", stats.parameters_set.to_string()),
         kv("power_on_bias_memory", stats.power_on_bias_memory.clone()),
         kv("latency_p50_us", format!("{:.0}", stats.latency.quantile_us(0.5))),
         kv("latency_p99_us", format!("{:.0}", stats.latency.quantile_us(0.99))),

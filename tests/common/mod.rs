@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 pub mod fastdds_peer;
+pub mod python_peer;
 pub mod replay_reference;
 
 pub fn bin() -> &'static str {
