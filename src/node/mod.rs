@@ -152,32 +152,12 @@ pub async fn run_node_with_adaptation(
     adapt: AdaptService,
 ) -> Result<NodeStats, NodeError> {
     let context = env.context()?;
-    // Every parameter on the graph (`ros2 param get`), two settable while running.
-    let parameter_changes = Arc::new(ros_parameters::PendingChanges::default());
-    let options = ros_parameters::declare(NodeOptions::new().enable_rosout(false), &params, parameter_changes.clone());
-    let ros_node_name = NodeName::new("/", node_name).map_err(|e| NodeError::Invalid {
-        what: "node name",
-        value: node_name.into(),
-        why: format!("{e:?}"),
-    })?;
-    let mut node = context.new_node(ros_node_name.clone(), options).map_err(|e| NodeError::Dds(format!("node: {e:?}")))?;
+    let (mut node, ros_node_name, parameter_changes) = ros_node(&context, node_name, &params)?;
 
-    let (adapt, unavailable) = match adapt {
-        _ if !params.adapt_enabled => (None, None),
-        AdaptService::Off => (None, None),
-        AdaptService::Unavailable(why) => (None, Some(why)),
-        AdaptService::On(setup) => (Some(setup), None),
-    };
-    let buffers = adapt.as_ref().map(|_| Arc::new(Mutex::new(Buffers::new(params.adapt_buffer_seconds))));
-    let served = if adapt.is_some() {
-        Served::Adaptation
-    } else if unavailable.is_some() {
-        Served::RefusingAdaptation
-    } else {
-        Served::Plain
-    };
+    let offer = AdaptOffer::new(adapt, &params);
+    let buffers = offer.setup.as_ref().map(|_| Arc::new(Mutex::new(Buffers::new(params.adapt_buffer_seconds))));
     let Endpoints { subscription, out_pub, corr_pub, diag_pub, gt_source, server, retake_server, own, own_input } =
-        Endpoints::create(&mut node, &ros_node_name, &params, served)?;
+        Endpoints::create(&mut node, &ros_node_name, &params, offer.served())?;
     let peer_check = peer_check::PeerCheck::new(own);
     let input_writers = peer_check::InputWriters::new(own_input);
     let participant = context.domain_participant();
@@ -191,11 +171,7 @@ pub async fn run_node_with_adaptation(
         window: pipeline.window(),
         model_status,
         warming_up: true,
-        adapt_status: match (&adapt, &unavailable) {
-            (Some(_), _) => "idle".into(),
-            (None, Some(why)) => format!("unavailable: {why}"),
-            (None, None) => ADAPTATION_OFF.into(),
-        },
+        adapt_status: offer.status(),
         ..Default::default()
     }));
     tracing::info!(input = %params.input_topic, output = %params.output_topic, domain = env.domain_id, localhost_only = env.localhost_only, "node {node_name} up");
@@ -232,7 +208,7 @@ pub async fn run_node_with_adaptation(
         }
     };
     let service_task = async {
-        match (&server, &buffers, &adapt, &unavailable) {
+        match (&server, &buffers, &offer.setup, &offer.unavailable) {
             (Some(srv), Some(b), Some(a), _) => service_loop(srv, b, a, &params, stats.clone(), adapting.clone(), &job).await,
             (Some(srv), _, None, Some(why)) => refusing_service_loop(srv, why, &stats).await,
             _ => std::future::pending().await,
@@ -264,32 +240,103 @@ pub async fn run_node_with_adaptation(
         _ = hearing => {}
         _ = shutdown => tracing::info!("shutting down"),
     }
-    let open = job.request.lock().expect("request lock").take();
-    if let (Some(srv), Some(id)) = (&server, open) {
-        respond(srv, id, false, ABANDONED_REPLY.into()).await;
-        // A moment for the reliable reply to leave before the writer goes.
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
-    if let Some(w) = memory_writer.lock().expect("memory lock").as_mut() {
-        w.tick(&stats, true);
-    }
+    let end = RunEnd { server: server.as_ref(), job: &job, memory_writer: &memory_writer, stats: &stats, adapting: &adapting };
+    let stats = end.finish().await;
     // Stop the spinner before the node is dropped so peers hear it leave.
     node.stop_spinner();
     spin.abort();
-    let was_adapting = adapting.load(Ordering::Relaxed);
-    // Stopped at its next step (a few seconds at most) and joined, so nothing is left inside
-    // libtorch when the process exits; one that does not stop in time is left behind.
-    let joined = job.cancel_and_join(ADAPTATION_STOP_WAIT);
-    let mut s = std::mem::take(&mut *stats.lock().expect("stats lock"));
-    if was_adapting {
-        tracing::warn!("stopped during an adaptation: it is abandoned, the running model was not changed");
-        s.adaptation_abandoned = !joined;
-        s.adapt_status = format!(
-            "abandoned: the node stopped while it ran ({})",
-            if joined { "stopped and joined" } else { "its thread did not stop in time" }
-        );
+    Ok(stats)
+}
+
+/// The ROS node on `context`, every parameter declared (`ros2 param get`), two settable while
+/// running: their changes are handed over through the returned [`ros_parameters::PendingChanges`].
+fn ros_node(
+    context: &ros2_client::Context,
+    node_name: &str,
+    params: &NodeParams,
+) -> Result<(ros2_client::Node, NodeName, Arc<ros_parameters::PendingChanges>), NodeError> {
+    let changes = Arc::new(ros_parameters::PendingChanges::default());
+    let options = ros_parameters::declare(NodeOptions::new().enable_rosout(false), params, changes.clone());
+    let name = NodeName::new("/", node_name).map_err(|e| NodeError::Invalid {
+        what: "node name",
+        value: node_name.into(),
+        why: format!("{e:?}"),
+    })?;
+    let node = context.new_node(name.clone(), options).map_err(|e| NodeError::Dds(format!("node: {e:?}")))?;
+    Ok((node, name, changes))
+}
+
+/// What `~/adapt` the node offers: working (its set-up), refusing every call (the reason), or none.
+struct AdaptOffer {
+    setup: Option<AdaptSetup>,
+    unavailable: Option<String>,
+}
+
+impl AdaptOffer {
+    fn new(adapt: AdaptService, params: &NodeParams) -> Self {
+        let (setup, unavailable) = match adapt {
+            _ if !params.adapt_enabled => (None, None),
+            AdaptService::Off => (None, None),
+            AdaptService::Unavailable(why) => (None, Some(why)),
+            AdaptService::On(setup) => (Some(setup), None),
+        };
+        AdaptOffer { setup, unavailable }
     }
-    Ok(s)
+
+    fn served(&self) -> Served {
+        match (&self.setup, &self.unavailable) {
+            (Some(_), _) => Served::Adaptation,
+            (None, Some(_)) => Served::RefusingAdaptation,
+            (None, None) => Served::Plain,
+        }
+    }
+
+    /// /diagnostics `adaptation` at start.
+    fn status(&self) -> String {
+        match (&self.setup, &self.unavailable) {
+            (Some(_), _) => "idle".into(),
+            (None, Some(why)) => format!("unavailable: {why}"),
+            (None, None) => ADAPTATION_OFF.into(),
+        }
+    }
+}
+
+/// The end of a run: a call still open answered, the bias memory saved, a running adaptation
+/// stopped and joined, the statistics taken.
+struct RunEnd<'a> {
+    server: Option<&'a ros2_client::service::Server<TriggerRequest, TriggerResponse>>,
+    job: &'a RunningJob,
+    memory_writer: &'a Mutex<Option<power_on::BiasMemoryWriter>>,
+    stats: &'a Mutex<NodeStats>,
+    adapting: &'a AtomicBool,
+}
+
+impl RunEnd<'_> {
+    async fn finish(self) -> NodeStats {
+        let open = self.job.request.lock().expect("request lock").take();
+        if let (Some(srv), Some(id)) = (self.server, open) {
+            respond(srv, id, false, ABANDONED_REPLY.into()).await;
+            // A moment for the reliable reply to leave before the writer goes.
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        if let Some(w) = self.memory_writer.lock().expect("memory lock").as_mut() {
+            w.tick(self.stats, true);
+        }
+        let was_adapting = self.adapting.load(Ordering::Relaxed);
+        // Stopped at its next step (a few seconds at most) and joined, so nothing is left inside
+        // libtorch when the process exits; one that does not stop in time is left behind.
+        let joined = self.job.cancel_and_join(ADAPTATION_STOP_WAIT);
+        let mut s = std::mem::take(&mut *self.stats.lock().expect("stats lock"));
+        if was_adapting {
+            tracing::warn!("stopped during an adaptation: it is abandoned, the running model was not changed");
+            s.adaptation_abandoned = !joined;
+            s.adapt_status = format!(
+                "abandoned: the node stopped while it ran ({})",
+                if joined { "stopped and joined" } else { "its thread did not stop in time" }
+            );
+        }
+        s
+    }
 }
 
 /// What the /diagnostics publisher works with.
