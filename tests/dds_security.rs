@@ -136,21 +136,45 @@ fn a_secured_node_accepts_nothing_from_a_stranger() {
     assert_shut_out(&other_ca, "a peer of another CA");
 }
 
-/// Under Enforce, an enclave the keystore does not hold stops the node at start with the reason;
-/// it never runs on plain DDS.
+/// Under Enforce, an enclave the keystore does not hold, a governance changed after it was
+/// signed, or an identity another CA signed stops the node at start with the reason; it never
+/// runs on plain DDS.
 #[test]
-fn an_enforced_node_without_its_enclave_does_not_start() {
+fn an_enforced_node_without_valid_files_does_not_start() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let Some((p, keys)) = prepare() else { return };
-    let mut setup = secured_node(&keys.robot);
-    setup.node_args = vec!["--enclave".into(), "/not_in_the_keystore".into()];
-    setup.peer_args = ["--match-timeout-s", "3"].map(String::from).to_vec();
-    let r = run(&p.peer, p.dir.path(), "no_enclave", &p.slice, COUNT, Order::NodeFirst, &setup);
-    assert_ne!(r.rc.get(1), Some(&0), "the node must not run\n{}", r.logs);
-    assert_eq!(r.summary("matched"), 0, "{}", r.logs);
-    assert!(
-        r.logs.contains("not_in_the_keystore does not exist") && r.logs.contains("does not start on plain DDS"),
-        "the reason, said at start\n{}",
-        r.logs
-    );
+    // A copy of the robot's keystore whose node enclave lost its integrity, one way each.
+    let broken = |tag: &str, damage: &dyn Fn(&Path)| {
+        let ks = p.dir.path().join(tag);
+        let out = Command::new("cp").arg("-r").arg(&keys.robot).arg(&ks).output().expect("cp");
+        assert!(out.status.success(), "cp: {}", String::from_utf8_lossy(&out.stderr));
+        damage(&ks.join("enclaves/imu_fsda"));
+        ks
+    };
+    let tampered = broken("tampered", &|enclave| {
+        let g = enclave.join("governance.p7s");
+        let text = std::fs::read_to_string(&g).unwrap();
+        assert!(text.contains("<enable_join_access_control>true"), "the governance as signed");
+        std::fs::write(&g, text.replace("<enable_join_access_control>true", "<enable_join_access_control>false")).unwrap();
+    });
+    let foreign = keystore(&p.dir.path().join("foreign_ca"), "ENCRYPT", &["/imu_fsda"]);
+    let impostor = broken("impostor", &|enclave| {
+        std::fs::copy(foreign.join("enclaves/imu_fsda/cert.pem"), enclave.join("cert.pem")).unwrap();
+        std::fs::copy(foreign.join("enclaves/imu_fsda/key.pem"), enclave.join("key.pem")).unwrap();
+    });
+    let cases: [(&str, &Path, &str, &str); 3] = [
+        ("no_enclave", &keys.robot, "/not_in_the_keystore", "not_in_the_keystore does not exist"),
+        ("tampered_governance", &tampered, "/imu_fsda", "Validating local permissions failed"),
+        ("identity_of_another_ca", &impostor, "/imu_fsda", "does not verify against identity CA"),
+    ];
+    for (tag, keystore, enclave, why) in cases {
+        let mut setup = secured_node(keystore);
+        setup.node_args = vec!["--enclave".into(), enclave.into()];
+        setup.peer_args = ["--match-timeout-s", "3"].map(String::from).to_vec();
+        let r = run(&p.peer, p.dir.path(), tag, &p.slice, COUNT, Order::NodeFirst, &setup);
+        assert_ne!(r.rc.get(1), Some(&0), "{tag}: the node must not run\n{}", r.logs);
+        assert_eq!(r.summary("matched"), 0, "{tag}\n{}", r.logs);
+        let said = r.logs.contains(why) && (tag != "no_enclave" || r.logs.contains("does not start on plain DDS"));
+        assert!(said, "{tag}: the reason, said at start\n{}", r.logs);
+    }
 }
