@@ -48,7 +48,7 @@ if [ ! -f "$keystore/enclaves/governance.p7s" ]; then
 <dds xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:noNamespaceSchemaLocation="http://www.omg.org/spec/DDS-SECURITY/20170901/omg_shared_ca_governance.xsd">
   <domain_access_rules>
     <domain_rule>
-      <domains><id_range><min>0</min><max>232</max></id_range></domains>
+      <domains><id_range><min>0</min><max>230</max></id_range></domains>
       <allow_unauthenticated_participants>false</allow_unauthenticated_participants>
       <enable_join_access_control>true</enable_join_access_control>
       <discovery_protection_kind>ENCRYPT</discovery_protection_kind>
@@ -106,11 +106,11 @@ for spec in "$@"; do
       <subject_name>${subject}</subject_name>
       <validity><not_before>2020-01-01T00:00:00</not_before><not_after>2036-01-01T00:00:00</not_after></validity>
       <allow_rule>
-        <domains><id_range><min>0</min><max>232</max></id_range></domains>
+        <domains><id_range><min>0</min><max>230</max></id_range></domains>
         ${rules}
       </allow_rule>
       <allow_rule>
-        <domains><id_range><min>0</min><max>232</max></id_range></domains>
+        <domains><id_range><min>0</min><max>230</max></id_range></domains>
         <publish><topics><topic>ros_discovery_info</topic></topics></publish>
         <subscribe><topics><topic>ros_discovery_info</topic></topics></subscribe>
       </allow_rule>

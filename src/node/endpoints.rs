@@ -86,15 +86,14 @@ impl Endpoints {
         let server = match served {
             Served::Plain => None,
             Served::RefusingAdaptation | Served::Adaptation => {
-                let service_qos = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 10 });
                 let name = topic_name(&format!("/{}/adapt", node_name.base_name()))?;
                 Some(
                     node.create_server::<TriggerRequest, TriggerResponse>(
                         params.service_mapping.ros2(),
                         &name,
                         &ros2_client::ServiceTypeName::new("std_srvs", "Trigger"),
-                        service_qos.clone(),
-                        service_qos,
+                        service_qos(),
+                        service_qos(),
                     )
                     .map_err(dds)?,
                 )
@@ -107,4 +106,12 @@ impl Endpoints {
         };
         Ok(Endpoints { subscription, out_pub, corr_pub, diag_pub, gt_source, server, retake_server, own, own_input })
     }
+}
+
+/// A service's requests and replies: reliable, as ROS's service profile, and kept 100 deep
+/// where ROS keeps 10, so that a burst of calls faster than the service loop takes them (or
+/// than the client acknowledges the replies) is answered whole rather than thinned by a
+/// history (the depth is not part of QoS matching).
+pub(super) fn service_qos() -> QosProfile {
+    QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 100 })
 }

@@ -17,13 +17,12 @@ type Server = ros2_client::service::Server<TriggerRequest, TriggerResponse>;
 
 /// The `~/retake_power_on_bias` server (the `service_mapping` of `~/adapt`).
 pub(super) fn retake_server(node: &mut ros2_client::Node, node_name: &str, mapping: ServiceMapping) -> Result<Server, NodeError> {
-    let qos = ros2_client::QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 10 });
     node.create_server::<TriggerRequest, TriggerResponse>(
         mapping.ros2(),
         &topic_name(&format!("/{node_name}/retake_power_on_bias"))?,
         &ros2_client::ServiceTypeName::new("std_srvs", "Trigger"),
-        qos.clone(),
-        qos,
+        super::endpoints::service_qos(),
+        super::endpoints::service_qos(),
     )
     .map_err(|e| NodeError::Dds(format!("{e:?}")))
 }
