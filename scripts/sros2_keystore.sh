@@ -41,6 +41,11 @@ sign() { # an S/MIME signature by the permissions CA, as the DDS Security spec r
   openssl smime -sign -text -in "$1" -out "$2" -signer "$ca_cert" -inkey "$ca_key" 2>/dev/null
 }
 
+# Every domain a ROS_DOMAIN_ID may name that Cyclone DDS also accepts (it refuses 231–232).
+domains='<domains><id_range><min>0</min><max>230</max></id_range></domains>'
+# What `ros2 security create_enclave` grants without a policy: every ROS topic, service, action.
+ros_topics='rt/*,rq/*Request,rr/*Reply,rq/*/_action/cancel_goalRequest,rq/*/_action/get_resultRequest,rq/*/_action/send_goalRequest,rr/*/_action/cancel_goalReply,rr/*/_action/get_resultReply,rr/*/_action/send_goalReply,rt/*/_action/feedback,rt/*/_action/status'
+
 governance="$keystore/enclaves/governance.xml"
 if [ ! -f "$keystore/enclaves/governance.p7s" ]; then
   cat >"$governance" <<XML
@@ -48,7 +53,7 @@ if [ ! -f "$keystore/enclaves/governance.p7s" ]; then
 <dds xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:noNamespaceSchemaLocation="http://www.omg.org/spec/DDS-SECURITY/20170901/omg_shared_ca_governance.xsd">
   <domain_access_rules>
     <domain_rule>
-      <domains><id_range><min>0</min><max>230</max></id_range></domains>
+      ${domains}
       <allow_unauthenticated_participants>false</allow_unauthenticated_participants>
       <enable_join_access_control>true</enable_join_access_control>
       <discovery_protection_kind>ENCRYPT</discovery_protection_kind>
@@ -81,7 +86,6 @@ topics_xml() { # "a,b" → <topic>a</topic><topic>b</topic>; a pattern is writte
 for spec in "$@"; do
   IFS=: read -r enclave publish subscribe <<<"$spec"
   [ "${enclave:0:1}" = / ] || { echo "sros2_keystore: an enclave is an absolute name (/imu_fsda), not $enclave" >&2; exit 2; }
-  ros_topics='rt/*,rq/*Request,rr/*Reply,rq/*/_action/cancel_goalRequest,rq/*/_action/get_resultRequest,rq/*/_action/send_goalRequest,rr/*/_action/cancel_goalReply,rr/*/_action/get_resultReply,rr/*/_action/send_goalReply,rt/*/_action/feedback,rt/*/_action/status'
   [ "$spec" = "$enclave" ] && { publish="$ros_topics"; subscribe="$ros_topics"; }
   dir="$keystore/enclaves${enclave}"
   mkdir -p "$dir"
@@ -106,11 +110,11 @@ for spec in "$@"; do
       <subject_name>${subject}</subject_name>
       <validity><not_before>2020-01-01T00:00:00</not_before><not_after>2036-01-01T00:00:00</not_after></validity>
       <allow_rule>
-        <domains><id_range><min>0</min><max>230</max></id_range></domains>
+        ${domains}
         ${rules}
       </allow_rule>
       <allow_rule>
-        <domains><id_range><min>0</min><max>230</max></id_range></domains>
+        ${domains}
         <publish><topics><topic>ros_discovery_info</topic></topics></publish>
         <subscribe><topics><topic>ros_discovery_info</topic></topics></subscribe>
       </allow_rule>

@@ -130,8 +130,8 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     let pubs = create_publishers(&mut node, &topics, &args.topics, &remap, &qos)?;
     anyhow::ensure!(!pubs.is_empty(), "{}: none of its topics has a type play publishes", args.input.display());
     let clock = if args.clock { Some(clock_publisher(&mut node)?) } else { None };
-    let probe = match &args.latency_topic {
-        Some(t) => Some(LatencyProbe::subscribe(&mut node, t)?),
+    let latency_sub = match &args.latency_topic {
+        Some(t) => Some(latency_subscription(&mut node, t)?),
         None => None,
     };
     let spinner = node.spinner().map_err(|e| anyhow::anyhow!("{e:?}"))?;
@@ -141,7 +141,7 @@ async fn play(args: PlayArgs, env: RosEnvironment) -> anyhow::Result<()> {
     if !args.wait_for_subscribers_s.is_zero() {
         wait_for_subscribers(&node, &pubs, args.wait_for_subscribers_s).await;
     }
-    let probe = probe.map(LatencyProbe::start);
+    let probe = latency_sub.map(LatencyProbe::start);
 
     let played = Playback { args: &args, pubs: &pubs, clock: clock.as_ref(), probe: probe.as_ref() }.run(&topics).await?;
     // Let reliable writers flush (and late outputs arrive) before the participant goes away.
@@ -184,42 +184,42 @@ fn clock_publisher(node: &mut ros2_client::Node) -> anyhow::Result<Publisher<Clo
     node.create_publisher::<Clock>(&topic, None).map_err(|e| anyhow::anyhow!("{e:?}"))
 }
 
+/// The reliable subscription end-to-end latency is measured on (the node's `/imu/denoised`).
+fn latency_subscription(node: &mut ros2_client::Node, topic: &str) -> anyhow::Result<ros2_client::Subscription<Imu>> {
+    let name = Name::parse(topic).map_err(|e| anyhow::anyhow!("topic {topic}: {e:?}"))?;
+    let reliable = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 1000 });
+    let t = node.create_topic(&name, ros_type_name(Imu::TYPE_NAME), &reliable).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    node.create_subscription::<Imu>(&t, Some(reliable)).map_err(|e| anyhow::anyhow!("{e:?}"))
+}
+
 /// End-to-end latency: each published `sensor_msgs/Imu`'s stamp and time, matched by stamp to
-/// the output read back on a topic (the node's `/imu/denoised`).
+/// the output read back on the subscription.
 struct LatencyProbe {
-    subscription: Option<ros2_client::Subscription<Imu>>,
     sent_at: Arc<Mutex<HashMap<i64, Instant>>>,
     latency: Arc<Mutex<(LatencyHistogram, u64)>>,
-    task: Option<tokio::task::JoinHandle<()>>,
+    task: tokio::task::JoinHandle<()>,
 }
 
 impl LatencyProbe {
-    fn subscribe(node: &mut ros2_client::Node, topic: &str) -> anyhow::Result<Self> {
-        let name = Name::parse(topic).map_err(|e| anyhow::anyhow!("topic {topic}: {e:?}"))?;
-        let reliable = QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 1000 });
-        let t = node.create_topic(&name, ros_type_name(Imu::TYPE_NAME), &reliable).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        let subscription = node.create_subscription::<Imu>(&t, Some(reliable)).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        Ok(LatencyProbe { subscription: Some(subscription), sent_at: Arc::default(), latency: Arc::default(), task: None })
-    }
-
     /// Reads the outputs from now on.
-    fn start(mut self) -> Self {
-        let (sent_at, latency) = (self.sent_at.clone(), self.latency.clone());
-        let sub = self.subscription.take().expect("started once");
-        self.task = Some(tokio::spawn(async move {
+    fn start(sub: ros2_client::Subscription<Imu>) -> Self {
+        let sent_at: Arc<Mutex<HashMap<i64, Instant>>> = Arc::default();
+        let latency: Arc<Mutex<(LatencyHistogram, u64)>> = Arc::default();
+        let (sent, measured) = (sent_at.clone(), latency.clone());
+        let task = tokio::spawn(async move {
             let stream = sub.async_stream();
             futures::pin_mut!(stream);
             while let Some(item) = futures::StreamExt::next(&mut stream).await {
                 let Ok((msg, _)) = item else { continue };
                 let now = Instant::now();
-                if let Some(t) = sent_at.lock().expect("lock").remove(&msg.header.stamp.to_ns()) {
-                    let mut l = latency.lock().expect("lock");
+                if let Some(t) = sent.lock().expect("lock").remove(&msg.header.stamp.to_ns()) {
+                    let mut l = measured.lock().expect("lock");
                     l.0.record(now.duration_since(t));
                     l.1 += 1;
                 }
             }
-        }));
-        self
+        });
+        LatencyProbe { sent_at, latency, task }
     }
 
     /// An `Imu` about to be published.
@@ -230,9 +230,7 @@ impl LatencyProbe {
     }
 
     fn finish(self) -> String {
-        if let Some(task) = &self.task {
-            task.abort();
-        }
+        self.task.abort();
         let l = self.latency.lock().expect("lock");
         let missing = self.sent_at.lock().expect("lock").len();
         format!(

@@ -154,10 +154,10 @@ pub async fn run_node_with_adaptation(
     let context = env.context()?;
     let (mut node, ros_node_name, parameter_changes) = ros_node(&context, node_name, &params)?;
 
-    let offer = AdaptOffer::new(adapt, &params);
-    let buffers = offer.setup.as_ref().map(|_| Arc::new(Mutex::new(Buffers::new(params.adapt_buffer_seconds))));
+    let adapt = adapt.allowed_by(&params);
+    let buffers = matches!(adapt, AdaptService::On(_)).then(|| Arc::new(Mutex::new(Buffers::new(params.adapt_buffer_seconds))));
     let Endpoints { subscription, out_pub, corr_pub, diag_pub, gt_source, server, retake_server, own, own_input } =
-        Endpoints::create(&mut node, &ros_node_name, &params, offer.served())?;
+        Endpoints::create(&mut node, &ros_node_name, &params, adapt.served())?;
     let peer_check = peer_check::PeerCheck::new(own);
     let input_writers = peer_check::InputWriters::new(own_input);
     let participant = context.domain_participant();
@@ -171,7 +171,7 @@ pub async fn run_node_with_adaptation(
         window: pipeline.window(),
         model_status,
         warming_up: true,
-        adapt_status: offer.status(),
+        adapt_status: adapt.status(),
         ..Default::default()
     }));
     tracing::info!(input = %params.input_topic, output = %params.output_topic, domain = env.domain_id, localhost_only = env.localhost_only, "node {node_name} up");
@@ -208,9 +208,9 @@ pub async fn run_node_with_adaptation(
         }
     };
     let service_task = async {
-        match (&server, &buffers, &offer.setup, &offer.unavailable) {
-            (Some(srv), Some(b), Some(a), _) => service_loop(srv, b, a, &params, stats.clone(), adapting.clone(), &job).await,
-            (Some(srv), _, None, Some(why)) => refusing_service_loop(srv, why, &stats).await,
+        match (&server, &buffers, &adapt) {
+            (Some(srv), Some(b), AdaptService::On(a)) => service_loop(srv, b, a, &params, stats.clone(), adapting.clone(), &job).await,
+            (Some(srv), _, AdaptService::Unavailable(why)) => refusing_service_loop(srv, why, &stats).await,
             _ => std::future::pending().await,
         }
     };
@@ -266,37 +266,30 @@ fn ros_node(
     Ok((node, name, changes))
 }
 
-/// What `~/adapt` the node offers: working (its set-up), refusing every call (the reason), or none.
-struct AdaptOffer {
-    setup: Option<AdaptSetup>,
-    unavailable: Option<String>,
-}
-
-impl AdaptOffer {
-    fn new(adapt: AdaptService, params: &NodeParams) -> Self {
-        let (setup, unavailable) = match adapt {
-            _ if !params.adapt_enabled => (None, None),
-            AdaptService::Off => (None, None),
-            AdaptService::Unavailable(why) => (None, Some(why)),
-            AdaptService::On(setup) => (Some(setup), None),
-        };
-        AdaptOffer { setup, unavailable }
+impl AdaptService {
+    /// The service as the parameters allow it: off unless `adapt_enabled`.
+    fn allowed_by(self, params: &NodeParams) -> Self {
+        if params.adapt_enabled {
+            self
+        } else {
+            AdaptService::Off
+        }
     }
 
     fn served(&self) -> Served {
-        match (&self.setup, &self.unavailable) {
-            (Some(_), _) => Served::Adaptation,
-            (None, Some(_)) => Served::RefusingAdaptation,
-            (None, None) => Served::Plain,
+        match self {
+            AdaptService::On(_) => Served::Adaptation,
+            AdaptService::Unavailable(_) => Served::RefusingAdaptation,
+            AdaptService::Off => Served::Plain,
         }
     }
 
     /// /diagnostics `adaptation` at start.
     fn status(&self) -> String {
-        match (&self.setup, &self.unavailable) {
-            (Some(_), _) => "idle".into(),
-            (None, Some(why)) => format!("unavailable: {why}"),
-            (None, None) => ADAPTATION_OFF.into(),
+        match self {
+            AdaptService::On(_) => "idle".into(),
+            AdaptService::Unavailable(why) => format!("unavailable: {why}"),
+            AdaptService::Off => ADAPTATION_OFF.into(),
         }
     }
 }

@@ -64,7 +64,8 @@ impl PendingChanges {
 
     /// The changes since the last call, oldest first.
     pub fn take(&self) -> Vec<RunTimeChange> {
-        if !self.any.swap(false, Ordering::AcqRel) {
+        // A load per sample; the write only when a change came.
+        if !self.any.load(Ordering::Relaxed) || !self.any.swap(false, Ordering::AcqRel) {
             return Vec::new();
         }
         std::mem::take(&mut *self.changes.lock().expect("parameter changes lock"))
@@ -78,7 +79,8 @@ impl PendingChanges {
 pub fn declare(options: NodeOptions, params: &NodeParams, pending: Arc<PendingChanges>) -> NodeOptions {
     let declared = declared(params);
     let initial: HashMap<String, ParameterValue> = declared.iter().cloned().collect();
-    let current = Mutex::new(initial.clone());
+    let current: Mutex<HashMap<String, ParameterValue>> =
+        Mutex::new(initial.iter().filter(|(n, _)| AT_RUN_TIME.contains(&n.as_str())).map(|(n, v)| (n.clone(), v.clone())).collect());
     let mut options = options;
     for (name, value) in declared {
         options = options.declare_parameter(&name, value);
