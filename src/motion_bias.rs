@@ -73,6 +73,11 @@ pub struct MotionBiasConfig {
     /// confounded, and the estimate about up is confidently wrong. A standstill's bias
     /// ([`MotionBias::seed`]) is exempt.
     pub min_tilt_about_up: f64,
+    /// Apply before the model check has had its `fit_blocks` (false: nothing is applied
+    /// until then). For a platform whose own accelerations average out within seconds (a
+    /// multirotor, a hand-held device, a legged robot); a car's sustained accelerations are
+    /// taken for a bias until the check refuses them (docs/poweron.md).
+    pub apply_before_check: bool,
 }
 
 impl Default for MotionBiasConfig {
@@ -99,6 +104,7 @@ impl Default for MotionBiasConfig {
             rate_error_fraction: 0.0,
             max_block_nis: f64::INFINITY,
             min_tilt_about_up: 0.5,
+            apply_before_check: false,
         }
     }
 }
@@ -228,6 +234,11 @@ impl MotionBias {
         }
     }
 
+    /// True until the model check has had its `fit_blocks` (or a standstill seeded the bias).
+    pub fn before_check(&self) -> bool {
+        !self.seeded && self.used_blocks < u64::from(self.cfg.fit_blocks)
+    }
+
     /// True once the model was found not to fit the platform's motion (`max_mean_nis`,
     /// `max_accel_bias_sigmas`): nothing is applied until [`Self::restart`].
     pub fn misfit(&self) -> bool {
@@ -274,7 +285,7 @@ impl MotionBias {
 
     /// Re-decides [`Self::applied`] from the estimate and its covariance.
     fn decide_applied(&mut self) {
-        if self.misfit || (!self.seeded && self.used_blocks < u64::from(self.cfg.fit_blocks)) {
+        if self.misfit || (self.before_check() && !self.cfg.apply_before_check) {
             self.applied = (Vector3::zeros(), Vector3::repeat(self.cfg.prior_stddev.powi(2)));
             return;
         }
@@ -620,6 +631,29 @@ mod tests {
         // is not the bias (−0.06 rad/s for +0.03).
         let (without, _, withheld) = applied_on_multirotor(MotionBiasConfig { min_tilt_about_up: 0.0, ..Default::default() }, bias);
         assert!(!withheld && (without.z - bias.z).abs() > 0.05, "{without:?}");
+    }
+
+    /// `apply_before_check`: a consumer gyro's turn-on bias across up is removed within seconds
+    /// instead of after the check's 30 blocks; without it nothing is, and the check then
+    /// applies the same.
+    #[test]
+    fn before_the_check_the_bias_is_applied_only_when_asked() {
+        let bias = Vector3::new(0.08, -0.06, 0.02);
+        let run = |cfg: MotionBiasConfig, seconds: f64| {
+            let mut f = MotionBias::new(cfg);
+            for s in multirotor(bias, seconds) {
+                f.push(&s);
+            }
+            (f.before_check(), f.applied().0)
+        };
+        let asked = MotionBiasConfig { apply_before_check: true, ..Default::default() };
+        let (before, applied) = run(asked, 15.0);
+        assert!(before, "15 s are before the check's 30 blocks");
+        assert!((applied.xy() - bias.xy()).norm() < 0.01, "removed across up before the check: {applied:?} for {bias:?}");
+        let (before, applied) = run(MotionBiasConfig::default(), 15.0);
+        assert!(before && applied == Vector3::zeros(), "{applied:?}");
+        let (before, applied) = run(MotionBiasConfig::default(), 60.0);
+        assert!(!before && (applied.xy() - bias.xy()).norm() < 0.01, "{applied:?}");
     }
 
     /// The structured Φ P Φᵀ equals the dense product.
