@@ -64,6 +64,13 @@ pub struct Pipeline {
     gravity_aided: Option<GravityAided>,
 }
 
+/// What a sample's stamp did to the stream: a gap before it, or the body's turn since the
+/// last sample (none across a gap or at the first).
+struct Advance {
+    after_gap: bool,
+    turned: Option<Vector3<f64>>,
+}
+
 impl Pipeline {
     pub fn new(corrector: Box<dyn GyroCorrector>, cfg: PipelineConfig) -> Self {
         let rate = if cfg.nominal_rate_hz > 0.0 { Some(cfg.nominal_rate_hz) } else { corrector.rate_hz() };
@@ -243,6 +250,43 @@ impl Pipeline {
     /// Process one raw sample.
     pub fn push(&mut self, s: &ImuSample) -> Result<CorrectedImu, Dropped> {
         self.counters.received += 1;
+        self.admit(s)?;
+        let Advance { after_gap, turned } = self.advance_clock(s)?;
+        if self.clipping.push(s) {
+            self.counters.saturated_samples += 1;
+        }
+        let (correction, _) = self.correction();
+        let raw = s;
+        let debiased = self.measure_power_on_bias(s, correction);
+        let s = &debiased;
+        let (gyro, warming_up) = self.step_model(s, correction);
+        if warming_up {
+            self.counters.warmup_samples += 1;
+        }
+        self.last = Some((s.stamp_ns, gyro));
+        self.counters.processed += 1;
+        self.attitude.accumulate_gravity(s, turned, &self.cfg);
+        // Set inside a standstill window: held from where it was set, should the window be still.
+        if let (None, Some(q), Some(w)) = (self.hold_from, self.attitude.world_from_body, self.standstill.window_start_ns()) {
+            self.hold_from = Some((w, q));
+        }
+        let orientation = self.orientation(s, &gyro, correction);
+        Ok(CorrectedImu {
+            stamp_ns: s.stamp_ns,
+            gyro,
+            correction: gyro - raw.gyro,
+            accel: s.accel,
+            gyro_variance: self.cfg.angular_velocity_stddev * self.cfg.angular_velocity_stddev,
+            gyro_bias_variance: if correction == Correction::Raw { 0.0 } else { self.bias_stddev().powi(2) },
+            passed_through: !correction.runs_model(),
+            orientation,
+            warming_up,
+            after_gap,
+        })
+    }
+
+    /// Refuses a sample that is not a number or not physical.
+    fn admit(&mut self, s: &ImuSample) -> Result<(), Dropped> {
         if !s.is_finite() {
             self.counters.dropped_non_finite += 1;
             return Err(Dropped::NonFinite);
@@ -251,67 +295,77 @@ impl Pipeline {
             self.counters.dropped_implausible += 1;
             return Err(Dropped::Implausible);
         }
-        let mut after_gap = false;
-        // The body's turn since the previous sample (none across a gap or at the first).
-        let mut turned = None;
-        if let Some((t_last, w_last)) = self.last {
-            let dt_ns = s.stamp_ns - t_last;
-            if dt_ns == 0 {
-                self.counters.dropped_duplicate_stamp += 1;
-                return Err(Dropped::DuplicateStamp);
-            }
-            if dt_ns < 0 && !self.backwards_run.follows(s.stamp_ns) {
-                self.counters.dropped_backwards_stamp += 1;
-                return Err(Dropped::BackwardsStamp);
-            }
-            self.backwards_run.end();
-            let jumped_back = dt_ns < 0;
-            let period_before_ns = self.rate.smoothed_period_ns;
-            if !jumped_back {
-                self.rate.learn_period(dt_ns, &mut self.counters);
-            }
-            if jumped_back || self.rate.gap_limit_ns().is_some_and(|l| dt_ns as f64 > l) {
-                after_gap = true;
-                if jumped_back {
-                    self.counters.clock_jumps += 1;
-                } else {
-                    self.counters.gaps += 1;
-                }
-                self.counters.resets += 1;
-                self.corrector.reset();
-                self.since_reset = 0;
-                if let Some(p) = self.periods.as_mut() {
-                    p.reset();
-                }
-                self.period_correction = Vector3::zeros();
-                // Hold the attitude over the hole: integrating a stale rate would invent motion.
-                // A clock that went back says nothing of how long: a second's worth of gap.
-                let held_s = if jumped_back { 1.0 } else { dt_ns as f64 * 1e-9 };
-                self.attitude.covariance += Matrix3::identity() * (self.cfg.gap_variance_per_second * held_s);
-                if !jumped_back && self.attitude.world_from_body.is_some() {
-                    self.attitude.grow(held_s, 0.0, self.bias_stddev());
-                }
-                if let Some(g) = self.gravity_aided.as_mut() {
-                    g.hold(s.stamp_ns, self.cfg.gap_variance_per_second * held_s);
-                }
-            } else {
-                self.rate.count_missed(dt_ns, period_before_ns, &mut self.counters);
-                let dt = dt_ns as f64 * 1e-9;
-                turned = Some(w_last * dt);
-                if let Some(q) = self.attitude.world_from_body {
-                    self.attitude.world_from_body = Some(renormalize(q * exp(&(w_last * dt))));
-                    self.attitude.grow(dt, self.cfg.angular_velocity_stddev, self.bias_stddev());
-                }
-            }
-            self.rate.last_dt_ns = dt_ns;
+        Ok(())
+    }
+
+    /// The sample's stamp against the last: refuses a duplicate or a stray stamp back, holds
+    /// over a gap or a clock jump, else turns the open-loop attitude by the last rate.
+    fn advance_clock(&mut self, s: &ImuSample) -> Result<Advance, Dropped> {
+        let Some((t_last, w_last)) = self.last else { return Ok(Advance { after_gap: false, turned: None }) };
+        let dt_ns = s.stamp_ns - t_last;
+        if dt_ns == 0 {
+            self.counters.dropped_duplicate_stamp += 1;
+            return Err(Dropped::DuplicateStamp);
         }
-        if self.clipping.push(s) {
-            self.counters.saturated_samples += 1;
+        if dt_ns < 0 && !self.backwards_run.follows(s.stamp_ns) {
+            self.counters.dropped_backwards_stamp += 1;
+            return Err(Dropped::BackwardsStamp);
         }
-        let (correction, _) = self.correction();
-        let raw = s;
-        let debiased = self.measure_power_on_bias(s, correction);
-        let s = &debiased;
+        self.backwards_run.end();
+        let jumped_back = dt_ns < 0;
+        let period_before_ns = self.rate.smoothed_period_ns;
+        if !jumped_back {
+            self.rate.learn_period(dt_ns, &mut self.counters);
+        }
+        let mut advance = Advance { after_gap: false, turned: None };
+        if jumped_back || self.rate.gap_limit_ns().is_some_and(|l| dt_ns as f64 > l) {
+            advance.after_gap = true;
+            self.hold_over_gap(s.stamp_ns, dt_ns, jumped_back);
+        } else {
+            self.rate.count_missed(dt_ns, period_before_ns, &mut self.counters);
+            let dt = dt_ns as f64 * 1e-9;
+            advance.turned = Some(w_last * dt);
+            if let Some(q) = self.attitude.world_from_body {
+                self.attitude.world_from_body = Some(renormalize(q * exp(&(w_last * dt))));
+                self.attitude.grow(dt, self.cfg.angular_velocity_stddev, self.bias_stddev());
+            }
+        }
+        self.rate.last_dt_ns = dt_ns;
+        Ok(advance)
+    }
+
+    /// A gap (or a clock that went back) ending at `stamp_ns`: the model and the periods start
+    /// again, the attitude is held and its variance grown.
+    fn hold_over_gap(&mut self, stamp_ns: i64, dt_ns: i64, jumped_back: bool) {
+        if jumped_back {
+            self.counters.clock_jumps += 1;
+        } else {
+            self.counters.gaps += 1;
+        }
+        self.counters.resets += 1;
+        self.corrector.reset();
+        self.since_reset = 0;
+        if let Some(p) = self.periods.as_mut() {
+            p.reset();
+        }
+        self.period_correction = Vector3::zeros();
+        // Hold the attitude over the hole: integrating a stale rate would invent motion.
+        // A clock that went back says nothing of how long: a second's worth of gap.
+        let held_s = if jumped_back { 1.0 } else { dt_ns as f64 * 1e-9 };
+        self.attitude.covariance += Matrix3::identity() * (self.cfg.gap_variance_per_second * held_s);
+        if !jumped_back && self.attitude.world_from_body.is_some() {
+            self.attitude.grow(held_s, 0.0, self.bias_stddev());
+        }
+        if let Some(g) = self.gravity_aided.as_mut() {
+            g.hold(stamp_ns, self.cfg.gap_variance_per_second * held_s);
+        }
+    }
+
+    /// Steps the model on the (debiased) sample, sample by sample or in its periods: the gyro
+    /// to publish and whether the model is still warming up. The model is stepped whichever
+    /// correction runs (it stays warm, and a model swapped in by ~/adapt finds its history);
+    /// its output is used only where it is trusted.
+    fn step_model(&mut self, s: &ImuSample, correction: Correction) -> (Vector3<f64>, bool) {
         self.update_resampling();
         let window = self.corrector.window() as u64;
         // The periods run from the stream's start (or its last gap) whether the model is fed
@@ -334,49 +388,33 @@ impl Pipeline {
             self.since_reset += 1;
             (self.corrector.step(&s.gyro, &s.accel), warming_up)
         };
-        // The model is stepped whichever correction runs (it stays warm, and a model swapped in
-        // by ~/adapt finds its history); its output is used only where it is trusted.
-        let (gyro, warming_up) = if correction.runs_model() { (gyro, warming_up) } else { (s.gyro, false) };
-        if warming_up {
-            self.counters.warmup_samples += 1;
+        if correction.runs_model() {
+            (gyro, warming_up)
+        } else {
+            (s.gyro, false)
         }
-        self.last = Some((s.stamp_ns, gyro));
-        self.counters.processed += 1;
-        self.attitude.accumulate_gravity(s, turned, &self.cfg);
-        // Set inside a standstill window: held from where it was set, should the window be still.
-        if let (None, Some(q), Some(w)) = (self.hold_from, self.attitude.world_from_body, self.standstill.window_start_ns()) {
-            self.hold_from = Some((w, q));
-        }
-        let orientation = match self.cfg.orientation {
+    }
+
+    /// The orientation to publish with its covariance, per `orientation`.
+    fn orientation(&mut self, s: &ImuSample, gyro: &Vector3<f64>, correction: Correction) -> Option<(UnitQuaternion<f64>, Matrix3<f64>)> {
+        match self.cfg.orientation {
             OrientationMode::OpenLoop => self.attitude.world_from_body.map(|q| (q, self.attitude.covariance)),
             // From the open loop's gravity start-up on (a mean over a rest, turns allowed for).
             OrientationMode::GravityAided => match (self.gravity_aided.as_mut(), self.attitude.world_from_body) {
                 (Some(g), _) => {
-                    g.push(s.stamp_ns, &gyro, &s.accel);
+                    g.push(s.stamp_ns, gyro, &s.accel);
                     g.orientation()
                 }
                 (None, Some(q)) => {
                     let mut g = GravityAided::new(&self.cfg.gravity_aided, self.bias_stddev(), correction.runs_model());
-                    g.start_at(q, self.attitude.covariance, s.stamp_ns, &gyro);
+                    g.start_at(q, self.attitude.covariance, s.stamp_ns, gyro);
                     let o = g.orientation();
                     self.gravity_aided = Some(g);
                     o
                 }
                 (None, None) => None,
             },
-        };
-        Ok(CorrectedImu {
-            stamp_ns: s.stamp_ns,
-            gyro,
-            correction: gyro - raw.gyro,
-            accel: s.accel,
-            gyro_variance: self.cfg.angular_velocity_stddev * self.cfg.angular_velocity_stddev,
-            gyro_bias_variance: if correction == Correction::Raw { 0.0 } else { self.bias_stddev().powi(2) },
-            passed_through: !correction.runs_model(),
-            orientation,
-            warming_up,
-            after_gap,
-        })
+        }
     }
 
     /// Feeds the standstill detector the raw sample; holds the attitude over a window found
