@@ -553,7 +553,15 @@ impl TrainConfig {
     /// Checks values that serde cannot.
     pub fn validate(&self) -> Result<(), InvalidSetting> {
         self.model.validate().map_err(|e| format!("model: {e}"))?;
-        let t = &self.train;
+        self.validate_recordings()?;
+        self.validate_optimisation()?;
+        self.validate_ground_truth()?;
+        self.validate_maml()?;
+        self.validate_selection_and_budget()
+    }
+
+    /// The recording lists: one source each, crops in order, no test recording trained on.
+    fn validate_recordings(&self) -> Result<(), InvalidSetting> {
         if self.dataset.train.is_empty() {
             return Err("dataset.train is empty".into());
         }
@@ -591,6 +599,12 @@ impl TrainConfig {
                 ).into());
             }
         }
+        Ok(())
+    }
+
+    /// Epochs, learning rate, the windows drawn and their lengths, augmentation, the loss.
+    fn validate_optimisation(&self) -> Result<(), InvalidSetting> {
+        let t = &self.train;
         if t.epochs == 0 {
             return Err("train.epochs must be ≥ 1".into());
         }
@@ -630,6 +644,11 @@ impl TrainConfig {
                 .into());
             }
         }
+        Ok(())
+    }
+
+    /// How ground truth is matched to the IMU, and the support set's length.
+    fn validate_ground_truth(&self) -> Result<(), InvalidSetting> {
         if !positive(self.dataset.max_interpolation_gap_ms) || !positive(self.dataset.max_nearest_gt_ms) {
             return Err(format!(
                 "dataset.max_interpolation_gap_ms ({}) and max_nearest_gt_ms ({}) must be finite and > 0",
@@ -640,6 +659,12 @@ impl TrainConfig {
         if self.model.mode == Mode::FsdaF && !positive(self.dataset.support_seconds) {
             return Err("dataset.support_seconds must be > 0 for fsda_f".into());
         }
+        Ok(())
+    }
+
+    /// The few-shot inner loop.
+    fn validate_maml(&self) -> Result<(), InvalidSetting> {
+        let t = &self.train;
         if !non_negative(t.maml.inner_lr) || t.maml.inner_steps == 0 {
             return Err("train.maml.inner_lr must be ≥ 0 and inner_steps ≥ 1".into());
         }
@@ -649,6 +674,12 @@ impl TrainConfig {
         if !non_negative(t.maml.unadapted_support_weight) {
             return Err("train.maml.unadapted_support_weight must be ≥ 0".into());
         }
+        Ok(())
+    }
+
+    /// The epoch and seed selection, the schedule, the time budget, threads.
+    fn validate_selection_and_budget(&self) -> Result<(), InvalidSetting> {
+        let t = &self.train;
         if t.select_best && self.dataset.validation.is_empty() {
             return Err("train.select_best chooses the epoch by dataset.validation, which is empty".into());
         }
