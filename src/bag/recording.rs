@@ -171,68 +171,118 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
     let path = path.as_ref();
     let mut rec = Recording { name: path.display().to_string(), ..Default::default() };
     let mut report = LoadReport::default();
-    let mut present: BTreeMap<Arc<str>, Arc<str>> = BTreeMap::new();
-    // Decoded with their log times first: MCAP does not require a file to be in log-time order
-    // (a recorder's threads interleave), and readers order it by log time, as `ros2 bag play`
-    // does. In file order such a bag lost its late-written samples as "backwards stamps".
-    let mut imu: Vec<(u64, (ImuSample, usize))> = Vec::new();
-    // Each IMU message's frame_id, as an index into `frames`: two sensors on one topic show as
-    // alternating frame_ids.
-    let mut frames: Vec<String> = Vec::new();
-    let mut poses: Vec<(u64, Option<PoseSample>)> = Vec::new();
-    let mut temperature: Vec<(u64, TemperatureSample)> = Vec::new();
-    for (index, m) in BagReader::open(path)?.enumerate() {
-        let m = m?;
-        let index = index as u64 + 1;
-        if !present.contains_key(&m.topic) {
-            present.insert(m.topic.clone(), m.type_name.clone());
-        }
-        let decode_err =
-            |source| BagError::Decode { path: path.to_path_buf(), topic: m.topic.to_string(), index, log_time_ns: m.log_time_ns, source };
-        let wrong_type = |expected: &str| BagError::WrongType {
-            path: path.to_path_buf(),
-            topic: m.topic.to_string(),
-            found: m.type_name.to_string(),
-            expected: expected.into(),
-        };
-        if *m.topic == *topics.imu {
-            if *m.type_name != *Imu::TYPE_NAME {
-                return Err(wrong_type(Imu::TYPE_NAME));
-            }
-            let msg = Imu::decode(&m.data).map_err(decode_err)?;
-            let frame = match frames.iter().position(|f| *f == msg.header.frame_id) {
-                Some(k) => k,
-                None => {
-                    frames.push(msg.header.frame_id.clone());
-                    frames.len() - 1
-                }
-            };
-            imu.push((m.log_time_ns, (msg.sample(), frame)));
-        } else if topics.ground_truth.as_deref() == Some(&*m.topic) {
-            let pose = match &*m.type_name {
-                t if t == PoseStamped::TYPE_NAME => PoseStamped::decode(&m.data).map_err(decode_err)?.sample(),
-                t if t == Odometry::TYPE_NAME => Odometry::decode(&m.data).map_err(decode_err)?.sample(),
-                t if t == Imu::TYPE_NAME => {
-                    let imu = Imu::decode(&m.data).map_err(decode_err)?;
-                    imu.has_orientation().then(|| imu.orientation.to_unit()).flatten().map(|q| PoseSample {
-                        stamp_ns: imu.header.stamp.to_ns(),
-                        position_in_world: nalgebra::Vector3::zeros(),
-                        world_from_body: q,
-                    })
-                }
-                _ => return Err(wrong_type("geometry_msgs/msg/PoseStamped, nav_msgs/msg/Odometry or sensor_msgs/msg/Imu")),
-            };
-            poses.push((m.log_time_ns, pose));
-        } else if topics.temperature.as_deref() == Some(&*m.topic) {
-            if *m.type_name != *Temperature::TYPE_NAME {
-                return Err(wrong_type(Temperature::TYPE_NAME));
-            }
-            temperature.push((m.log_time_ns, Temperature::decode(&m.data).map_err(decode_err)?.sample()));
+    let mut decoded = Decoded::read(path, topics)?;
+    report.out_of_log_time_order = in_log_time_order(&mut decoded.imu, |s| Some(s.0.stamp_ns))
+        + in_log_time_order(&mut decoded.poses, |p| p.as_ref().map(|p| p.stamp_ns))
+        + in_log_time_order(&mut decoded.temperature, |t| Some(t.stamp_ns));
+    take_imu(decoded.imu, &decoded.frames, &mut rec, &mut report);
+    take_ground_truth(decoded.poses, &mut rec, &mut report);
+    report.temperature_read = decoded.temperature.len() as u64;
+    for (_, t) in decoded.temperature {
+        if t.celsius.is_finite() && rec.temperature.last().is_none_or(|l| t.stamp_ns > l.stamp_ns) {
+            rec.temperature.push(t);
         }
     }
-    report.out_of_log_time_order = in_log_time_order(&mut imu, |s| Some(s.0.stamp_ns))
-        + in_log_time_order(&mut poses, |p| p.as_ref().map(|p| p.stamp_ns))
-        + in_log_time_order(&mut temperature, |t| Some(t.stamp_ns));
+    if report.out_of_log_time_order > 0 {
+        tracing::info!(
+            "{}: {} messages were written out of log-time order; read in log-time order",
+            path.display(),
+            report.out_of_log_time_order
+        );
+    }
+    if rec.imu.is_empty() {
+        let present = decoded.present.iter().map(|(t, ty)| format!("{t} [{ty}]")).collect::<Vec<_>>().join(", ");
+        return Err(BagError::MissingTopic { path: path.to_path_buf(), topic: topics.imu.clone(), present });
+    }
+    if report.skipped() > 0 {
+        tracing::warn!("{}: {}", path.display(), report);
+    }
+    if let Some(note) = report.imu_stream_note() {
+        tracing::warn!("{}: {note}", path.display());
+    }
+    Ok((rec, report))
+}
+
+/// A recording's messages decoded with their log times, in file order: MCAP does not require
+/// a file to be in log-time order (a recorder's threads interleave), and readers order it by
+/// log time, as `ros2 bag play` does. In file order such a bag lost its late-written samples
+/// as "backwards stamps".
+struct Decoded {
+    /// Every topic in the bag and its type, for the error that names what is there.
+    present: BTreeMap<Arc<str>, Arc<str>>,
+    /// Each IMU sample with the index of its frame_id in `frames`: two sensors on one topic
+    /// show as alternating frame_ids.
+    imu: Vec<(u64, (ImuSample, usize))>,
+    frames: Vec<String>,
+    /// Ground-truth poses; `None` for a message that carries none (an Imu without orientation).
+    poses: Vec<(u64, Option<PoseSample>)>,
+    temperature: Vec<(u64, TemperatureSample)>,
+}
+
+impl Decoded {
+    fn read(path: &Path, topics: &RecordingTopics) -> Result<Self, BagError> {
+        let mut d = Decoded { present: BTreeMap::new(), imu: Vec::new(), frames: Vec::new(), poses: Vec::new(), temperature: Vec::new() };
+        for (index, m) in BagReader::open(path)?.enumerate() {
+            let m = m?;
+            let index = index as u64 + 1;
+            if !d.present.contains_key(&m.topic) {
+                d.present.insert(m.topic.clone(), m.type_name.clone());
+            }
+            let decode_err = |source| BagError::Decode {
+                path: path.to_path_buf(),
+                topic: m.topic.to_string(),
+                index,
+                log_time_ns: m.log_time_ns,
+                source,
+            };
+            let wrong_type = |expected: &str| BagError::WrongType {
+                path: path.to_path_buf(),
+                topic: m.topic.to_string(),
+                found: m.type_name.to_string(),
+                expected: expected.into(),
+            };
+            if *m.topic == *topics.imu {
+                if *m.type_name != *Imu::TYPE_NAME {
+                    return Err(wrong_type(Imu::TYPE_NAME));
+                }
+                let msg = Imu::decode(&m.data).map_err(decode_err)?;
+                let frame = match d.frames.iter().position(|f| *f == msg.header.frame_id) {
+                    Some(k) => k,
+                    None => {
+                        d.frames.push(msg.header.frame_id.clone());
+                        d.frames.len() - 1
+                    }
+                };
+                d.imu.push((m.log_time_ns, (msg.sample(), frame)));
+            } else if topics.ground_truth.as_deref() == Some(&*m.topic) {
+                let pose = match &*m.type_name {
+                    t if t == PoseStamped::TYPE_NAME => PoseStamped::decode(&m.data).map_err(decode_err)?.sample(),
+                    t if t == Odometry::TYPE_NAME => Odometry::decode(&m.data).map_err(decode_err)?.sample(),
+                    t if t == Imu::TYPE_NAME => {
+                        let imu = Imu::decode(&m.data).map_err(decode_err)?;
+                        imu.has_orientation().then(|| imu.orientation.to_unit()).flatten().map(|q| PoseSample {
+                            stamp_ns: imu.header.stamp.to_ns(),
+                            position_in_world: nalgebra::Vector3::zeros(),
+                            world_from_body: q,
+                        })
+                    }
+                    _ => return Err(wrong_type("geometry_msgs/msg/PoseStamped, nav_msgs/msg/Odometry or sensor_msgs/msg/Imu")),
+                };
+                d.poses.push((m.log_time_ns, pose));
+            } else if topics.temperature.as_deref() == Some(&*m.topic) {
+                if *m.type_name != *Temperature::TYPE_NAME {
+                    return Err(wrong_type(Temperature::TYPE_NAME));
+                }
+                d.temperature.push((m.log_time_ns, Temperature::decode(&m.data).map_err(decode_err)?.sample()));
+            }
+        }
+        Ok(d)
+    }
+}
+
+/// The IMU samples in log-time order into `rec`: the other sensor's of two interleaved on one
+/// topic, unset stamps, and what [`push_imu`] refuses are counted and skipped.
+fn take_imu(imu: Vec<(u64, (ImuSample, usize))>, frames: &[String], rec: &mut Recording, report: &mut LoadReport) {
     // Stamped 0 and followed by a clock time (the next other stamp over an hour later): not
     // set, rather than the sample's time. A simulator's clock starting at 0 goes on in steps.
     let mut next_stamp = vec![0i64; imu.len()];
@@ -258,8 +308,13 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
             report.imu_unset_stamp += 1;
             continue;
         }
-        push_imu(&mut rec.imu, s, &mut report);
+        push_imu(&mut rec.imu, s, report);
     }
+}
+
+/// The ground-truth poses in log-time order into `rec`: invalid and out-of-order ones counted
+/// and skipped, a frozen stretch dropped.
+fn take_ground_truth(poses: Vec<(u64, Option<PoseSample>)>, rec: &mut Recording, report: &mut LoadReport) {
     for (_, pose) in poses {
         report.ground_truth_read += 1;
         match pose {
@@ -271,30 +326,6 @@ pub fn read_recording(path: impl AsRef<Path>, topics: &RecordingTopics) -> Resul
         }
     }
     report.ground_truth_frozen = rec.drop_frozen_ground_truth() as u64;
-    report.temperature_read = temperature.len() as u64;
-    for (_, t) in temperature {
-        if t.celsius.is_finite() && rec.temperature.last().is_none_or(|l| t.stamp_ns > l.stamp_ns) {
-            rec.temperature.push(t);
-        }
-    }
-    if report.out_of_log_time_order > 0 {
-        tracing::info!(
-            "{}: {} messages were written out of log-time order; read in log-time order",
-            path.display(),
-            report.out_of_log_time_order
-        );
-    }
-    if rec.imu.is_empty() {
-        let present = present.iter().map(|(t, ty)| format!("{t} [{ty}]")).collect::<Vec<_>>().join(", ");
-        return Err(BagError::MissingTopic { path: path.to_path_buf(), topic: topics.imu.clone(), present });
-    }
-    if report.skipped() > 0 {
-        tracing::warn!("{}: {}", path.display(), report);
-    }
-    if let Some(note) = report.imu_stream_note() {
-        tracing::warn!("{}: {note}", path.display());
-    }
-    Ok((rec, report))
 }
 
 /// The frame_id changes this many times or more in a topic's messages: two sensors
