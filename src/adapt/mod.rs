@@ -40,7 +40,7 @@ use crate::train::config::{DatasetConfig, SourceConfig};
 use crate::train::data::{self, DataError, Task};
 use crate::train::fit::{evaluate_net, evaluate_net_with_gain, evaluate_raw};
 
-use calibration_candidate::{calibration_candidates, CalibrationCandidates};
+use calibration_candidate::{calibration_candidates, Calibrated, CalibrationCandidates};
 use networks::{adapt_networks, AdaptedNetworks};
 
 pub use config::{AdaptConfig, CancelFlag, FramePolicy, Keep, Optimizer};
@@ -183,47 +183,11 @@ pub fn adapt_knowing(
     if !mode.has_embedding() {
         return Err(AdaptError::NoEmbedding(mode));
     }
-    let mut support = support.clone();
-    let mut query = query.clone();
-    // The model adapts at its own rate, on the input's periods, as the node runs it.
-    for rec in [&mut support, &mut query] {
-        let rate = rec.nominal_imu_rate_hz();
-        if rec.imu.len() >= 2 && crate::model::rate_is_off(meta.rate_hz, rate) {
-            tracing::info!("{}: the {rate:.1} Hz IMU is adapted on in the model's {:.0} Hz periods", rec.name, meta.rate_hz);
-            rec.imu = crate::resample::to_model_rate(&rec.imu, meta.rate_hz).0;
-        }
-    }
-    // This power-on's bias out of both sets, as the node removes it (causal over the recording).
-    let query_as_recorded = cfg.power_on_bias.then(|| query.clone());
-    let support_power_on_bias =
-        if cfg.power_on_bias { Some(remove_power_on_bias(&mut support, &mut query, &cfg.standstill, known_power_on_bias)?) } else { None };
-    let s_task0 = to_task(&support, "support", cfg)?;
-    // Seconds with ground truth, not the span: gaps in it are not data to adapt on.
-    require_covered(&s_task0, "support", cfg.min_support_seconds)?;
-    // The query's length first: on a few seconds the clock check can find a false peak.
-    let q_task0 = to_task(&query, "query", cfg)?;
-    require_covered(&q_task0, "query", cfg.min_query_seconds)?;
-    crate::train::data::check_clock(&support)?;
-    crate::train::data::check_clock(&query)?;
-    crate::train::data::check_plausible(&support)?;
-    crate::train::data::check_plausible(&query)?;
-    crate::train::data::check_accel_units(&support)?;
-    crate::train::data::check_ground_truth_follows_gyro(&support, false)?;
-    let (frame, frame_applied) = check_ground_truth_frame(&s_task0, &mut support, &mut query, cfg)?;
-    let s_task = if frame_applied { to_task(&support, "support", cfg)? } else { s_task0 };
-    let q_task = if frame_applied { to_task(&query, "query", cfg)? } else { q_task0 };
+    let AdaptSets { s_task, q_task, frame, frame_applied, support_power_on_bias, query_as_recorded } =
+        AdaptSets::prepare(meta.rate_hz, support, query, cfg, known_power_on_bias)?;
     let eopts = EvalOptions { max_gap_ns: (cfg.max_interpolation_gap_ms * 1e6) as i64 };
-    // The query as recorded (its bias added back), and as the node runs a new IMU (without it).
-    let query_power_on_bias = if cfg.power_on_bias { Some(evaluate_raw(&q_task, &eopts)?) } else { None };
-    let query_raw = match query_as_recorded {
-        Some(mut rec) => {
-            if let (true, Some(f)) = (frame_applied, &frame) {
-                apply_frame(&mut rec, &f.rotation());
-            }
-            evaluate_raw(&to_task(&rec, "query", cfg)?, &eopts)?
-        }
-        None => evaluate_raw(&q_task, &eopts)?,
-    };
+    let (query_raw, query_power_on_bias) =
+        query_baselines(&q_task, query_as_recorded, frame.as_ref().filter(|_| frame_applied), cfg, &eopts)?;
     let start_correction_gain = loaded.correction_gain();
     let query_before = evaluate_net_with_gain(&loaded.net, &q_task, &eopts, start_correction_gain)?;
 
@@ -234,16 +198,7 @@ pub fn adapt_knowing(
     let query_after = evaluate_net(&net, &q_task, &eopts)?;
     // The other candidates: the lasting linear gyro error alone, the networks off; and with
     // the support's bias offset in motion.
-    let (calibrated, with_offset, calibration_refused) = if cfg.power_on_bias && cfg.keep != Keep::Networks {
-        let CalibrationCandidates { alone, with_offset } = calibration_candidates(loaded, &s_task, &q_task, &eopts, cfg)?;
-        let with_offset = with_offset.filter(|_| cfg.keep == Keep::Auto);
-        match alone {
-            Ok(c) => (Some(c), with_offset, None),
-            Err(why) => (None, with_offset, Some(why)),
-        }
-    } else {
-        (None, None, None)
-    };
+    let (calibrated, with_offset, calibration_refused) = calibration_candidates_kept(loaded, &s_task, &q_task, &eopts, cfg)?;
     if cfg.cancel.is_cancelled() {
         return Err(AdaptError::Cancelled);
     }
@@ -311,6 +266,107 @@ pub fn adapt_knowing(
     let others: Vec<_> = candidates.collect();
     report.kind = adapted.as_ref().map(|(k, _)| *k);
     Ok(AdaptOutcome { report, adapted: adapted.map(|(_, m)| m), others })
+}
+
+/// The query's AOE as recorded (its power-on bias added back, in the frame the sets were put
+/// in) and, where the bias was removed, as the node runs a new IMU: the gyro minus it.
+fn query_baselines(
+    q_task: &Task,
+    query_as_recorded: Option<Recording>,
+    frame_applied: Option<&FrameCheck>,
+    cfg: &AdaptConfig,
+    eopts: &EvalOptions,
+) -> Result<(OrientationErrors, Option<OrientationErrors>), AdaptError> {
+    let query_power_on_bias = if cfg.power_on_bias { Some(evaluate_raw(q_task, eopts)?) } else { None };
+    let query_raw = match query_as_recorded {
+        Some(mut rec) => {
+            if let Some(f) = frame_applied {
+                apply_frame(&mut rec, &f.rotation());
+            }
+            evaluate_raw(&to_task(&rec, "query", cfg)?, eopts)?
+        }
+        None => evaluate_raw(q_task, eopts)?,
+    };
+    Ok((query_raw, query_power_on_bias))
+}
+
+/// The gyro calibration alone, with the support's bias offset in motion, and why the
+/// calibration alone was refused.
+type KeptCalibrations = (Option<Calibrated>, Option<Calibrated>, Option<String>);
+
+/// The gyro calibration candidates, where `keep` and the power-on bias allow them.
+fn calibration_candidates_kept(
+    loaded: &LoadedNet,
+    s_task: &Task,
+    q_task: &Task,
+    eopts: &EvalOptions,
+    cfg: &AdaptConfig,
+) -> Result<KeptCalibrations, AdaptError> {
+    if !cfg.power_on_bias || cfg.keep == Keep::Networks {
+        return Ok((None, None, None));
+    }
+    let CalibrationCandidates { alone, with_offset } = calibration_candidates(loaded, s_task, q_task, eopts, cfg)?;
+    let with_offset = with_offset.filter(|_| cfg.keep == Keep::Auto);
+    Ok(match alone {
+        Ok(c) => (Some(c), with_offset, None),
+        Err(why) => (None, with_offset, Some(why)),
+    })
+}
+
+/// The support and query as the model adapts on them: at its rate, this power-on's bias
+/// removed, checked, in the ground truth's frame (docs/adaptation.md, steps 1–2).
+struct AdaptSets {
+    s_task: Task,
+    q_task: Task,
+    frame: Option<FrameCheck>,
+    frame_applied: bool,
+    support_power_on_bias: Option<crate::standstill::BiasEstimate>,
+    /// The query before its power-on bias was removed (when it was).
+    query_as_recorded: Option<Recording>,
+}
+
+impl AdaptSets {
+    fn prepare(
+        model_rate_hz: f64,
+        support: &Recording,
+        query: &Recording,
+        cfg: &AdaptConfig,
+        known_power_on_bias: Option<&crate::standstill::BiasEstimate>,
+    ) -> Result<Self, AdaptError> {
+        let mut support = support.clone();
+        let mut query = query.clone();
+        // The model adapts at its own rate, on the input's periods, as the node runs it.
+        for rec in [&mut support, &mut query] {
+            let rate = rec.nominal_imu_rate_hz();
+            if rec.imu.len() >= 2 && crate::model::rate_is_off(model_rate_hz, rate) {
+                tracing::info!("{}: the {rate:.1} Hz IMU is adapted on in the model's {model_rate_hz:.0} Hz periods", rec.name);
+                rec.imu = crate::resample::to_model_rate(&rec.imu, model_rate_hz).0;
+            }
+        }
+        // This power-on's bias out of both sets, as the node removes it (causal over the recording).
+        let query_as_recorded = cfg.power_on_bias.then(|| query.clone());
+        let support_power_on_bias = if cfg.power_on_bias {
+            Some(remove_power_on_bias(&mut support, &mut query, &cfg.standstill, known_power_on_bias)?)
+        } else {
+            None
+        };
+        let s_task0 = to_task(&support, "support", cfg)?;
+        // Seconds with ground truth, not the span: gaps in it are not data to adapt on.
+        require_covered(&s_task0, "support", cfg.min_support_seconds)?;
+        // The query's length first: on a few seconds the clock check can find a false peak.
+        let q_task0 = to_task(&query, "query", cfg)?;
+        require_covered(&q_task0, "query", cfg.min_query_seconds)?;
+        crate::train::data::check_clock(&support)?;
+        crate::train::data::check_clock(&query)?;
+        crate::train::data::check_plausible(&support)?;
+        crate::train::data::check_plausible(&query)?;
+        crate::train::data::check_accel_units(&support)?;
+        crate::train::data::check_ground_truth_follows_gyro(&support, false)?;
+        let (frame, frame_applied) = check_ground_truth_frame(&s_task0, &mut support, &mut query, cfg)?;
+        let s_task = if frame_applied { to_task(&support, "support", cfg)? } else { s_task0 };
+        let q_task = if frame_applied { to_task(&query, "query", cfg)? } else { q_task0 };
+        Ok(AdaptSets { s_task, q_task, frame, frame_applied, support_power_on_bias, query_as_recorded })
+    }
 }
 
 /// The frame check on the support (docs/adaptation.md, step 2): a rotation between the IMU
