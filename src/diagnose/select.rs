@@ -433,43 +433,86 @@ fn drift_gain(name: &str, with: &Fit, current: &Fit, n: usize, params: usize) ->
     }
 }
 
-/// Run the selection.
-pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
-    let mut chosen: Vec<Chosen> = Vec::new();
-    let mut noise_terms: Vec<NoiseTerm> = Vec::new();
-    let mut y = p.y.clone();
-    let mut noise = p.noise;
-    estimate_walk(&p, &y, &chosen, &mut noise);
-    let baseline_noise = noise;
-    let baseline = fit_reduced(&p, &y, &chosen, &noise);
-    let mut current = baseline.clone();
-    let mut steps = Vec::new();
-    let mut vibration_hz = 0.0;
-    let n = y[0].len();
-    let bl = blocks(n, p.opts.folds);
-    let need = |params: usize, o: &SelectOptions| o.threshold + o.per_param * params as f64;
-
+/// Run the selection: forward steps (the best candidate whose held-out gain clears its
+/// threshold), each followed by backward drops and exchanges, for at most 12 rounds.
+pub fn select(p: Problem) -> Result<Selection, DiagnoseError> {
+    let mut s = Stepwise::start(p);
+    let (baseline, baseline_noise) = (s.current.clone(), s.noise);
     for _round in 0..12 {
-        // A vibration candidate at the strongest accelerometer line of the current residual.
-        if p.full_rate && p.sensors.judges(1) && !chosen.iter().any(|c| p.catalogue.candidates[c.cand].name == "vibration") {
-            let r = model_residual(&p.catalogue, &y, &chosen, &current.beta);
-            let w = whitened(&r, &noise, &p.mask);
-            let dt = p.base.nominal_dt();
-            // A line the motion itself carries (a gait harmonic) is where any
-            // motion-proportional term's small misfit also makes a residual line: not
-            // evidence of an added vibration, which the sim does not carry at all.
-            let motion_lines =
-                p.motion_lines.get_or_insert_with(|| MotionLines::new(&[&p.sim[..3], &p.sim[3..]], dt, p.opts.vibration_alpha));
-            let motion_line = |f: f64| motion_lines.carries(f);
-            if let Some(f) = periodogram_peak(&w[3..], dt, p.opts.vibration_alpha, motion_line) {
-                tracing::debug!("vibration candidate at {f:.4} Hz");
-                vibration_hz = f;
-                p.catalogue.set_vibration(f, p.base)?;
-            }
+        s.place_vibration_candidate()?;
+        let (trials, noise_trials) = s.trials()?;
+        if !s.add_best(trials, noise_trials) {
+            break;
         }
+        s.drop_and_exchange()?;
+    }
+    let Stepwise { p, chosen, noise_terms, y, noise, steps, vibration_hz, .. } = s;
+    let fit = fit_reduced(&p, &y, &chosen, &noise);
+    Ok(Selection { chosen, noise_terms, noise, fit, steps, vibration_hz, y, baseline, baseline_noise, catalogue: p.catalogue })
+}
+
+/// The selection in progress: the terms chosen, the residual and noise model they are fitted
+/// under, the current fit and the steps taken.
+struct Stepwise<'a> {
+    p: Problem<'a>,
+    chosen: Vec<Chosen>,
+    noise_terms: Vec<NoiseTerm>,
+    y: [Vec<f64>; 6],
+    noise: NoiseModel,
+    current: Fit,
+    steps: Vec<Step>,
+    vibration_hz: f64,
+    /// Samples, and the cross-validation blocks over them.
+    n: usize,
+    blocks: Vec<std::ops::Range<usize>>,
+}
+
+impl<'a> Stepwise<'a> {
+    /// No term chosen: the baseline fit under the walk estimated from the data.
+    fn start(p: Problem<'a>) -> Self {
+        let y = p.y.clone();
+        let mut noise = p.noise;
+        estimate_walk(&p, &y, &[], &mut noise);
+        let current = fit_reduced(&p, &y, &[], &noise);
+        let n = y[0].len();
+        let blocks = blocks(n, p.opts.folds);
+        Stepwise { p, chosen: Vec::new(), noise_terms: Vec::new(), y, noise, current, steps: Vec::new(), vibration_hz: 0.0, n, blocks }
+    }
+
+    /// The held-out gain a candidate with `params` parameters must clear.
+    fn need(&self, params: usize) -> f64 {
+        self.p.opts.threshold + self.p.opts.per_param * params as f64
+    }
+
+    /// A vibration candidate at the strongest accelerometer line of the current residual.
+    fn place_vibration_candidate(&mut self) -> Result<(), DiagnoseError> {
+        let p = &mut self.p;
+        if !(p.full_rate && p.sensors.judges(1)) || self.chosen.iter().any(|c| p.catalogue.candidates[c.cand].name == "vibration") {
+            return Ok(());
+        }
+        let r = model_residual(&p.catalogue, &self.y, &self.chosen, &self.current.beta);
+        let w = whitened(&r, &self.noise, &p.mask);
+        let dt = p.base.nominal_dt();
+        // A line the motion itself carries (a gait harmonic) is where any motion-proportional
+        // term's small misfit also makes a residual line: not evidence of an added vibration,
+        // which the sim does not carry at all.
+        let motion_lines = p.motion_lines.get_or_insert_with(|| MotionLines::new(&[&p.sim[..3], &p.sim[3..]], dt, p.opts.vibration_alpha));
+        let motion_line = |f: f64| motion_lines.carries(f);
+        if let Some(f) = periodogram_peak(&w[3..], dt, p.opts.vibration_alpha, motion_line) {
+            tracing::debug!("vibration candidate at {f:.4} Hz");
+            self.vibration_hz = f;
+            p.catalogue.set_vibration(f, p.base)?;
+        }
+        Ok(())
+    }
+
+    /// Every candidate not chosen, with its held-out gain over the current fit, best first;
+    /// and the noise terms' fits the trials index.
+    fn trials(&self) -> Result<(Vec<Trial>, Vec<NoiseTrial>), DiagnoseError> {
+        let (p, chosen, current) = (&self.p, &self.chosen, &self.current);
         // All atoms whitened under the current noise model.
         let cols: Vec<&Column> = p.catalogue.atoms.iter().map(|a| &a.column).collect();
-        let stats = block_stats(&y, &cols, &noise, &p.mask, &bl);
+        let stats = block_stats(&self.y, &cols, &self.noise, &p.mask, &self.blocks);
         let mut trials: Vec<Trial> = Vec::new();
         for (ci, cand) in p.catalogue.candidates.iter().enumerate() {
             if chosen.iter().any(|c| c.cand == ci) {
@@ -492,97 +535,111 @@ pub fn select(mut p: Problem) -> Result<Selection, DiagnoseError> {
                 // A slow drift competes with the bias walk: re-estimate the walk with the term in.
                 let mut m = chosen.clone();
                 m.push(this);
-                let mut n2 = noise;
-                estimate_walk(&p, &y, &m, &mut n2);
-                let f2 = fit_reduced(&p, &y, &m, &n2);
-                drift_gain(cand.name, &f2, &current, n, cand.params)
+                let mut n2 = self.noise;
+                estimate_walk(p, &self.y, &m, &mut n2);
+                let f2 = fit_reduced(p, &self.y, &m, &n2);
+                drift_gain(cand.name, &f2, current, self.n, cand.params)
             } else {
                 fit.loglik_cv - current.loglik_cv
             };
             trials.push((cand.name.to_string(), gain, cand.params, Some(this), None));
         }
-        let noise_trials = noise_candidates(&p, &y, &chosen, &noise, &noise_terms)?;
+        let noise_trials = noise_candidates(p, &self.y, chosen, &self.noise, &self.noise_terms)?;
         for (k, (t, fit, _, _)) in noise_trials.iter().enumerate() {
             let params = 1;
             trials.push((noise_term_name(t).into(), fit.loglik_cv - current.loglik_cv, params, None, Some(k)));
         }
-        trials.sort_by(|a, b| (b.1 - need(b.2, &p.opts)).total_cmp(&(a.1 - need(a.2, &p.opts))));
+        trials.sort_by(|a, b| (b.1 - self.need(b.2)).total_cmp(&(a.1 - self.need(a.2))));
         tracing::debug!("selection round: {:?}", trials.iter().map(|t| format!("{} {:.1}", t.0, t.1)).collect::<Vec<_>>());
-        let Some(best) = trials.first().cloned() else { break };
-        if best.1 < need(best.2, &p.opts) {
-            break;
+        Ok((trials, noise_trials))
+    }
+
+    /// Adds the best trial if it clears its threshold; false when none does.
+    fn add_best(&mut self, trials: Vec<Trial>, noise_trials: Vec<NoiseTrial>) -> bool {
+        let Some(best) = trials.first().cloned() else { return false };
+        if best.1 < self.need(best.2) {
+            return false;
         }
         let runner_up = trials.get(1).map(|t| (t.0.clone(), t.1));
         match (best.3, best.4) {
-            (Some(c), _) => chosen.push(c),
+            (Some(c), _) => self.chosen.push(c),
             (None, Some(k)) => {
                 let (t, _, n2, y2) = noise_trials[k].clone();
-                noise_terms.push(t);
-                noise = n2;
-                y = y2;
+                self.noise_terms.push(t);
+                self.noise = n2;
+                self.y = y2;
             }
-            _ => break,
+            _ => return false,
         }
-        steps.push(Step { action: "add".into(), term: best.0.clone(), heldout_gain: best.1, runner_up });
-        estimate_walk(&p, &y, &chosen, &mut noise);
-        current = fit_reduced(&p, &y, &chosen, &noise);
+        self.steps.push(Step { action: "add".into(), term: best.0.clone(), heldout_gain: best.1, runner_up });
+        estimate_walk(&self.p, &self.y, &self.chosen, &mut self.noise);
+        self.current = fit_reduced(&self.p, &self.y, &self.chosen, &self.noise);
+        true
+    }
 
-        // Backward: drop a chosen term whose removal costs less than its threshold; then
-        // re-decide the rival explanations under the model as it now stands.
+    /// Backward: drop a chosen term whose removal costs less than its threshold; then
+    /// re-decide the rival explanations under the model as it now stands.
+    fn drop_and_exchange(&mut self) -> Result<(), DiagnoseError> {
         for _ in 0..24 {
-            let mut worst: Option<(Option<Vec<Chosen>>, usize, f64)> = None;
-            for k in 0..chosen.len() {
-                let mut m = chosen.clone();
-                let removed = m.remove(k);
-                refit_reference(&p, &y, &mut m, &noise);
-                let name = p.catalogue.candidates[removed.cand].name;
-                let params = p.catalogue.candidates[removed.cand].params;
-                let loss = if DRIFT_TERMS.contains(&name) {
-                    let mut n2 = noise;
-                    estimate_walk(&p, &y, &m, &mut n2);
-                    drift_gain(name, &current, &fit_reduced(&p, &y, &m, &n2), n, params)
-                } else {
-                    current.loglik_cv - fit_reduced(&p, &y, &m, &noise).loglik_cv
-                };
-                if loss < need(params, &p.opts) && worst.as_ref().is_none_or(|w| loss < w.2) {
-                    worst = Some((Some(m), k, loss));
-                }
-            }
-            for j in 0..noise_terms.len() {
-                let mut terms = noise_terms.clone();
-                terms.remove(j);
-                let (fit, _, _) = with_noise_terms(&p, &chosen, &terms)?;
-                let loss = current.loglik_cv - fit.loglik_cv;
-                if loss < need(1, &p.opts) && worst.as_ref().is_none_or(|w| loss < w.2) {
-                    worst = Some((None, j, loss));
-                }
-            }
-            if let Some((k, j, loss)) = worst {
-                let term = match k {
-                    Some(m) => {
-                        let name = p.catalogue.candidates[chosen[j].cand].name.to_string();
-                        chosen = m;
-                        name
-                    }
-                    None => noise_term_name(&noise_terms.remove(j)).to_string(),
-                };
-                steps.push(Step { action: "drop".into(), term, heldout_gain: -loss, runner_up: None });
-                (current, y, noise) = with_noise_terms(&p, &chosen, &noise_terms)?;
+            if self.drop_cheapest()? {
                 continue;
             }
-            let Some(x) = exchange(&p, &chosen, &noise_terms, &y, &noise, &current)? else { break };
-            steps.push(Step {
+            let Some(x) = exchange(&self.p, &self.chosen, &self.noise_terms, &self.y, &self.noise, &self.current)? else { break };
+            self.steps.push(Step {
                 action: "swap".into(),
                 term: x.added.clone(),
-                heldout_gain: x.fit.loglik_cv - current.loglik_cv,
+                heldout_gain: x.fit.loglik_cv - self.current.loglik_cv,
                 runner_up: Some((x.removed.clone(), 0.0)),
             });
-            (chosen, noise_terms) = (x.chosen, x.noise_terms);
-            (current, y, noise) = with_noise_terms(&p, &chosen, &noise_terms)?;
+            (self.chosen, self.noise_terms) = (x.chosen, x.noise_terms);
+            (self.current, self.y, self.noise) = with_noise_terms(&self.p, &self.chosen, &self.noise_terms)?;
         }
+        Ok(())
     }
-    let fit = fit_reduced(&p, &y, &chosen, &noise);
-    Ok(Selection { chosen, noise_terms, noise, fit, steps, vibration_hz, y, baseline, baseline_noise, catalogue: p.catalogue })
+
+    /// Drops the term (or noise term) whose removal costs least, if below its threshold.
+    fn drop_cheapest(&mut self) -> Result<bool, DiagnoseError> {
+        let p = &self.p;
+        let mut worst: Option<(Option<Vec<Chosen>>, usize, f64)> = None;
+        for k in 0..self.chosen.len() {
+            let mut m = self.chosen.clone();
+            let removed = m.remove(k);
+            refit_reference(p, &self.y, &mut m, &self.noise);
+            let name = p.catalogue.candidates[removed.cand].name;
+            let params = p.catalogue.candidates[removed.cand].params;
+            let loss = if DRIFT_TERMS.contains(&name) {
+                let mut n2 = self.noise;
+                estimate_walk(p, &self.y, &m, &mut n2);
+                drift_gain(name, &self.current, &fit_reduced(p, &self.y, &m, &n2), self.n, params)
+            } else {
+                self.current.loglik_cv - fit_reduced(p, &self.y, &m, &self.noise).loglik_cv
+            };
+            if loss < self.need(params) && worst.as_ref().is_none_or(|w| loss < w.2) {
+                worst = Some((Some(m), k, loss));
+            }
+        }
+        for j in 0..self.noise_terms.len() {
+            let mut terms = self.noise_terms.clone();
+            terms.remove(j);
+            let (fit, _, _) = with_noise_terms(p, &self.chosen, &terms)?;
+            let loss = self.current.loglik_cv - fit.loglik_cv;
+            if loss < self.need(1) && worst.as_ref().is_none_or(|w| loss < w.2) {
+                worst = Some((None, j, loss));
+            }
+        }
+        let Some((k, j, loss)) = worst else { return Ok(false) };
+        let term = match k {
+            Some(m) => {
+                let name = self.p.catalogue.candidates[self.chosen[j].cand].name.to_string();
+                self.chosen = m;
+                name
+            }
+            None => noise_term_name(&self.noise_terms.remove(j)).to_string(),
+        };
+        self.steps.push(Step { action: "drop".into(), term, heldout_gain: -loss, runner_up: None });
+        (self.current, self.y, self.noise) = with_noise_terms(&self.p, &self.chosen, &self.noise_terms)?;
+        Ok(true)
+    }
 }
 
 /// The fitted physics terms of a selection, with their 1-σ uncertainties per parameter.
