@@ -291,56 +291,18 @@ fn diagnose_in_frame(
     let dt = a.dt();
     let full_rate = a.samples_per_point == 1;
     let mut notes = a.notes.clone();
-    if let Some(g) = &gross {
-        notes.push(format!(
-            "the real sensor's frame is rotated {:.1}° from the sim's (a mount_rotation too large for the linear fit, taken out exactly before it; it maps the sim's gyro and accelerometer onto the real's with misfit × {:.3}); the residuals and every other term are in the real sensor's frame, after it",
-            g.angle_deg(),
-            g.misfit_ratio
-        ));
-    }
+    scope_notes(gross.as_ref(), opts, &mut notes);
     let base = base_signals(a, opts.half_window_s, opts.max_smoothing_s, opts.gt_smoothing_s);
     let y_all: [Vec<f64>; 6] = std::array::from_fn(|c| a.real[c].iter().zip(&a.sim[c]).map(|(r, s)| r - s).collect());
     // A sensor that is not judged leaves the fit: its residual channels are set to zero (a
     // constant in every model's likelihood) and no regressor touches them.
     let judged = |c: usize| opts.sensors.judges(residual::sensor_of(c));
     let y: [Vec<f64>; 6] = std::array::from_fn(|c| if judged(c) { y_all[c].clone() } else { vec![0.0; n] });
-    if opts.sensors != Sensors::Both {
-        notes.push(format!(
-            "--sensors {}: only the {} is judged; the other sensor's residual is left out of the fit and its terms are not judged (its rows in the figures are the raw residual)",
-            opts.sensors.name(),
-            if opts.sensors == Sensors::Gyro { "gyroscope" } else { "accelerometer" }
-        ));
-    }
-    if let Some(h) = opts.gt_smoothing_s {
-        notes.push(format!("ground truth smoothed by a local cubic over ±{h} s before ω̇ is taken from it"));
-    }
 
     // Terms read directly off the real samples, and the samples left out of the fit.
-    let OffTheSamples { mut direct, mask, white_real, lsbs } = read_off_the_samples(a, opts, &mut notes);
-    let sim_var = [a.sim_variance.0, a.sim_variance.1];
-
-    let temperature =
-        a.temperature_c.as_ref().map(|t| t.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(*v), hi.max(*v))));
-    let catalogue = catalogue_for(a, &base, opts, temperature)?;
-    let excluded = catalogue.excluded.clone();
-    let sensor_noise = |s: usize| ChannelNoise { white_sim: sim_var[s], white_real: white_real[s], pole: 0.0, walk: sim_var[s] * 1e-6 };
-    let noise = NoiseModel { sensors: [sensor_noise(0), sensor_noise(1)] };
-    let problem = Problem {
-        y: y.clone(),
-        mask: mask.clone(),
-        base: &base,
-        catalogue,
-        noise,
-        stated: a.real_variance,
-        judge_noise_density: a.real_variance == a.sim_variance && lsbs[0] == 0.0 && opts.sensors.judges(0) && full_rate,
-        full_rate,
-        temperature,
-        opts: opts.select,
-        sensors: opts.sensors,
-        sim: &a.sim,
-        motion_lines: None,
-    };
-    let sel = select::select(problem)?;
+    let off = read_off_the_samples(a, opts, &mut notes);
+    let (sel, excluded) = select_terms(a, &base, opts, &y, &off)?;
+    let OffTheSamples { mut direct, mask, .. } = off;
 
     // Findings. A gross rotation is composed with the fitted one (real = R_fitᵀ R_grossᵀ sim).
     let mut fitted = select::terms_of(&sel);
@@ -420,6 +382,64 @@ fn diagnose_in_frame(
         },
         fine_rotvec,
     ))
+}
+
+/// What the report says of the comparison's scope: a gross rotation taken out, the sensors
+/// judged, the ground truth's smoothing.
+fn scope_notes(gross: Option<&frame::GrossRotation>, opts: &DiagnoseOptions, notes: &mut Vec<String>) {
+    if let Some(g) = gross {
+        notes.push(format!(
+            "the real sensor's frame is rotated {:.1}° from the sim's (a mount_rotation too large for the linear fit, taken out exactly before it; it maps the sim's gyro and accelerometer onto the real's with misfit × {:.3}); the residuals and every other term are in the real sensor's frame, after it",
+            g.angle_deg(),
+            g.misfit_ratio
+        ));
+    }
+    if opts.sensors != Sensors::Both {
+        notes.push(format!(
+            "--sensors {}: only the {} is judged; the other sensor's residual is left out of the fit and its terms are not judged (its rows in the figures are the raw residual)",
+            opts.sensors.name(),
+            if opts.sensors == Sensors::Gyro { "gyroscope" } else { "accelerometer" }
+        ));
+    }
+    if let Some(h) = opts.gt_smoothing_s {
+        notes.push(format!("ground truth smoothed by a local cubic over ±{h} s before ω̇ is taken from it"));
+    }
+}
+
+/// The terms selected on the residual `y` (the catalogue this pair determines, under the
+/// simulator's noise model and the real noise read off the samples), and the terms excluded
+/// from the catalogue with their reasons.
+fn select_terms(
+    a: &Aligned,
+    base: &ImuSignals,
+    opts: &DiagnoseOptions,
+    y: &[Vec<f64>; 6],
+    off: &OffTheSamples,
+) -> Result<(Selection, Vec<(String, String)>), DiagnoseError> {
+    let full_rate = a.samples_per_point == 1;
+    let sim_var = [a.sim_variance.0, a.sim_variance.1];
+    let temperature =
+        a.temperature_c.as_ref().map(|t| t.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(*v), hi.max(*v))));
+    let catalogue = catalogue_for(a, base, opts, temperature)?;
+    let excluded = catalogue.excluded.clone();
+    let sensor_noise = |s: usize| ChannelNoise { white_sim: sim_var[s], white_real: off.white_real[s], pole: 0.0, walk: sim_var[s] * 1e-6 };
+    let noise = NoiseModel { sensors: [sensor_noise(0), sensor_noise(1)] };
+    let problem = Problem {
+        y: y.clone(),
+        mask: off.mask.clone(),
+        base,
+        catalogue,
+        noise,
+        stated: a.real_variance,
+        judge_noise_density: a.real_variance == a.sim_variance && off.lsbs[0] == 0.0 && opts.sensors.judges(0) && full_rate,
+        full_rate,
+        temperature,
+        opts: opts.select,
+        sensors: opts.sensors,
+        sim: &a.sim,
+        motion_lines: None,
+    };
+    Ok((select::select(problem)?, excluded))
 }
 
 /// The catalogue of terms judged on this pair: those the sensors and the recording determine
