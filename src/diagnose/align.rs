@@ -401,9 +401,8 @@ pub fn align(sim: Recording, real: Recording, stated: Option<(f64, f64)>, mut no
     let dt = sim.imu_seconds() / (sim.imu.len() - 1) as f64;
 
     let same_stamps = sim.imu.len() == real.imu.len() && sim.imu.iter().zip(&real.imu).all(|(a, b)| a.stamp_ns == b.stamp_ns);
-    let mut in_real_gap = Vec::new();
-    let (stamps_ns, real_on_grid): (Vec<i64>, [Vec<f64>; 6]) = if same_stamps {
-        (sim.imu.iter().map(|s| s.stamp_ns).collect(), real_ch)
+    let (stamps_ns, real_on_grid, in_real_gap) = if same_stamps {
+        (sim.imu.iter().map(|s| s.stamp_ns).collect(), real_ch, Vec::new())
     } else {
         notes.push(format!(
             "the real stamps differ from the sim stamps (sim {} samples at {sim_rate:.3} Hz from {} ns, real {} at {real_rate:.3} Hz from {} ns): real resampled onto the sim stamps",
@@ -412,36 +411,7 @@ pub fn align(sim: Recording, real: Recording, stated: Option<(f64, f64)>, mut no
             real.imu.len(),
             real.imu[0].stamp_ns
         ));
-        let norm = |ch: &[Vec<f64>; 6]| -> Vec<f64> {
-            (0..ch[0].len()).map(|i| (ch[0][i].powi(2) + ch[1][i].powi(2) + ch[2][i].powi(2)).sqrt()).collect()
-        };
-        let max_lag = ((5.0 / dt).round() as i64).max(4);
-        let lag = coarse_lag(&sim_t, &norm(&sim_ch), &real_t, &norm(&real_ch), dt, max_lag);
-        if lag != 0 {
-            let shift = lag as f64 * dt;
-            real_t.iter_mut().for_each(|t| *t -= shift);
-            notes.push(format!(
-                "real stamps shifted by {:.6} s ({lag} sim samples) to line up the gyro norms; a finer offset is left to time_offset",
-                -shift
-            ));
-        }
-        let (lo, hi) = (real_t[0], *real_t.last().unwrap_or(&0.0));
-        let keep: Vec<usize> = (0..sim_t.len()).filter(|&i| sim_t[i] >= lo && sim_t[i] <= hi).collect();
-        if keep.len() < 64 {
-            return Err(DiagnoseError::Input("the sim and real recordings do not overlap in time".into()));
-        }
-        if keep.len() < sim_t.len() {
-            notes.push(format!("only the overlap is used: {} of {} sim samples", keep.len(), sim_t.len()));
-        }
-        let q: Vec<f64> = keep.iter().map(|&i| sim_t[i]).collect();
-        let real_on: [Vec<f64>; 6] = std::array::from_fn(|c| interpolate(&real_t, &real_ch[c], &q));
-        // Inside a real gap the interpolant is made up: those stamps leave the fit.
-        let m = 1.0 / real_rate;
-        let gaps: Vec<(f64, f64)> = real_t.windows(2).filter(|w| w[1] - w[0] > 1.5 * m).map(|w| (w[0], w[1])).collect();
-        if !gaps.is_empty() {
-            in_real_gap = q.iter().map(|&t| gaps.iter().any(|&(a, b)| t > a + 0.5 * m && t < b - 0.5 * m)).collect();
-        }
-        (keep.iter().map(|&i| sim.imu[i].stamp_ns).collect(), real_on)
+        real_on_sim_stamps(&sim, (&sim_t, &sim_ch), (&mut real_t, &real_ch), real_rate, dt, &mut notes)?
     };
     let first = sim.imu.iter().position(|s| s.stamp_ns == stamps_ns[0]).unwrap_or(0);
     let n = stamps_ns.len();
@@ -469,33 +439,12 @@ pub fn align(sim: Recording, real: Recording, stated: Option<(f64, f64)>, mut no
 
     // Ground truth (the sim's, else the real's) → attitude at the stamps.
     let gt = if !sim.ground_truth.is_empty() { &sim.ground_truth } else { &real.ground_truth };
-    let world_from_imu = if gt.len() < 2 {
+    let world_from_imu = attitude_at(gt, &stamps_ns);
+    if world_from_imu.is_none() {
         notes.push("no ground truth in either bag: gravity_magnitude and earth_rotation cannot be judged".into());
-        None
-    } else {
-        let q = crate::so3::slerp_at(gt, stamps_ns.iter().copied(), 1_000_000_000);
-        let mut last = q.iter().flatten().next().copied().unwrap_or_else(UnitQuaternion::identity);
-        let filled: Vec<UnitQuaternion<f64>> = q
-            .into_iter()
-            .map(|o| {
-                if let Some(v) = o {
-                    last = v;
-                }
-                last
-            })
-            .collect();
-        Some(filled)
-    };
-
+    }
     let temps = if !sim.temperature.is_empty() { &sim.temperature } else { &real.temperature };
-    let temperature_c = if temps.len() < 2 {
-        None
-    } else {
-        let tt: Vec<f64> = temps.iter().map(|s| (s.stamp_ns - t0) as f64 * 1e-9).collect();
-        let tv: Vec<f64> = temps.iter().map(|s| s.celsius).collect();
-        let q: Vec<f64> = stamps_ns.iter().map(|s| (s - t0) as f64 * 1e-9).collect();
-        Some(interpolate(&tt, &tv, &q))
-    };
+    let temperature_c = temperature_at(temps, &stamps_ns, t0);
     if temperature_c.is_none() {
         notes.push("no temperature topic: gyro_bias_temperature cannot be judged".into());
     }
@@ -514,6 +463,83 @@ pub fn align(sim: Recording, real: Recording, stated: Option<(f64, f64)>, mut no
         sim_recording: sim,
         samples_per_point: 1,
     })
+}
+
+/// The sim stamps of the overlap, the real channels there, and per stamp: inside a real gap.
+type RealOnSimStamps = (Vec<i64>, [Vec<f64>; 6], Vec<bool>);
+
+/// The real channels interpolated at the sim's stamps after a coarse lag on the gyro norms.
+fn real_on_sim_stamps(
+    sim: &Recording,
+    (sim_t, sim_ch): (&[f64], &[Vec<f64>; 6]),
+    (real_t, real_ch): (&mut [f64], &[Vec<f64>; 6]),
+    real_rate: f64,
+    dt: f64,
+    notes: &mut Vec<String>,
+) -> Result<RealOnSimStamps, DiagnoseError> {
+    let norm = |ch: &[Vec<f64>; 6]| -> Vec<f64> {
+        (0..ch[0].len()).map(|i| (ch[0][i].powi(2) + ch[1][i].powi(2) + ch[2][i].powi(2)).sqrt()).collect()
+    };
+    let max_lag = ((5.0 / dt).round() as i64).max(4);
+    let lag = coarse_lag(sim_t, &norm(sim_ch), real_t, &norm(real_ch), dt, max_lag);
+    if lag != 0 {
+        let shift = lag as f64 * dt;
+        real_t.iter_mut().for_each(|t| *t -= shift);
+        notes.push(format!(
+            "real stamps shifted by {:.6} s ({lag} sim samples) to line up the gyro norms; a finer offset is left to time_offset",
+            -shift
+        ));
+    }
+    let (lo, hi) = (real_t[0], *real_t.last().unwrap_or(&0.0));
+    let keep: Vec<usize> = (0..sim_t.len()).filter(|&i| sim_t[i] >= lo && sim_t[i] <= hi).collect();
+    if keep.len() < 64 {
+        return Err(DiagnoseError::Input("the sim and real recordings do not overlap in time".into()));
+    }
+    if keep.len() < sim_t.len() {
+        notes.push(format!("only the overlap is used: {} of {} sim samples", keep.len(), sim_t.len()));
+    }
+    let q: Vec<f64> = keep.iter().map(|&i| sim_t[i]).collect();
+    let real_on: [Vec<f64>; 6] = std::array::from_fn(|c| interpolate(real_t, &real_ch[c], &q));
+    // Inside a real gap the interpolant is made up: those stamps leave the fit.
+    let m = 1.0 / real_rate;
+    let gaps: Vec<(f64, f64)> = real_t.windows(2).filter(|w| w[1] - w[0] > 1.5 * m).map(|w| (w[0], w[1])).collect();
+    let in_real_gap = if gaps.is_empty() {
+        Vec::new()
+    } else {
+        q.iter().map(|&t| gaps.iter().any(|&(a, b)| t > a + 0.5 * m && t < b - 0.5 * m)).collect()
+    };
+    Ok((keep.iter().map(|&i| sim.imu[i].stamp_ns).collect(), real_on, in_real_gap))
+}
+
+/// The ground truth's attitude at each stamp (slerp; before the first pose, the first), or
+/// `None` without two poses.
+fn attitude_at(gt: &[crate::core::PoseSample], stamps_ns: &[i64]) -> Option<Vec<UnitQuaternion<f64>>> {
+    if gt.len() < 2 {
+        return None;
+    }
+    let q = crate::so3::slerp_at(gt, stamps_ns.iter().copied(), 1_000_000_000);
+    let mut last = q.iter().flatten().next().copied().unwrap_or_else(UnitQuaternion::identity);
+    Some(
+        q.into_iter()
+            .map(|o| {
+                if let Some(v) = o {
+                    last = v;
+                }
+                last
+            })
+            .collect(),
+    )
+}
+
+/// The temperature interpolated at each stamp, or `None` without two readings.
+fn temperature_at(temps: &[crate::core::TemperatureSample], stamps_ns: &[i64], t0: i64) -> Option<Vec<f64>> {
+    if temps.len() < 2 {
+        return None;
+    }
+    let tt: Vec<f64> = temps.iter().map(|s| (s.stamp_ns - t0) as f64 * 1e-9).collect();
+    let tv: Vec<f64> = temps.iter().map(|s| s.celsius).collect();
+    let q: Vec<f64> = stamps_ns.iter().map(|s| (s - t0) as f64 * 1e-9).collect();
+    Some(interpolate(&tt, &tv, &q))
 }
 
 #[cfg(test)]
