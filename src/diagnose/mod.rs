@@ -323,21 +323,8 @@ fn diagnose_in_frame(
     let mut located = locate::locate(&w0, dt);
     located.retain(|l| (0..2).any(|s| opts.sensors.judges(s) && l.channel.starts_with(["gyro", "accel"][s])));
 
-    // Before / after on held-out blocks.
-    let bl = residual::blocks(n, opts.select.folds);
-    let mut after = heldout_residual(&sel, &bl);
-    for c in (0..6).filter(|c| !judged(*c)) {
-        after[c] = y_all[c].clone(); // nothing fitted on a sensor that is not judged
-    }
-    let w1 = residual::whitened(&after, &sel.noise, &mask);
-    let summary = |r: &[Vec<f64>; 6], w: &[Vec<f64>; 6], ll: f64, note: &str| residual_summary(r, w, &mask, opts.sensors, ll, note);
-    let residual_before = summary(&y_all, &w0, sel.baseline.loglik_cv, "real − sim, simulator noise model (bias walk estimated)");
-    let residual_after = summary(
-        &after,
-        &w1,
-        sel.fit.loglik_cv,
-        "real − (sim + fitted terms), each time block predicted by a fit on the other blocks; noise terms included in the model",
-    );
+    let BeforeAfter { after, w1, residual_before, residual_after } =
+        before_and_after(&sel, &y_all, &w0, &mask, opts.sensors, opts.select.folds);
 
     // σ from a noise model the residual exceeds is too small by √(χ²/n): widened by the
     // worst judged channel's excess, and the 95 % intervals from it.
@@ -382,6 +369,40 @@ fn diagnose_in_frame(
         },
         fine_rotvec,
     ))
+}
+
+/// The residual after the fit, each held-out block predicted by a fit on the others, whitened,
+/// and both residuals summarised.
+struct BeforeAfter {
+    after: [Vec<f64>; 6],
+    w1: [Vec<f64>; 6],
+    residual_before: ResidualSummary,
+    residual_after: ResidualSummary,
+}
+
+fn before_and_after(
+    sel: &Selection,
+    y_all: &[Vec<f64>; 6],
+    w0: &[Vec<f64>; 6],
+    mask: &[bool],
+    sensors: Sensors,
+    folds: usize,
+) -> BeforeAfter {
+    let bl = residual::blocks(y_all[0].len(), folds);
+    let mut after = heldout_residual(sel, &bl);
+    for c in (0..6).filter(|c| !sensors.judges(residual::sensor_of(*c))) {
+        after[c] = y_all[c].clone(); // nothing fitted on a sensor that is not judged
+    }
+    let w1 = residual::whitened(&after, &sel.noise, mask);
+    let summary = |r: &[Vec<f64>; 6], w: &[Vec<f64>; 6], ll: f64, note: &str| residual_summary(r, w, mask, sensors, ll, note);
+    let residual_before = summary(y_all, w0, sel.baseline.loglik_cv, "real − sim, simulator noise model (bias walk estimated)");
+    let residual_after = summary(
+        &after,
+        &w1,
+        sel.fit.loglik_cv,
+        "real − (sim + fitted terms), each time block predicted by a fit on the other blocks; noise terms included in the model",
+    );
+    BeforeAfter { after, w1, residual_before, residual_after }
 }
 
 /// What the report says of the comparison's scope: a gross rotation taken out, the sensors
