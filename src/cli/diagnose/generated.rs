@@ -174,16 +174,46 @@ pub fn run(
 ) -> anyhow::Result<()> {
     imu_fsda::core::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let (mut truths, mut found, mut spurious, mut reported, mut within) = (0usize, 0usize, 0usize, 0usize, 0usize);
-    // Every generated case is inside the catalogue: a "not explained" verdict is a false
-    // alarm of the adequacy test, an implausible flag a datasheet range the generator's
-    // detectability-sized terms went beyond.
-    let (mut not_explained, mut implausible) = (0usize, 0usize);
-    let mut errors = Vec::new();
-    let mut csv = String::from("case,profile,grade,rate_hz,seconds,truth,found,effect_errors,seconds_taken\n");
-    let grades = [Grade::Mpu9250, Grade::Bmi160, Grade::Adis16448, Grade::Mti600];
+    let mut score = Score::default();
     for case in 0..n {
+        // Drawn whether scored or not: a subset scores the same cases as the whole run.
+        let c = GeneratedCase::draw(case, &mut rng, only, fixed)?;
+        if !subset.is_empty() && !subset.contains(&case) {
+            continue;
+        }
+        let a = align::align(recording(&c.sim, &c.poses, &c.temps), recording(&c.real, &c.poses, &c.temps), Some(c.var), vec![])?;
+        let d = diagnose(&a, opts)?;
+        score.add(&c, &d)?;
+    }
+    let summary = score.summary(n);
+    out!("{}", serde_json::to_string_pretty(&summary)?)?;
+    std::fs::write(out.join("score.json"), serde_json::to_string_pretty(&summary)?)?;
+    std::fs::write(out.join("cases.csv"), score.csv)?;
+    Ok(())
+}
+
+/// One generated case: a profile, grade, rate and length, the left-out terms (`truth`), the
+/// sim's and the real's signals (the grade's noise; the real's with the truth added), the
+/// trajectory's poses and, for a temperature term, the temperature.
+struct GeneratedCase {
+    case: usize,
+    profile: Profile,
+    grade: Grade,
+    rate: f64,
+    seconds: f64,
+    truth: Vec<Term>,
+    ideal: ImuSignals,
+    sim: ImuSignals,
+    real: ImuSignals,
+    poses: Vec<PoseSample>,
+    temps: Vec<TemperatureSample>,
+    var: (f64, f64),
+}
+
+impl GeneratedCase {
+    fn draw(case: usize, rng: &mut rand_chacha::ChaCha8Rng, only: &[String], fixed: (Option<f64>, Option<f64>)) -> anyhow::Result<Self> {
         let profile = Profile::ALL[rng.gen_range(0..4)];
+        let grades = [Grade::Mpu9250, Grade::Bmi160, Grade::Adis16448, Grade::Mti600];
         let grade = grades[rng.gen_range(0..grades.len())];
         let rate = [100.0, 200.0, 400.0, 1000.0][rng.gen_range(0..4)];
         let seconds = if rate > 500.0 { rng.gen_range(60.0..90.0) } else { rng.gen_range(60.0..180.0) };
@@ -195,27 +225,10 @@ pub fn run(
         let noise = grade.spec().noise();
         let dt = 1.0 / rate;
         let var = noise.per_sample_variance(dt);
-        let mut names: Vec<&str> = Vec::new();
-        while names.len() < k_terms {
-            let mut pick =
-                if rng.gen_bool(0.7) { SIZED[rng.gen_range(0..SIZED.len())] } else { PHYSICAL[rng.gen_range(0..PHYSICAL.len())] };
-            if !only.is_empty() {
-                let k = rng.gen_range(0..only.len());
-                pick = SIZED.iter().chain(&PHYSICAL).find(|n| **n == only[k]).copied().unwrap_or(pick);
-                if names.len() >= only.len() {
-                    break;
-                }
-            }
-            let clash = names
-                .iter()
-                .any(|n| *n == pick || (pick == "low_pass" && *n == "time_offset") || (pick == "time_offset" && *n == "low_pass"));
-            if !clash {
-                names.push(pick);
-            }
-        }
+        let names = draw_names(rng, k_terms, only);
         let temp_model = names.contains(&"gyro_bias_temperature").then(TemperatureModel::default);
         let ideal = ideal_signals(&traj, &st, |t| temp_model.map_or(25.0, |m| m.at(t)));
-        let truth: Vec<Term> = names.iter().map(|n| draw(n, &mut rng, &ideal, var)).collect();
+        let truth: Vec<Term> = names.iter().map(|n| draw(n, rng, &ideal, var)).collect();
         tracing::debug!("case {case} truth: {truth:?}");
         let mut sim = ideal.clone();
         apply_terms(&noise.terms(), &mut sim, &mut TermContext::new(2 * case as u64 + 1))?;
@@ -241,32 +254,88 @@ pub fn run(
                 .map(|(i, &s)| TemperatureSample { stamp_ns: s, celsius: tm.at(i as f64 * dt) + 0.05 * rng.gen_range(-1.7..1.7) })
                 .collect(),
         };
-        if !subset.is_empty() && !subset.contains(&case) {
-            continue;
+        Ok(GeneratedCase { case, profile, grade, rate, seconds, truth, ideal, sim, real, poses, temps, var })
+    }
+}
+
+/// `k_terms` distinct term names (70 % sized by detectability), never low_pass beside
+/// time_offset (one hides the other); with `only`, drawn from it.
+fn draw_names(rng: &mut impl Rng, k_terms: usize, only: &[String]) -> Vec<&'static str> {
+    let mut names: Vec<&'static str> = Vec::new();
+    while names.len() < k_terms {
+        let mut pick = if rng.gen_bool(0.7) { SIZED[rng.gen_range(0..SIZED.len())] } else { PHYSICAL[rng.gen_range(0..PHYSICAL.len())] };
+        if !only.is_empty() {
+            let k = rng.gen_range(0..only.len());
+            pick = SIZED.iter().chain(&PHYSICAL).find(|n| **n == only[k]).copied().unwrap_or(pick);
+            if names.len() >= only.len() {
+                break;
+            }
         }
-        let a = align::align(recording(&sim, &poses, &temps), recording(&real, &poses, &temps), Some(var), vec![])?;
-        let d = diagnose(&a, opts)?;
-        truths += truth.len();
-        reported += d.terms.len();
-        not_explained += !d.verdict.explained as usize;
-        implausible += d.implausible.len();
+        let clash =
+            names.iter().any(|n| *n == pick || (pick == "low_pass" && *n == "time_offset") || (pick == "time_offset" && *n == "low_pass"));
+        if !clash {
+            names.push(pick);
+        }
+    }
+    names
+}
+
+/// The generated cases' score so far, and their rows.
+struct Score {
+    truths: usize,
+    found: usize,
+    spurious: usize,
+    reported: usize,
+    within: usize,
+    /// Every generated case is inside the catalogue: a "not explained" verdict is a false
+    /// alarm of the adequacy test, an implausible flag a datasheet range the generator's
+    /// detectability-sized terms went beyond.
+    not_explained: usize,
+    implausible: usize,
+    errors: Vec<f64>,
+    csv: String,
+}
+
+impl Default for Score {
+    fn default() -> Self {
+        Score {
+            truths: 0,
+            found: 0,
+            spurious: 0,
+            reported: 0,
+            within: 0,
+            not_explained: 0,
+            implausible: 0,
+            errors: Vec::new(),
+            csv: String::from("case,profile,grade,rate_hz,seconds,truth,found,effect_errors,seconds_taken\n"),
+        }
+    }
+}
+
+impl Score {
+    fn add(&mut self, c: &GeneratedCase, d: &imu_fsda::diagnose::Diagnosis) -> anyhow::Result<()> {
+        let (case, profile, rate, seconds, truth) = (c.case, c.profile, c.rate, c.seconds, &c.truth);
+        self.truths += truth.len();
+        self.reported += d.terms.len();
+        self.not_explained += !d.verdict.explained as usize;
+        self.implausible += d.implausible.len();
         let mut errs = Vec::new();
-        for t in &truth {
+        for t in truth {
             if let Some(e) = d.terms.iter().find(|e| e.name() == t.name()) {
-                found += 1;
-                let err = effect_error(e, t, &ideal, var);
-                within += (err <= 0.2) as usize;
-                errors.push(err);
+                self.found += 1;
+                let err = effect_error(e, t, &c.ideal, c.var);
+                self.within += (err <= 0.2) as usize;
+                self.errors.push(err);
                 errs.push(format!("{} {:.3}", t.name(), err));
             }
         }
-        spurious += d.terms.iter().filter(|e| !truth.iter().any(|t| t.name() == e.name())).count();
+        self.spurious += d.terms.iter().filter(|e| !truth.iter().any(|t| t.name() == e.name())).count();
         let tn: Vec<_> = truth.iter().map(|t| t.name()).collect();
         let fnm: Vec<_> = d.terms.iter().map(|t| t.name()).collect();
         let _ = writeln!(
-            csv,
+            self.csv,
             "{case},{profile},{},{rate},{seconds:.0},{},{},{},{:.2}",
-            grade.name(),
+            c.grade.name(),
             tn.join(" "),
             fnm.join(" "),
             errs.join(" "),
@@ -280,28 +349,28 @@ pub fn run(
             .collect();
         out!(
             "case {case:3} {profile:9} {:10} {rate:6} Hz {seconds:5.0} s  truth [{}]  found [{}]  {}{}",
-            grade.name(),
+            c.grade.name(),
             tn.join(", "),
             fnm.join(", "),
             errs.join(", "),
             if flags.is_empty() { String::new() } else { format!("  [{}]", flags.join("; ")) }
         )?;
+        Ok(())
     }
-    errors.sort_by(|a, b| a.total_cmp(b));
-    let median = errors.get(errors.len() / 2).copied().unwrap_or(f64::NAN);
-    let summary = serde_json::json!({
-        "cases": n,
-        "left_out_terms": truths,
-        "recall": found as f64 / truths.max(1) as f64,
-        "spurious_terms": spurious,
-        "spurious_rate": spurious as f64 / reported.max(1) as f64,
-        "parameters_within_20pct": within as f64 / found.max(1) as f64,
-        "median_effect_error": median,
-        "cases_not_explained": not_explained,
-        "terms_flagged_implausible": implausible,
-    });
-    out!("{}", serde_json::to_string_pretty(&summary)?)?;
-    std::fs::write(out.join("score.json"), serde_json::to_string_pretty(&summary)?)?;
-    std::fs::write(out.join("cases.csv"), csv)?;
-    Ok(())
+
+    fn summary(&mut self, cases: usize) -> serde_json::Value {
+        self.errors.sort_by(|a, b| a.total_cmp(b));
+        let median = self.errors.get(self.errors.len() / 2).copied().unwrap_or(f64::NAN);
+        serde_json::json!({
+            "cases": cases,
+            "left_out_terms": self.truths,
+            "recall": self.found as f64 / self.truths.max(1) as f64,
+            "spurious_terms": self.spurious,
+            "spurious_rate": self.spurious as f64 / self.reported.max(1) as f64,
+            "parameters_within_20pct": self.within as f64 / self.found.max(1) as f64,
+            "median_effect_error": median,
+            "cases_not_explained": self.not_explained,
+            "terms_flagged_implausible": self.implausible,
+        })
+    }
 }
