@@ -244,20 +244,7 @@ fn margin(control: &Diagnosis, t: &Term) -> Option<f64> {
 
 pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Result<()> {
     imu_fsda::core::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let names: Vec<&'static str> = if set.only.is_empty() {
-        INJECTABLE.to_vec()
-    } else {
-        set.only
-            .iter()
-            .map(|n| {
-                INJECTABLE
-                    .iter()
-                    .copied()
-                    .find(|k| k == n)
-                    .with_context(|| format!("--score-only {n}: not an injectable term ({INJECTABLE:?})"))
-            })
-            .collect::<anyhow::Result<_>>()?
-    };
+    let names = injectable_names(set)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(set.seed);
     let mut tally = Tally::default();
     let mut controls = Vec::new();
@@ -268,20 +255,13 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
         let p = prepare(bag, set).with_context(|| format!("{}", bag.display()))?;
         let rate = 1.0 / p.ideal.nominal_dt();
         let window = super::compare_window(set.compare_window, true, &p.sim.ground_truth);
-        // Compared over windows, a low-pass is seen as its delay (and reported as time_offset,
-        // with the filter named beside it): its truth is that delay.
-        let as_compared = |t: &Term| match t {
-            Term::LowPass(l) if window > 0.0 => {
-                Term::TimeOffset(physics::TimeOffset { seconds: imu_fsda::diagnose::bandwidth::low_pass_delay_s(l.cutoff_hz, 1.0 / rate) })
-            }
-            _ => t.clone(),
-        };
         let control = diagnose_case(&p, p.real.clone(), set, opts)?;
         let own: Vec<&str> = control.terms.iter().map(|t| t.name()).collect();
         out!("{name}: control (as recorded): [{}]  {}", own.join(", "), control.verdict.statement)?;
         controls
             .push(serde_json::json!({"recording": name, "terms": own, "explained": control.verdict.explained, "seconds": control.seconds}));
         let _ = writeln!(csv, "{name},control,,{},,,,{},{:.2},,", own.join(" "), control.verdict.explained, control.seconds);
+        let recorded = AsRecorded { name: &name, p: &p, control: &control, own, rate, window };
         for draw in 0..set.draws {
             let truth = draw_case(&mut rng, &names, rate);
             let mirror: Vec<Term> = truth.iter().map(|t| mirrored(t).unwrap_or_else(|| t.clone())).collect();
@@ -292,92 +272,153 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
                 cases.push(diagnose_case(&p, Recording { imu: s.to_samples(), ..p.real.clone() }, set, opts)?);
             }
             for (k, (terms, d)) in [&truth, &mirror].into_iter().zip(&cases).enumerate() {
-                let other = &cases[1 - k];
-                let mut errs = Vec::new();
-                let mut margins = Vec::new();
-                for injected in terms.iter() {
-                    let t = &as_compared(injected);
-                    tally.injected += 1;
-                    tally.by_term.entry(injected.name()).or_default().0 += 1;
-                    let m = margin(&control, t);
-                    margins.push(m.map_or_else(|| format!("{} –", t.name()), |m| format!("{} {m:.2}", t.name())));
-                    let limit_class = match m {
-                        Some(m) if m >= 1.0 => 0,
-                        Some(_) => 1,
-                        None => 2,
-                    };
-                    tally.by_limit[limit_class].0 += 1;
-                    let find = |d: &Diagnosis| d.terms.iter().find(|f| f.name() == t.name()).cloned();
-                    if let Some(f) = find(d) {
-                        tally.by_limit[limit_class].1 += 1;
-                        tally.found += 1;
-                        tally.by_term.entry(injected.name()).or_default().1 += 1;
-                        let control_term = control.terms.iter().find(|c| c.name() == t.name());
-                        let mirror_found = mirrored(injected).and(find(other));
-                        let err = effect_error(&f, mirror_found.as_ref(), control_term, t, &p);
-                        tally.within += (err <= 0.2) as usize;
-                        tally.errors.push(err);
-                        errs.push(format!("{} {err:.3}", t.name()));
-                    }
-                }
-                // Beyond the control: a term the control did not have and that was not injected.
-                let beyond: Vec<&str> = d.terms.iter().map(|t| t.name()).filter(|n| !own.contains(n)).collect();
-                let compared: Vec<Term> = terms.iter().map(as_compared).collect();
-                let spurious: Vec<&str> = beyond.iter().copied().filter(|n| !compared.iter().any(|t| t.name() == *n)).collect();
-                let injected_and_own =
-                    compared.iter().filter(|t| own.contains(&t.name()) && d.terms.iter().any(|f| f.name() == t.name())).count();
-                tally.reported_beyond_control += beyond.len() + injected_and_own;
-                tally.spurious += spurious.len();
-                tally.not_explained += !d.verdict.explained as usize;
                 let case = format!("{draw}{}", if k == 0 { "+" } else { "-" });
-                let tn: Vec<&str> = terms.iter().map(|t| t.name()).collect();
-                let fnm: Vec<&str> = d.terms.iter().map(|t| t.name()).collect();
-                let _ = writeln!(
-                    csv,
-                    "{name},{case},{},{},{},{},{},{},{:.2},{},\"{}\"",
-                    tn.join(" "),
-                    own.join(" "),
-                    fnm.join(" "),
-                    errs.join(" "),
-                    spurious.join(" "),
-                    d.verdict.explained,
-                    d.seconds,
-                    margins.join(" "),
-                    serde_json::to_string(terms).unwrap_or_default().replace('"', "'")
-                );
-                tracing::info!("{name} case {case}: truth {terms:?}; found {:?}", d.terms);
-                out!(
-                    "{name} case {case:3}  injected [{}]  found [{}]  {}{}",
-                    tn.join(", "),
-                    fnm.join(", "),
-                    errs.join(", "),
-                    if spurious.is_empty() { String::new() } else { format!("  [spurious: {}]", spurious.join(", ")) }
-                )?;
+                tally.score_case(&recorded, &case, terms, d, &cases[1 - k], &mut csv)?;
             }
         }
     }
-    tally.errors.sort_by(|a, b| a.total_cmp(b));
-    let summary = serde_json::json!({
-        "recordings": set.bags.len(),
-        "cases": 2 * set.bags.len() * set.draws,
-        "injected_terms": tally.injected,
-        "recall": tally.found as f64 / tally.injected.max(1) as f64,
-        "spurious_terms": tally.spurious,
-        "spurious_rate": tally.spurious as f64 / tally.reported_beyond_control.max(1) as f64,
-        "parameters_within_20pct": tally.within as f64 / tally.found.max(1) as f64,
-        "median_effect_error": tally.errors.get(tally.errors.len() / 2).copied().unwrap_or(f64::NAN),
-        "cases_not_explained": tally.not_explained,
-        "recall_by_limit": {
-            "rule": "each injected term against the smallest value the control (the recording as recorded) says it would have shown (report.json not_found): margin √Σ(θ/θ_min)² ≥ 1 is above it",
-            "above_the_limit": {"injected": tally.by_limit[0].0, "found": tally.by_limit[0].1},
-            "below_the_limit": {"injected": tally.by_limit[1].0, "found": tally.by_limit[1].1},
-            "no_limit_stated": {"injected": tally.by_limit[2].0, "found": tally.by_limit[2].1},
-        },
-        "recall_by_term": tally.by_term.iter().map(|(k, (i, f))| (k.to_string(), serde_json::json!({"injected": i, "found": f}))).collect::<serde_json::Map<_, _>>(),
-        "controls": controls,
-    });
+    let summary = tally.summary(set, controls);
     out!("{}", serde_json::to_string_pretty(&summary)?)?;
     std::fs::write(out.join("score.json"), serde_json::to_string_pretty(&summary)?)?;
     std::fs::write(out.join("cases.csv"), csv)?;
     Ok(())
+}
+
+/// The terms to inject: every injectable one, or those `--score-only` names.
+fn injectable_names(set: &InjectedSet) -> anyhow::Result<Vec<&'static str>> {
+    if set.only.is_empty() {
+        return Ok(INJECTABLE.to_vec());
+    }
+    set.only
+        .iter()
+        .map(|n| {
+            INJECTABLE
+                .iter()
+                .copied()
+                .find(|k| k == n)
+                .with_context(|| format!("--score-only {n}: not an injectable term ({INJECTABLE:?})"))
+        })
+        .collect()
+}
+
+/// One recording as recorded: its control diagnosis and the terms the control found.
+struct AsRecorded<'a> {
+    name: &'a str,
+    p: &'a Prepared,
+    control: &'a Diagnosis,
+    own: Vec<&'a str>,
+    rate: f64,
+    /// The comparison window, s (0: sample by sample).
+    window: f64,
+}
+
+impl AsRecorded<'_> {
+    /// Compared over windows, a low-pass is seen as its delay (and reported as time_offset,
+    /// with the filter named beside it): its truth is that delay.
+    fn as_compared(&self, t: &Term) -> Term {
+        match t {
+            Term::LowPass(l) if self.window > 0.0 => Term::TimeOffset(physics::TimeOffset {
+                seconds: imu_fsda::diagnose::bandwidth::low_pass_delay_s(l.cutoff_hz, 1.0 / self.rate),
+            }),
+            _ => t.clone(),
+        }
+    }
+}
+
+impl Tally {
+    /// One injected case (`terms` into the recording, diagnosed as `d`; `other` its mirror):
+    /// what was found of them, how close, what was reported beyond them; its CSV row.
+    fn score_case(
+        &mut self,
+        r: &AsRecorded,
+        case: &str,
+        terms: &[Term],
+        d: &Diagnosis,
+        other: &Diagnosis,
+        csv: &mut String,
+    ) -> anyhow::Result<()> {
+        let (name, control, own) = (r.name, r.control, &r.own);
+        let mut errs = Vec::new();
+        let mut margins = Vec::new();
+        for injected in terms.iter() {
+            let t = &r.as_compared(injected);
+            self.injected += 1;
+            self.by_term.entry(injected.name()).or_default().0 += 1;
+            let m = margin(control, t);
+            margins.push(m.map_or_else(|| format!("{} –", t.name()), |m| format!("{} {m:.2}", t.name())));
+            let limit_class = match m {
+                Some(m) if m >= 1.0 => 0,
+                Some(_) => 1,
+                None => 2,
+            };
+            self.by_limit[limit_class].0 += 1;
+            let find = |d: &Diagnosis| d.terms.iter().find(|f| f.name() == t.name()).cloned();
+            if let Some(f) = find(d) {
+                self.by_limit[limit_class].1 += 1;
+                self.found += 1;
+                self.by_term.entry(injected.name()).or_default().1 += 1;
+                let control_term = control.terms.iter().find(|c| c.name() == t.name());
+                let mirror_found = mirrored(injected).and(find(other));
+                let err = effect_error(&f, mirror_found.as_ref(), control_term, t, r.p);
+                self.within += (err <= 0.2) as usize;
+                self.errors.push(err);
+                errs.push(format!("{} {err:.3}", t.name()));
+            }
+        }
+        // Beyond the control: a term the control did not have and that was not injected.
+        let beyond: Vec<&str> = d.terms.iter().map(|t| t.name()).filter(|n| !own.contains(n)).collect();
+        let compared: Vec<Term> = terms.iter().map(|t| r.as_compared(t)).collect();
+        let spurious: Vec<&str> = beyond.iter().copied().filter(|n| !compared.iter().any(|t| t.name() == *n)).collect();
+        let injected_and_own = compared.iter().filter(|t| own.contains(&t.name()) && d.terms.iter().any(|f| f.name() == t.name())).count();
+        self.reported_beyond_control += beyond.len() + injected_and_own;
+        self.spurious += spurious.len();
+        self.not_explained += !d.verdict.explained as usize;
+        let tn: Vec<&str> = terms.iter().map(|t| t.name()).collect();
+        let fnm: Vec<&str> = d.terms.iter().map(|t| t.name()).collect();
+        let _ = writeln!(
+            csv,
+            "{name},{case},{},{},{},{},{},{},{:.2},{},\"{}\"",
+            tn.join(" "),
+            own.join(" "),
+            fnm.join(" "),
+            errs.join(" "),
+            spurious.join(" "),
+            d.verdict.explained,
+            d.seconds,
+            margins.join(" "),
+            serde_json::to_string(terms).unwrap_or_default().replace('"', "'")
+        );
+        tracing::info!("{name} case {case}: truth {terms:?}; found {:?}", d.terms);
+        out!(
+            "{name} case {case:3}  injected [{}]  found [{}]  {}{}",
+            tn.join(", "),
+            fnm.join(", "),
+            errs.join(", "),
+            if spurious.is_empty() { String::new() } else { format!("  [spurious: {}]", spurious.join(", ")) }
+        )?;
+        Ok(())
+    }
+
+    fn summary(&mut self, set: &InjectedSet, controls: Vec<serde_json::Value>) -> serde_json::Value {
+        self.errors.sort_by(|a, b| a.total_cmp(b));
+        serde_json::json!({
+            "recordings": set.bags.len(),
+            "cases": 2 * set.bags.len() * set.draws,
+            "injected_terms": self.injected,
+            "recall": self.found as f64 / self.injected.max(1) as f64,
+            "spurious_terms": self.spurious,
+            "spurious_rate": self.spurious as f64 / self.reported_beyond_control.max(1) as f64,
+            "parameters_within_20pct": self.within as f64 / self.found.max(1) as f64,
+            "median_effect_error": self.errors.get(self.errors.len() / 2).copied().unwrap_or(f64::NAN),
+            "cases_not_explained": self.not_explained,
+            "recall_by_limit": {
+                "rule": "each injected term against the smallest value the control (the recording as recorded) says it would have shown (report.json not_found): margin √Σ(θ/θ_min)² ≥ 1 is above it",
+                "above_the_limit": {"injected": self.by_limit[0].0, "found": self.by_limit[0].1},
+                "below_the_limit": {"injected": self.by_limit[1].0, "found": self.by_limit[1].1},
+                "no_limit_stated": {"injected": self.by_limit[2].0, "found": self.by_limit[2].1},
+            },
+            "recall_by_term": self.by_term.iter().map(|(k, (i, f))| (k.to_string(), serde_json::json!({"injected": i, "found": f}))).collect::<serde_json::Map<_, _>>(),
+            "controls": controls,
+        })
+    }
 }
