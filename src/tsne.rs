@@ -150,12 +150,8 @@ impl TsneOptions {
     }
 }
 
-/// Embed `x` (n points of equal dimension) in 2-D.
-pub fn tsne(x: &[Vec<f64>], opts: &TsneOptions) -> Result<Embedding2d, TsneError> {
-    let n = x.len();
-    if n < 4 {
-        return Err(TsneError::TooFewPoints(n));
-    }
+/// Every point of one dimension and finite.
+fn check_points(x: &[Vec<f64>]) -> Result<(), TsneError> {
     let dim = x[0].len();
     for (i, p) in x.iter().enumerate() {
         if p.len() != dim {
@@ -165,19 +161,19 @@ pub fn tsne(x: &[Vec<f64>], opts: &TsneOptions) -> Result<Embedding2d, TsneError
             return Err(TsneError::NonFinite(i));
         }
     }
-    opts.validate()?;
-    let perplexity = opts.perplexity.min((n - 1) as f64 / 3.0).max(1.5);
-    if perplexity < opts.perplexity {
-        tracing::warn!("t-SNE: perplexity {} clamped to {perplexity:.1} for {n} points", opts.perplexity);
-    }
+    Ok(())
+}
 
+/// The joint probabilities P (n × n, row-major): each row's Gaussian calibrated to the
+/// perplexity, symmetrised; the floor keeps log(P/Q) finite.
+fn joint_probabilities(x: &[Vec<f64>], perplexity: f64) -> Vec<f64> {
+    let n = x.len();
     let d2 = squared_distances(x);
     let mut p = vec![0.0; n * n];
     for i in 0..n {
         let row = calibrate_row(&d2[i * n..(i + 1) * n], i, perplexity, 1e-5);
         p[i * n..(i + 1) * n].copy_from_slice(&row.p);
     }
-    // Symmetrise; the floor keeps log(P/Q) finite.
     let mut psym = vec![0.0; n * n];
     for i in 0..n {
         for j in 0..n {
@@ -185,8 +181,49 @@ pub fn tsne(x: &[Vec<f64>], opts: &TsneOptions) -> Result<Embedding2d, TsneError
         }
         psym[i * n + i] = 0.0;
     }
-    drop(p);
+    psym
+}
 
+/// KL(P‖Q) of the map `y` (`num` is scratch of n × n).
+fn kl_divergence(psym: &[f64], y: &[[f64; 2]], num: &mut [f64]) -> f64 {
+    let n = y.len();
+    let mut z = 0.0;
+    for i in 0..n {
+        for j in 0..n {
+            if i != j {
+                let dx = y[i][0] - y[j][0];
+                let dy = y[i][1] - y[j][1];
+                num[i * n + j] = 1.0 / (1.0 + dx * dx + dy * dy);
+                z += num[i * n + j];
+            }
+        }
+    }
+    let mut kl = 0.0;
+    for i in 0..n {
+        for j in 0..n {
+            let pij = psym[i * n + j];
+            if i != j && pij > 0.0 {
+                kl += pij * (pij / (num[i * n + j] / z).max(1e-300)).ln();
+            }
+        }
+    }
+    kl
+}
+
+/// Embed `x` (n points of equal dimension) in 2-D.
+pub fn tsne(x: &[Vec<f64>], opts: &TsneOptions) -> Result<Embedding2d, TsneError> {
+    let n = x.len();
+    if n < 4 {
+        return Err(TsneError::TooFewPoints(n));
+    }
+    check_points(x)?;
+    opts.validate()?;
+    let perplexity = opts.perplexity.min((n - 1) as f64 / 3.0).max(1.5);
+    if perplexity < opts.perplexity {
+        tracing::warn!("t-SNE: perplexity {} clamped to {perplexity:.1} for {n} points", opts.perplexity);
+    }
+
+    let psym = joint_probabilities(x, perplexity);
     let lr = opts.learning_rate.unwrap_or_else(|| (n as f64 / opts.early_exaggeration / 4.0).max(50.0));
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
     let normal = Normal::new(0.0, 1e-2).map_err(|e| TsneError::Option(e.to_string()))?;
@@ -240,27 +277,7 @@ pub fn tsne(x: &[Vec<f64>], opts: &TsneOptions) -> Result<Embedding2d, TsneError
         }
     }
 
-    // Final KL(P‖Q).
-    let mut z = 0.0;
-    for i in 0..n {
-        for j in 0..n {
-            if i != j {
-                let dx = y[i][0] - y[j][0];
-                let dy = y[i][1] - y[j][1];
-                num[i * n + j] = 1.0 / (1.0 + dx * dx + dy * dy);
-                z += num[i * n + j];
-            }
-        }
-    }
-    let mut kl = 0.0;
-    for i in 0..n {
-        for j in 0..n {
-            let pij = psym[i * n + j];
-            if i != j && pij > 0.0 {
-                kl += pij * (pij / (num[i * n + j] / z).max(1e-300)).ln();
-            }
-        }
-    }
+    let kl = kl_divergence(&psym, &y, &mut num);
     Ok(Embedding2d { points: y, kl_divergence: kl, perplexity })
 }
 

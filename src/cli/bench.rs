@@ -91,14 +91,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let tmp = tempfile::tempdir()?;
     let model = match &args.model {
         Some(m) => m.clone(),
-        None => {
-            tch::manual_seed(0);
-            let vs = tch::nn::VarStore::new(tch::Device::Cpu);
-            let net = Net::new(&Config::for_mode(Mode::FsdaF), &vs.root())?;
-            net.set_normalization(&[0.0, 0.02, 0.08, 9.0, 0.0, -3.0], &[0.3, 0.3, 0.3, 1.0, 1.0, 1.0])?;
-            let dir = args.save_model.clone().unwrap_or_else(|| tmp.path().to_path_buf());
-            export_model(&dir, "bench-fsda-f", &vs, &net, &ExportInfo::default())?.torchscript
-        }
+        None => untrained_model(args.save_model.as_deref().unwrap_or(tmp.path()))?,
     };
     let loaded = imu_fsda::model::export::load_net(&imu_fsda::model::predict::metadata_path(&model), tch::Device::Cpu)
         .context("loading the model")?;
@@ -128,20 +121,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     throughput(&mut naive, &input[..naive_warm])?;
     let nai = throughput(&mut naive, naive_in)?;
 
-    // The power-on bias stage alone (standstills and the bias seen in motion): the pipeline
-    // without a model, with it and without it, on the same samples in the same run.
-    let stage_input = &input[..warm + samples];
-    let mut without_stage = Pipeline::new(Box::new(PassThrough), PipelineConfig { power_on_bias: false, ..cfg.clone() });
-    let mut with_stage = Pipeline::new(Box::new(PassThrough), cfg.clone());
-    let bare = throughput(&mut without_stage, stage_input)?;
-    let staged = throughput(&mut with_stage, stage_input)?;
-    let stage_us = 1e6 / staged - 1e6 / bare;
-    // The gravity-aided orientation (the default) against the open loop, the same way.
-    let open_loop_cfg = PipelineConfig { orientation: OrientationMode::OpenLoop, ..cfg.clone() };
-    let open = throughput(&mut Pipeline::new(Box::new(PassThrough), open_loop_cfg), stage_input)?;
-    let aided = throughput(&mut Pipeline::new(Box::new(PassThrough), cfg.clone()), stage_input)?;
-    let aided_us = 1e6 / aided - 1e6 / open;
-
+    let StageCosts { stage_us, staged, bare, aided_us, aided, open } = stage_costs(&cfg, &input[..warm + samples])?;
     out!("model: {} ({:?}), window N = {n}", loaded.metadata.name, loaded.metadata.mode)?;
     out!("decode → correct → integrate → encode, one thread:")?;
     out!("  incremental, f32 (node) : {inc:>12.0} samples/s  ({:.2} µs/sample, {} samples)", 1e6 / inc, timed.len())?;
@@ -154,35 +134,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     )?;
     out!("  of which the gravity-aided orientation: {aided_us:.2} µs/sample (no model: {aided:.0} samples/s, open loop {open:.0})")?;
 
-    let mut memory = Vec::new();
-    if args.memory_hours > 0.0 {
-        let total = (args.memory_hours * 3600.0 * 200.0) as usize;
-        let mut p = Pipeline::new(Box::new(StreamingDenoiserCorrector(ModelCorrector::load(&model, None)?)), cfg);
-        let chunk = encoded_stream(20_000);
-        let mut done = 0usize;
-        let mut stamp_offset = 0i64;
-        memory.push((0.0, rss_kib()));
-        while done < total {
-            let part = &chunk[..chunk.len().min(total - done)];
-            for bytes in part {
-                let mut msg = Imu::decode(bytes)?;
-                let mut s = msg.sample();
-                s.stamp_ns += stamp_offset;
-                if let Ok(c) = p.push(&s) {
-                    fill_denoised(&mut msg, &c);
-                }
-            }
-            done += part.len();
-            stamp_offset += part.len() as i64 * 5_000_000;
-            if done % 144_000 < chunk.len() || done >= total {
-                memory.push((done as f64 / 200.0 / 3600.0, rss_kib()));
-            }
-        }
-        out!("resident memory over {:.2} h of simulated 200 Hz input ({} samples):", args.memory_hours, total)?;
-        for (h, kib) in &memory {
-            out!("  after {h:>5.2} h: {:>8.1} MiB", *kib as f64 / 1024.0)?;
-        }
-    }
+    let memory = if args.memory_hours > 0.0 { resident_memory(&model, cfg, args.memory_hours)? } else { Vec::new() };
     if let Some(path) = &args.json {
         let v = serde_json::json!({
             "model": loaded.metadata.name, "window_n": n,
@@ -193,6 +145,73 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         std::fs::write(path, serde_json::to_string_pretty(&v)?)?;
     }
     Ok(())
+}
+
+/// A Generator of the bundled shape with untrained weights, exported into `dir`.
+fn untrained_model(dir: &std::path::Path) -> anyhow::Result<std::path::PathBuf> {
+    tch::manual_seed(0);
+    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+    let net = Net::new(&Config::for_mode(Mode::FsdaF), &vs.root())?;
+    net.set_normalization(&[0.0, 0.02, 0.08, 9.0, 0.0, -3.0], &[0.3, 0.3, 0.3, 1.0, 1.0, 1.0])?;
+    Ok(export_model(dir, "bench-fsda-f", &vs, &net, &ExportInfo::default())?.torchscript)
+}
+
+/// What two stages of the pipeline cost: µs a sample, and samples/s with and without them.
+struct StageCosts {
+    stage_us: f64,
+    staged: f64,
+    bare: f64,
+    aided_us: f64,
+    aided: f64,
+    open: f64,
+}
+
+/// The power-on bias stage alone (standstills and the bias seen in motion) and the
+/// gravity-aided orientation against the open loop: the pipeline without a model, with each
+/// and without it, on the same samples in the same run.
+fn stage_costs(cfg: &PipelineConfig, stage_input: &[Vec<u8>]) -> anyhow::Result<StageCosts> {
+    let mut without_stage = Pipeline::new(Box::new(PassThrough), PipelineConfig { power_on_bias: false, ..cfg.clone() });
+    let mut with_stage = Pipeline::new(Box::new(PassThrough), cfg.clone());
+    let bare = throughput(&mut without_stage, stage_input)?;
+    let staged = throughput(&mut with_stage, stage_input)?;
+    let stage_us = 1e6 / staged - 1e6 / bare;
+    let open_loop_cfg = PipelineConfig { orientation: OrientationMode::OpenLoop, ..cfg.clone() };
+    let open = throughput(&mut Pipeline::new(Box::new(PassThrough), open_loop_cfg), stage_input)?;
+    let aided = throughput(&mut Pipeline::new(Box::new(PassThrough), cfg.clone()), stage_input)?;
+    Ok(StageCosts { stage_us, staged, bare, aided_us: 1e6 / aided - 1e6 / open, aided, open })
+}
+
+/// Resident memory (hours, KiB) while `hours` of simulated 200 Hz input go through the
+/// incremental pipeline, printed as it goes.
+fn resident_memory(model: &std::path::Path, cfg: PipelineConfig, hours: f64) -> anyhow::Result<Vec<(f64, u64)>> {
+    let mut memory = Vec::new();
+    let total = (hours * 3600.0 * 200.0) as usize;
+    let mut p = Pipeline::new(Box::new(StreamingDenoiserCorrector(ModelCorrector::load(model, None)?)), cfg);
+    let chunk = encoded_stream(20_000);
+    let mut done = 0usize;
+    let mut stamp_offset = 0i64;
+    memory.push((0.0, rss_kib()));
+    while done < total {
+        let part = &chunk[..chunk.len().min(total - done)];
+        for bytes in part {
+            let mut msg = Imu::decode(bytes)?;
+            let mut s = msg.sample();
+            s.stamp_ns += stamp_offset;
+            if let Ok(c) = p.push(&s) {
+                fill_denoised(&mut msg, &c);
+            }
+        }
+        done += part.len();
+        stamp_offset += part.len() as i64 * 5_000_000;
+        if done % 144_000 < chunk.len() || done >= total {
+            memory.push((done as f64 / 200.0 / 3600.0, rss_kib()));
+        }
+    }
+    out!("resident memory over {:.2} h of simulated 200 Hz input ({} samples):", hours, total)?;
+    for (h, kib) in &memory {
+        out!("  after {h:>5.2} h: {:>8.1} MiB", *kib as f64 / 1024.0)?;
+    }
+    Ok(memory)
 }
 
 /// The model corrector, by value (the memory run owns its own).

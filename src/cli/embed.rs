@@ -91,56 +91,12 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
     let opts = TsneOptions { perplexity: args.perplexity, iterations: args.iterations, seed: args.seed, ..Default::default() };
     opts.validate()?; // before any embedding is computed
     let model = EmbeddingModel::load(&args.model).with_context(|| format!("model {}", args.model.display()))?;
-    let mut labels: Vec<(String, &'static str, usize, i64)> = Vec::new();
-    let mut x: Vec<Vec<f64>> = Vec::new();
-    let sources = args.sequences.iter().map(|p| load(p, &args.imu_topic)).collect::<anyhow::Result<Vec<Source>>>()?;
-    // Two of one name (`a/run.mcap`, `b/run.mcap`) were drawn as one group and one label:
-    // each is named by its path instead.
-    let names: Vec<String> = sources.iter().map(|s| s.name.clone()).collect();
-    for (k, (path, mut src)) in args.sequences.iter().zip(sources).enumerate() {
-        if names.iter().filter(|n| **n == src.name).count() > 1 {
-            src.name = path.display().to_string();
-            // The same path given twice: numbered in the order given.
-            if args.sequences.iter().filter(|p| *p == path).count() > 1 {
-                src.name = format!("{} #{}", src.name, args.sequences[..=k].iter().filter(|p| *p == path).count());
-            }
-        }
-        let idx = sample_indices(&src.imu, per_sequence, args.seed.wrapping_add(k as u64));
-        if idx.is_empty() {
-            anyhow::bail!("{}: no finite IMU sample", path.display());
-        }
-        let picked: Vec<ImuSample> = idx.iter().map(|&i| src.imu[i]).collect();
-        let e = model.embed(&picked)?;
-        tracing::info!("{}: {} samples embedded ({} in the sequence)", src.name, e.len(), src.imu.len());
-        for (&i, v) in idx.iter().zip(e) {
-            labels.push((src.name.clone(), src.dataset, i, src.imu[i].stamp_ns));
-            x.push(v);
-        }
-    }
+    let (labels, x) = embed_sources(&model, &args, per_sequence)?;
     let start = std::time::Instant::now();
     let map = tsne(&x, &opts)?;
     tracing::info!("t-SNE of {} points in {:.1} s, KL {:.3}", x.len(), start.elapsed().as_secs_f64(), map.kl_divergence);
 
-    // One group per sequence in the order given; colours cycle within each dataset, the
-    // marker tells the dataset.
-    let mut groups: Vec<ScatterGroup> = Vec::new();
-    let mut per_dataset: std::collections::BTreeMap<&str, usize> = Default::default();
-    for (k, (name, dataset, _, _)) in labels.iter().enumerate() {
-        let p = (map.points[k][0], map.points[k][1]);
-        match groups.iter_mut().find(|g| g.label.starts_with(&format!("{name} ("))) {
-            Some(g) => g.points.push(p),
-            None => {
-                let n = per_dataset.entry(dataset).or_default();
-                let (marker, offset) = match *dataset {
-                    "EuRoC" => (Marker::Circle, 0),
-                    "TUM-VI" => (Marker::Triangle, 11),
-                    _ => (Marker::Cross, 0),
-                };
-                groups.push(ScatterGroup { label: format!("{name} ({dataset})"), points: vec![p], color: color(offset + *n), marker });
-                *n += 1;
-            }
-        }
-    }
+    let groups = scatter_groups(&labels, &map.points);
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         imu_fsda::core::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
@@ -184,4 +140,62 @@ pub fn run(args: EmbedArgs) -> anyhow::Result<()> {
         map.kl_divergence
     )?;
     Ok(())
+}
+
+/// A point's sequence, dataset, sample index and stamp.
+type Label = (String, &'static str, usize, i64);
+
+/// Each sequence's sampled points through the Embedding: their labels and embeddings.
+fn embed_sources(model: &EmbeddingModel, args: &EmbedArgs, per_sequence: usize) -> anyhow::Result<(Vec<Label>, Vec<Vec<f64>>)> {
+    let mut labels: Vec<Label> = Vec::new();
+    let mut x: Vec<Vec<f64>> = Vec::new();
+    let sources = args.sequences.iter().map(|p| load(p, &args.imu_topic)).collect::<anyhow::Result<Vec<Source>>>()?;
+    // Two of one name (`a/run.mcap`, `b/run.mcap`) were drawn as one group and one label:
+    // each is named by its path instead.
+    let names: Vec<String> = sources.iter().map(|s| s.name.clone()).collect();
+    for (k, (path, mut src)) in args.sequences.iter().zip(sources).enumerate() {
+        if names.iter().filter(|n| **n == src.name).count() > 1 {
+            src.name = path.display().to_string();
+            // The same path given twice: numbered in the order given.
+            if args.sequences.iter().filter(|p| *p == path).count() > 1 {
+                src.name = format!("{} #{}", src.name, args.sequences[..=k].iter().filter(|p| *p == path).count());
+            }
+        }
+        let idx = sample_indices(&src.imu, per_sequence, args.seed.wrapping_add(k as u64));
+        if idx.is_empty() {
+            anyhow::bail!("{}: no finite IMU sample", path.display());
+        }
+        let picked: Vec<ImuSample> = idx.iter().map(|&i| src.imu[i]).collect();
+        let e = model.embed(&picked)?;
+        tracing::info!("{}: {} samples embedded ({} in the sequence)", src.name, e.len(), src.imu.len());
+        for (&i, v) in idx.iter().zip(e) {
+            labels.push((src.name.clone(), src.dataset, i, src.imu[i].stamp_ns));
+            x.push(v);
+        }
+    }
+    Ok((labels, x))
+}
+
+/// One group per sequence in the order given; colours cycle within each dataset, the marker
+/// tells the dataset.
+fn scatter_groups(labels: &[Label], points: &[[f64; 2]]) -> Vec<ScatterGroup> {
+    let mut groups: Vec<ScatterGroup> = Vec::new();
+    let mut per_dataset: std::collections::BTreeMap<&str, usize> = Default::default();
+    for (k, (name, dataset, _, _)) in labels.iter().enumerate() {
+        let p = (points[k][0], points[k][1]);
+        match groups.iter_mut().find(|g| g.label.starts_with(&format!("{name} ("))) {
+            Some(g) => g.points.push(p),
+            None => {
+                let n = per_dataset.entry(dataset).or_default();
+                let (marker, offset) = match *dataset {
+                    "EuRoC" => (Marker::Circle, 0),
+                    "TUM-VI" => (Marker::Triangle, 11),
+                    _ => (Marker::Cross, 0),
+                };
+                groups.push(ScatterGroup { label: format!("{name} ({dataset})"), points: vec![p], color: color(offset + *n), marker });
+                *n += 1;
+            }
+        }
+    }
+    groups
 }

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use imu_fsda::bag::BagWriter;
+use imu_fsda::bag::{BagMessage, BagWriter, Channel};
 use imu_fsda::infer::Pipeline;
 use imu_fsda::msg::{DiagnosticArray, Imu, RosMessage, Time, Vector3Stamped};
 use imu_fsda::node::{diagnostics_message, fill_denoised, Liveness, NodeStats, StatusClock};
@@ -31,26 +31,6 @@ pub struct ReplayArgs {
 /// message stamped far from the rest would otherwise fill the bag with ticks.
 const MAX_HOLE_TICKS: u64 = 3600;
 
-/// The node's /diagnostics at `now_ns` (the bag's log time), from the pipeline's counters.
-fn status_at(
-    stats: &mut NodeStats,
-    clock: &mut StatusClock,
-    pipeline: &Pipeline,
-    frame: &Option<String>,
-    decode_errors: u64,
-    node_name: &str,
-    now_ns: u64,
-) -> (DiagnosticArray, Liveness) {
-    stats.counters = pipeline.counters().clone();
-    stats.decode_errors = decode_errors;
-    stats.rate_off_nominal = pipeline.rate_off_nominal();
-    stats.resampling = pipeline.resampling();
-    stats.take_power_on(pipeline);
-    stats.frame_id = frame.clone().unwrap_or_default();
-    let live = clock.tick(stats, now_ns as i64);
-    (diagnostics_message(stats, &live, node_name, Time::from_ns(now_ns as i64)), live)
-}
-
 pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let mut params = args.config.load()?;
     // Read, never written: a replay is not a power-on of the IMU.
@@ -58,33 +38,19 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         tracing::info!("power_on_bias_memory {}: {note}", params.power_on_bias_memory);
     }
     let (corrector, status) = load_corrector(&params.model, &params.imu_calibration)?;
-    let mut pipeline = Pipeline::new(corrector, params.pipeline.clone());
+    let pipeline = Pipeline::new(corrector, params.pipeline.clone());
     let (topics, read_error) = imu_fsda::bag::bag_info(&args.input);
     let input_topic = input_topic_of(&args, &params, &topics, read_error)?;
     refuse_clashes(&args, &params, &topics)?;
     super::refuse_overwriting_input(&args.output, &[&args.input])?;
     // From the moment the output exists, a signal finishes it.
     super::interrupts::catch();
-    let mut writer = BagWriter::create(&args.output)?;
-    let out_ch = writer.channel::<Imu>(&params.output_topic)?;
-    let corr_ch = writer.channel::<Vector3Stamped>(&params.correction_topic)?;
-    let diag_ch = writer.channel::<DiagnosticArray>(&params.diagnostics_topic)?;
-    let mut channels = std::collections::HashMap::new();
-    let mut stats =
-        NodeStats { model: pipeline.corrector_name().to_string(), window: pipeline.window(), model_status: status, ..Default::default() };
-    let period_ns = (params.diagnostics_period * 1e9) as u64;
-    let mut next_diag: Option<u64> = None;
-    let mut last_frame: Option<String> = None;
-    let mut decode_errors = 0u64;
-    let mut last_log = 0u64;
-    // The status over the bag's time (log time, receipt): input rate, events.
-    let mut clock = StatusClock::default();
+    let mut replay = Replay::start(&args, &params, pipeline, status, input_topic)?;
     // A damaged input or Ctrl-C ends the loop; what was replayed before it is kept.
     let (mut damage, mut read) = (None, 0u64);
     // MCAP lets a recorder write out of log-time order; the node would have received in log-time
     // order (in file order, most samples were dropped as backwards).
-    let messages = imu_fsda::bag::messages_in_log_time_order(&args.input, &topics)?;
-    for m in messages {
+    for m in imu_fsda::bag::messages_in_log_time_order(&args.input, &topics)? {
         if super::interrupts::requested() {
             break;
         }
@@ -96,63 +62,9 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             }
         };
         read += 1;
-        // The live node's timer ticks whether or not input comes: a hole in the IMU stream
-        // shows as "no input" ticks, as on the robot (at most MAX_HOLE_TICKS per hole).
-        if let Some(due) = next_diag.as_mut() {
-            let mut ticks = 0;
-            // Strictly after: a message at the tick's own time is received before it.
-            while m.log_time_ns > *due {
-                if ticks == MAX_HOLE_TICKS {
-                    *due += (m.log_time_ns - *due) / period_ns * period_ns + period_ns;
-                    break;
-                }
-                let (status, _) = status_at(&mut stats, &mut clock, &pipeline, &last_frame, decode_errors, &args.config.node_name, *due);
-                writer.write(diag_ch, *due as i64, &status)?;
-                *due += period_ns;
-                ticks += 1;
-            }
-        }
-        let ch = match channels.get(&m.topic) {
-            Some(c) => *c,
-            None => {
-                let c = writer.channel_of(&m.topic, &m)?;
-                channels.insert(m.topic.clone(), c);
-                c
-            }
-        };
-        writer.write_raw(ch, m.log_time_ns as i64, &m.data)?;
-        last_log = m.log_time_ns;
-        if *m.topic != *input_topic {
-            continue;
-        }
-        let mut msg = match Imu::decode(&m.data) {
-            Ok(x) => x,
-            Err(e) => {
-                decode_errors += 1;
-                tracing::warn!("{}: {e}", args.input.display());
-                continue;
-            }
-        };
-        if last_frame.as_deref() != Some(msg.header.frame_id.as_str()) {
-            if last_frame.is_some() {
-                stats.frame_changes += 1;
-            }
-            last_frame = Some(msg.header.frame_id.clone());
-        }
-        if let Ok(c) = pipeline.push(&msg.sample()) {
-            let correction = Vector3Stamped { header: msg.header.clone(), vector: c.correction.into() };
-            fill_denoised(&mut msg, &c);
-            writer.write(out_ch, m.log_time_ns as i64, &msg)?;
-            writer.write(corr_ch, m.log_time_ns as i64, &correction)?;
-            stats.warming_up = c.warming_up;
-        }
-        stats.last_input_ns = Some(m.log_time_ns as i64);
-        clock.start(m.log_time_ns as i64, pipeline.counters().received);
-        next_diag.get_or_insert(m.log_time_ns + period_ns);
+        replay.message(&m)?;
     }
-    let (status, live) = status_at(&mut stats, &mut clock, &pipeline, &last_frame, decode_errors, &args.config.node_name, last_log);
-    writer.write(diag_ch, last_log as i64, &status)?;
-    writer.finish().with_context(|| format!("finishing {}", args.output.display()))?;
+    let done = replay.finish()?;
     let kept = || format!("{} holds the replay of the {read} messages before it", args.output.display());
     if let Some(e) = damage {
         return Err(anyhow::Error::new(e).context(format!("the input is damaged; {}", kept())));
@@ -160,7 +72,168 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     if super::interrupts::requested() {
         return Err(super::interrupts::Interrupted(kept()).into());
     }
-    say_how_it_ran(&args, &params, &pipeline, &stats, live.input_rate_hz, decode_errors, &input_topic)
+    say_how_it_ran(&args, &params, &done.pipeline, &done.stats, done.live.input_rate_hz, done.decode_errors, &done.input_topic)
+}
+
+/// The node's pipeline over a bag's messages: each copied through, the IMU's corrected and
+/// published, /diagnostics ticked over the bag's log time as the live node's timer ticks.
+struct Replay {
+    pipeline: Pipeline,
+    writer: BagWriter,
+    out_ch: Channel,
+    corr_ch: Channel,
+    diag_ch: Channel,
+    /// The output channel of each input topic, made at its first message.
+    channels: std::collections::HashMap<std::sync::Arc<str>, Channel>,
+    stats: NodeStats,
+    /// The status over the bag's time (log time, receipt): input rate, events.
+    clock: StatusClock,
+    period_ns: u64,
+    next_diag: Option<u64>,
+    last_frame: Option<String>,
+    decode_errors: u64,
+    last_log: u64,
+    input_topic: String,
+    node_name: String,
+    input: PathBuf,
+    output: PathBuf,
+}
+
+impl Replay {
+    fn start(
+        args: &ReplayArgs,
+        params: &imu_fsda::node::NodeParams,
+        pipeline: Pipeline,
+        model_status: String,
+        input_topic: String,
+    ) -> anyhow::Result<Self> {
+        let mut writer = BagWriter::create(&args.output)?;
+        let out_ch = writer.channel::<Imu>(&params.output_topic)?;
+        let corr_ch = writer.channel::<Vector3Stamped>(&params.correction_topic)?;
+        let diag_ch = writer.channel::<DiagnosticArray>(&params.diagnostics_topic)?;
+        let stats =
+            NodeStats { model: pipeline.corrector_name().to_string(), window: pipeline.window(), model_status, ..Default::default() };
+        Ok(Replay {
+            pipeline,
+            writer,
+            out_ch,
+            corr_ch,
+            diag_ch,
+            channels: std::collections::HashMap::new(),
+            stats,
+            clock: StatusClock::default(),
+            period_ns: (params.diagnostics_period * 1e9) as u64,
+            next_diag: None,
+            last_frame: None,
+            decode_errors: 0,
+            last_log: 0,
+            input_topic,
+            node_name: args.config.node_name.clone(),
+            input: args.input.clone(),
+            output: args.output.clone(),
+        })
+    }
+
+    /// One message: the ticks due before it, the message copied, and corrected where it is
+    /// the IMU's.
+    fn message(&mut self, m: &BagMessage) -> anyhow::Result<()> {
+        self.tick_until(m.log_time_ns)?;
+        let ch = match self.channels.get(&m.topic) {
+            Some(c) => *c,
+            None => {
+                let c = self.writer.channel_of(&m.topic, m)?;
+                self.channels.insert(m.topic.clone(), c);
+                c
+            }
+        };
+        self.writer.write_raw(ch, m.log_time_ns as i64, &m.data)?;
+        self.last_log = m.log_time_ns;
+        if *m.topic == *self.input_topic {
+            self.correct(m)?;
+        }
+        Ok(())
+    }
+
+    /// The live node's timer ticks whether or not input comes: a hole in the IMU stream shows
+    /// as "no input" ticks, as on the robot (at most [`MAX_HOLE_TICKS`] per hole).
+    fn tick_until(&mut self, log_time_ns: u64) -> anyhow::Result<()> {
+        let Some(mut due) = self.next_diag else { return Ok(()) };
+        let mut ticks = 0;
+        // Strictly after: a message at the tick's own time is received before it.
+        while log_time_ns > due {
+            if ticks == MAX_HOLE_TICKS {
+                due += (log_time_ns - due) / self.period_ns * self.period_ns + self.period_ns;
+                break;
+            }
+            let (status, _) = self.status_at(due);
+            self.writer.write(self.diag_ch, due as i64, &status)?;
+            due += self.period_ns;
+            ticks += 1;
+        }
+        self.next_diag = Some(due);
+        Ok(())
+    }
+
+    /// An IMU message through the pipeline: /imu/denoised and /imu/gyro_correction written at
+    /// its log time.
+    fn correct(&mut self, m: &BagMessage) -> anyhow::Result<()> {
+        let mut msg = match Imu::decode(&m.data) {
+            Ok(x) => x,
+            Err(e) => {
+                self.decode_errors += 1;
+                tracing::warn!("{}: {e}", self.input.display());
+                return Ok(());
+            }
+        };
+        if self.last_frame.as_deref() != Some(msg.header.frame_id.as_str()) {
+            if self.last_frame.is_some() {
+                self.stats.frame_changes += 1;
+            }
+            self.last_frame = Some(msg.header.frame_id.clone());
+        }
+        if let Ok(c) = self.pipeline.push(&msg.sample()) {
+            let correction = Vector3Stamped { header: msg.header.clone(), vector: c.correction.into() };
+            fill_denoised(&mut msg, &c);
+            self.writer.write(self.out_ch, m.log_time_ns as i64, &msg)?;
+            self.writer.write(self.corr_ch, m.log_time_ns as i64, &correction)?;
+            self.stats.warming_up = c.warming_up;
+        }
+        self.stats.last_input_ns = Some(m.log_time_ns as i64);
+        self.clock.start(m.log_time_ns as i64, self.pipeline.counters().received);
+        self.next_diag.get_or_insert(m.log_time_ns + self.period_ns);
+        Ok(())
+    }
+
+    /// The node's /diagnostics at `now_ns` (the bag's log time), from the pipeline's counters.
+    fn status_at(&mut self, now_ns: u64) -> (DiagnosticArray, Liveness) {
+        let stats = &mut self.stats;
+        stats.counters = self.pipeline.counters().clone();
+        stats.decode_errors = self.decode_errors;
+        stats.rate_off_nominal = self.pipeline.rate_off_nominal();
+        stats.resampling = self.pipeline.resampling();
+        stats.take_power_on(&self.pipeline);
+        stats.frame_id = self.last_frame.clone().unwrap_or_default();
+        let live = self.clock.tick(stats, now_ns as i64);
+        (diagnostics_message(stats, &live, &self.node_name, Time::from_ns(now_ns as i64)), live)
+    }
+
+    /// The last status at the last log time, and the bag finished.
+    fn finish(mut self) -> anyhow::Result<Finished> {
+        let (status, live) = self.status_at(self.last_log);
+        self.writer.write(self.diag_ch, self.last_log as i64, &status)?;
+        let Replay { writer, pipeline, stats, decode_errors, input_topic, output, .. } = self;
+        writer.finish().with_context(|| format!("finishing {}", output.display()))?;
+        Ok(Finished { live, pipeline, stats, decode_errors, input_topic })
+    }
+}
+
+/// What a replay leaves to say how it ran.
+struct Finished {
+    live: Liveness,
+    pipeline: Pipeline,
+    stats: NodeStats,
+    decode_errors: u64,
+    input_topic: String,
 }
 
 /// The raw IMU's topic: `--input-topic`, else the node's input topic if the bag has it, else

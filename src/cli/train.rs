@@ -38,13 +38,7 @@ pub struct TrainArgs {
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let cfg = TrainConfig::load(&args.config)?;
-    let name =
-        args.name.clone().unwrap_or_else(|| args.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or("model".into()));
-    // The name becomes file names: <name>.pt, <name>.runs/ (an empty one wrote dotfiles).
-    if name.is_empty() || name.contains(['/', '\\']) || name.starts_with('.') {
-        let from = if args.name.is_some() { "--name" } else { "the config's file name (give --name)" };
-        anyhow::bail!("model name {name:?} from {from}: a model name is a file stem, not empty, without a path separator or a leading dot");
-    }
+    let name = model_name(&args)?;
     if args.jobs == Some(0) {
         anyhow::bail!("--jobs 0: at least one run at a time");
     }
@@ -56,16 +50,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     // Two runs writing one <name> (two terminals, the default name) would each replace the
     // other's files; the second is refused while the first runs.
     let _lock = RunLock::acquire(&args.out_dir, &name)?;
-    // An adapted model of this name (`imu-fsda adapt -o`) is a robot's own: a training run
-    // replaced it without a word and left its `.adapt.json` describing another model.
-    let adapted = args.out_dir.join(format!("{name}.adapt.json"));
-    if adapted.exists() && args.out_dir.join(format!("{name}.json")).exists() {
-        anyhow::bail!(
-            "{} is an adapted model ({}): training would replace it; give this run its own --name or --out-dir",
-            args.out_dir.join(format!("{name}.pt")).display(),
-            adapted.display()
-        );
-    }
+    refuse_to_replace_an_adapted_model(&args, &name)?;
     if args.seed.is_none() && cfg.train.seeds.len() > 1 {
         if args.resume.is_some() {
             anyhow::bail!(
@@ -74,26 +59,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
         return run_seeds(&args, &cfg, &name);
     }
-    // One seed's run under the name of an export chosen among seeds would replace that export
-    // and leave <name>.seeds.json describing a model that is no longer there.
-    let selection = args.out_dir.join(format!("{name}.seeds.json"));
-    if args.seed.is_some() && args.resume.is_none() && selection.exists() {
-        anyhow::bail!(
-            "{} was chosen among seeds ({}): --seed would replace it with one run; give this run its own --name",
-            args.out_dir.join(format!("{name}.pt")).display(),
-            selection.display()
-        );
-    }
-    // A run shortened (or lengthened) on the command line, e.g. to time a few epochs, must not
-    // replace the model its config trains: by default that is models/<name>, the bundled one.
-    let existing = args.out_dir.join(format!("{name}.json"));
-    if let Some(e) = args.epochs.filter(|e| *e != cfg.train.epochs && args.resume.is_none() && existing.exists()) {
-        anyhow::bail!(
-            "--epochs {e} (the config trains {}) would replace {}: give a shortened or lengthened run its own --out-dir or --name",
-            cfg.train.epochs,
-            existing.display()
-        );
-    }
+    refuse_to_replace_a_chosen_model(&args, &cfg, &name)?;
     let seed = args.seed.or(cfg.train.seeds.first().copied());
     let opts = fit::RunOptions {
         seed,
@@ -106,6 +72,62 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     };
     super::interrupts::catch();
     let s = imu_fsda::train::train(&cfg, &opts)?;
+    print_summary(&s, &args.out_dir)
+}
+
+/// The model's name: `--name`, else the config's file stem. It becomes file names
+/// (<name>.pt, <name>.runs/): an empty one wrote dotfiles.
+fn model_name(args: &TrainArgs) -> anyhow::Result<String> {
+    let name =
+        args.name.clone().unwrap_or_else(|| args.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or("model".into()));
+    if name.is_empty() || name.contains(['/', '\\']) || name.starts_with('.') {
+        let from = if args.name.is_some() { "--name" } else { "the config's file name (give --name)" };
+        anyhow::bail!("model name {name:?} from {from}: a model name is a file stem, not empty, without a path separator or a leading dot");
+    }
+    Ok(name)
+}
+
+/// An adapted model of this name (`imu-fsda adapt -o`) is a robot's own: a training run
+/// replaced it without a word and left its `.adapt.json` describing another model.
+fn refuse_to_replace_an_adapted_model(args: &TrainArgs, name: &str) -> anyhow::Result<()> {
+    let adapted = args.out_dir.join(format!("{name}.adapt.json"));
+    if adapted.exists() && args.out_dir.join(format!("{name}.json")).exists() {
+        anyhow::bail!(
+            "{} is an adapted model ({}): training would replace it; give this run its own --name or --out-dir",
+            args.out_dir.join(format!("{name}.pt")).display(),
+            adapted.display()
+        );
+    }
+    Ok(())
+}
+
+/// One seed's run must not replace an export chosen among seeds (it would leave
+/// <name>.seeds.json describing a model that is no longer there), nor a run shortened or
+/// lengthened on the command line the model its config trains (by default models/<name>, the
+/// bundled one).
+fn refuse_to_replace_a_chosen_model(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<()> {
+    let selection = args.out_dir.join(format!("{name}.seeds.json"));
+    if args.seed.is_some() && args.resume.is_none() && selection.exists() {
+        anyhow::bail!(
+            "{} was chosen among seeds ({}): --seed would replace it with one run; give this run its own --name",
+            args.out_dir.join(format!("{name}.pt")).display(),
+            selection.display()
+        );
+    }
+    let existing = args.out_dir.join(format!("{name}.json"));
+    if let Some(e) = args.epochs.filter(|e| *e != cfg.train.epochs && args.resume.is_none() && existing.exists()) {
+        anyhow::bail!(
+            "--epochs {e} (the config trains {}) would replace {}: give a shortened or lengthened run its own --out-dir or --name",
+            cfg.train.epochs,
+            existing.display()
+        );
+    }
+    Ok(())
+}
+
+/// What a finished run prints: its time and loss, the exported epoch, the evaluations at it,
+/// and where the model and its summary are.
+fn print_summary(s: &imu_fsda::train::report::TrainSummary, out_dir: &std::path::Path) -> anyhow::Result<()> {
     out!(
         "trained {} ({:?}, seed {}): {} epochs in {:.1} s ({:.3} s/epoch, {} threads); loss {:.4} → {:.4}",
         s.name,
@@ -157,8 +179,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         )?;
     }
     out!("model: {}", s.model_json)?;
-    out!("summary: {}", fit::summary_path(&args.out_dir, &s.name).display())?;
-    let curves = args.out_dir.join(format!("{}.curves.png", s.name));
+    out!("summary: {}", fit::summary_path(out_dir, &s.name).display())?;
+    let curves = out_dir.join(format!("{}.curves.png", s.name));
     if curves.exists() {
         out!("curves: {}", curves.display())?;
     }
@@ -177,17 +199,7 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
     let exe = std::env::current_exe().context("locating the imu-fsda binary")?;
     let started = std::time::Instant::now();
 
-    let bar = if !args.no_progress && std::io::stderr().is_terminal() {
-        ProgressBar::new(seeds.len() as u64)
-    } else {
-        ProgressBar::with_draw_target(Some(seeds.len() as u64), ProgressDrawTarget::hidden())
-    };
-    bar.set_style(
-        ProgressStyle::with_template("{prefix} {elapsed_precise} [{bar:25}] {pos}/{len} seeds {msg}")
-            .expect("template")
-            .progress_chars("=> "),
-    );
-    bar.set_prefix(format!("{name}: {} seeds, {jobs} at once", seeds.len()));
+    let bar = seeds_bar(!args.no_progress && std::io::stderr().is_terminal(), seeds.len(), name, jobs);
 
     // Every finished run is checked against the config before any child starts.
     let mut done = std::collections::BTreeSet::new();
@@ -222,34 +234,7 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
                 bar.inc(1);
                 continue;
             }
-            let log = runs.join(format!("{run}.log"));
-            let mut cmd = std::process::Command::new(&exe);
-            cmd.arg("-v").arg("train").arg("--config").arg(&args.config).arg("--seed").arg(seed.to_string());
-            cmd.arg("--name").arg(&run).arg("--out-dir").arg(&runs).arg("--no-progress");
-            if let Some(e) = args.epochs {
-                cmd.arg("--epochs").arg(e.to_string());
-            }
-            // The `.ot` resumes by itself (its `.json` may be missing after a kill mid-save).
-            let (ckpt_ot, ckpt_json) = imu_fsda::train::checkpoint::paths(&runs, &run);
-            if ckpt_ot.exists() {
-                cmd.arg("--resume").arg(&ckpt_json);
-            }
-            // A child outlives a parent stopped by SIGTERM (timeout, systemd, a scheduler): it
-            // would go on writing its run while a restarted parent starts a second writer on it.
-            // PR_SET_PDEATHSIG has the kernel stop it with its parent.
-            // Its own process group keeps a terminal's Ctrl-C to the parent, which forwards it
-            // once (a child's second signal would end it before its checkpoint).
-            // SAFETY: prctl and setpgid are async-signal-safe and touch no memory of the parent.
-            unsafe {
-                std::os::unix::process::CommandExt::pre_exec(&mut cmd, || {
-                    libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
-                    libc::setpgid(0, 0);
-                    Ok(())
-                });
-            }
-            let out = std::fs::File::create(&log).with_context(|| format!("creating {}", log.display()))?;
-            cmd.stdout(out.try_clone()?).stderr(out);
-            let child = cmd.spawn().with_context(|| format!("starting {}", exe.display()))?;
+            let (child, log) = spawn_seed_run(args, &exe, &runs, &run, seed)?;
             out!("seed {seed}: training {run} (log {})", log.display())?;
             running.push((seed, child, log));
         }
@@ -288,7 +273,68 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
         anyhow::bail!("training failed: {}; finished runs are kept, rerun to resume the rest", failed.join(", "));
     }
 
-    let (sel, json) = seeds::select_and_promote(&args.out_dir, name, &seeds)?;
+    print_selection(&args.out_dir, name, &seeds, started)
+}
+
+/// The progress bar over the seeds' runs (hidden off a terminal).
+fn seeds_bar(visible: bool, seeds: usize, name: &str, jobs: usize) -> ProgressBar {
+    let bar = if visible {
+        ProgressBar::new(seeds as u64)
+    } else {
+        ProgressBar::with_draw_target(Some(seeds as u64), ProgressDrawTarget::hidden())
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} {elapsed_precise} [{bar:25}] {pos}/{len} seeds {msg}")
+            .expect("template")
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(format!("{name}: {seeds} seeds, {jobs} at once"));
+    bar
+}
+
+/// Starts one seed's run as a child `imu-fsda train` logging to `<run>.log` in `runs`,
+/// resuming from its checkpoint where one is there.
+fn spawn_seed_run(
+    args: &TrainArgs,
+    exe: &std::path::Path,
+    runs: &std::path::Path,
+    run: &str,
+    seed: u64,
+) -> anyhow::Result<(std::process::Child, PathBuf)> {
+    let log = runs.join(format!("{run}.log"));
+    let mut cmd = std::process::Command::new(exe);
+    cmd.arg("-v").arg("train").arg("--config").arg(&args.config).arg("--seed").arg(seed.to_string());
+    cmd.arg("--name").arg(run).arg("--out-dir").arg(runs).arg("--no-progress");
+    if let Some(e) = args.epochs {
+        cmd.arg("--epochs").arg(e.to_string());
+    }
+    // The `.ot` resumes by itself (its `.json` may be missing after a kill mid-save).
+    let (ckpt_ot, ckpt_json) = imu_fsda::train::checkpoint::paths(runs, run);
+    if ckpt_ot.exists() {
+        cmd.arg("--resume").arg(&ckpt_json);
+    }
+    // A child outlives a parent stopped by SIGTERM (timeout, systemd, a scheduler): it
+    // would go on writing its run while a restarted parent starts a second writer on it.
+    // PR_SET_PDEATHSIG has the kernel stop it with its parent.
+    // Its own process group keeps a terminal's Ctrl-C to the parent, which forwards it
+    // once (a child's second signal would end it before its checkpoint).
+    // SAFETY: prctl and setpgid are async-signal-safe and touch no memory of the parent.
+    unsafe {
+        std::os::unix::process::CommandExt::pre_exec(&mut cmd, || {
+            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+            libc::setpgid(0, 0);
+            Ok(())
+        });
+    }
+    let out = std::fs::File::create(&log).with_context(|| format!("creating {}", log.display()))?;
+    cmd.stdout(out.try_clone()?).stderr(out);
+    let child = cmd.spawn().with_context(|| format!("starting {}", exe.display()))?;
+    Ok((child, log))
+}
+
+/// The seed chosen by its validation score, promoted to `<name>`, and every seed's scores.
+fn print_selection(out_dir: &std::path::Path, name: &str, seeds: &[u64], started: std::time::Instant) -> anyhow::Result<()> {
+    let (sel, json) = seeds::select_and_promote(out_dir, name, seeds)?;
     out!("{} seeds in {:.1} s; {}:", seeds.len(), started.elapsed().as_secs_f64(), sel.criterion)?;
     for c in &sel.candidates {
         out!(
@@ -300,7 +346,7 @@ fn run_seeds(args: &TrainArgs, cfg: &TrainConfig, name: &str) -> anyhow::Result<
         )?;
     }
     out!("model: {}", json.display())?;
-    out!("selection: {}", args.out_dir.join(format!("{name}.seeds.json")).display())?;
+    out!("selection: {}", out_dir.join(format!("{name}.seeds.json")).display())?;
     Ok(())
 }
 

@@ -53,7 +53,41 @@ fn log_binned(rows: &[(f64, f64, f64)]) -> Vec<(f64, f64, f64)> {
 pub fn write_figures(dir: &Path, d: &Diagnosis) -> Result<Vec<PathBuf>, PlotError> {
     let mut written = Vec::new();
 
-    let psd: Vec<Panel> = (0..6)
+    let psd = psd_panels(d);
+    let p = dir.join("psd.png");
+    line_figure(
+        &p,
+        &Figure { title: "Residual PSD (Welch, 1/20-decade bins)".into(), width: 1200, height: 700, rows: 2, cols: 3, panels: psd },
+    )?;
+    written.push(p);
+
+    let allan = allan_panels(d);
+    let p = dir.join("allan.png");
+    line_figure(&p, &Figure { title: "Residual Allan deviation".into(), width: 1200, height: 700, rows: 2, cols: 3, panels: allan })?;
+    written.push(p);
+
+    let t = &d.curves.residual_t;
+    let res = residual_panels(d);
+    let block = if t.len() > 1 { t[1] - t[0] } else { 0.0 };
+    let p = dir.join("residual.png");
+    line_figure(
+        &p,
+        &Figure {
+            title: format!("Residual over time ({block:.2} s block means)"),
+            width: 1200,
+            height: 800,
+            rows: 2,
+            cols: 2,
+            panels: res,
+        },
+    )?;
+    written.push(p);
+    Ok(written)
+}
+
+/// Per channel: the residual's PSD before and after the fit, the located bands shaded.
+fn psd_panels(d: &Diagnosis) -> Vec<Panel> {
+    (0..6)
         .map(|c| {
             let rows = log_binned(d.curves.psd.get(c).map_or(&[][..], Vec::as_slice));
             Panel {
@@ -72,15 +106,12 @@ pub fn write_figures(dir: &Path, d: &Diagnosis) -> Result<Vec<PathBuf>, PlotErro
                 ..Default::default()
             }
         })
-        .collect();
-    let p = dir.join("psd.png");
-    line_figure(
-        &p,
-        &Figure { title: "Residual PSD (Welch, 1/20-decade bins)".into(), width: 1200, height: 700, rows: 2, cols: 3, panels: psd },
-    )?;
-    written.push(p);
+        .collect()
+}
 
-    let allan: Vec<Panel> = (0..6)
+/// Per channel: the residual's Allan deviation before and after, beside the noise model's.
+fn allan_panels(d: &Diagnosis) -> Vec<Panel> {
+    (0..6)
         .map(|c| {
             let rows = d.curves.allan.get(c).map_or(&[][..], Vec::as_slice);
             let model = d.curves.allan_model.get(c).map_or(&[][..], Vec::as_slice);
@@ -99,11 +130,12 @@ pub fn write_figures(dir: &Path, d: &Diagnosis) -> Result<Vec<PathBuf>, PlotErro
                 ..Default::default()
             }
         })
-        .collect();
-    let p = dir.join("allan.png");
-    line_figure(&p, &Figure { title: "Residual Allan deviation".into(), width: 1200, height: 700, rows: 2, cols: 3, panels: allan })?;
-    written.push(p);
+        .collect()
+}
 
+/// Per sensor: the residual's block means over time before (located segments shaded) and
+/// after the held-out fit, on one scale.
+fn residual_panels(d: &Diagnosis) -> Vec<Panel> {
     let t = &d.curves.residual_t;
     let mut res = Vec::new();
     for (s, sensor) in ["gyro", "accel"].iter().enumerate() {
@@ -136,21 +168,7 @@ pub fn write_figures(dir: &Path, d: &Diagnosis) -> Result<Vec<PathBuf>, PlotErro
             });
         }
     }
-    let block = if t.len() > 1 { t[1] - t[0] } else { 0.0 };
-    let p = dir.join("residual.png");
-    line_figure(
-        &p,
-        &Figure {
-            title: format!("Residual over time ({block:.2} s block means)"),
-            width: 1200,
-            height: 800,
-            rows: 2,
-            cols: 2,
-            panels: res,
-        },
-    )?;
-    written.push(p);
-    Ok(written)
+    res
 }
 
 #[cfg(test)]

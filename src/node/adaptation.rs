@@ -129,27 +129,10 @@ pub(super) async fn service_loop(
                 // At the default level: a call that starts an adaptation may change the model
                 // the node runs.
                 tracing::warn!("~/adapt called by {caller}");
-                let (imu, gt): (Vec<SeqSample>, Vec<crate::core::PoseSample>) = {
-                    let b = buffers.lock().expect("buffers lock");
-                    (b.imu.iter().copied().collect(), b.ground_truth.iter().copied().collect())
-                };
                 let (tx, rx) = tokio::sync::oneshot::channel();
                 let cancel = crate::adapt::CancelFlag::default();
-                let work = Job {
-                    model: setup.model.clone(),
-                    imu_calibration: setup.imu.clone(),
-                    handle: setup.handle.clone(),
-                    buffers: buffers.clone(),
-                    imu,
-                    gt,
-                    support_seconds: params.adapt_support_seconds,
-                    ground_truth: format!("{} as {}", params.ground_truth_topic, params.ground_truth_type),
-                    out_dir: params.adapted_model_dir.clone(),
-                    cfg: crate::adapt::AdaptConfig { cancel: cancel.clone(), ..params.adapt.clone() },
-                    known_power_on_bias: stats.lock().ok().and_then(|s| s.standstill_bias),
-                    archive: archive.clone(),
-                    requested_by: caller,
-                };
+                let known_power_on_bias = stats.lock().ok().and_then(|s| s.standstill_bias);
+                let work = Job::of_buffers(setup, params, buffers, known_power_on_bias, archive.clone(), caller, cancel.clone());
                 adapting.store(true, Ordering::Relaxed);
                 let flag = adapting.clone();
                 let nice = params.adapt_thread_nice.clamp(0, 19);
@@ -183,23 +166,60 @@ pub(super) async fn service_loop(
                 // Normally cleared by the job's thread; also when that thread died.
                 adapting.store(false, Ordering::Relaxed);
                 let res = res.unwrap_or(JobResult { success: false, message: "the adaptation thread died".into(), report: None, model_name: None });
-                {
-                    let mut s = stats.lock().expect("stats lock");
-                    s.adaptations += 1;
-                    s.adapt_seconds = Some(started.elapsed().as_secs_f64());
-                    if let Some(r) = &res.report {
-                        s.adapt_query_aoe_before_deg = Some(r.query_before.aoe_deg);
-                        // The candidate kept (the adapted networks where none was).
-                        s.adapt_query_aoe_after_deg = Some(r.kept_query().unwrap_or(&r.query_after).aoe_deg);
-                    }
-                    if let Some(n) = &res.model_name {
-                        s.model.clone_from(n);
-                    }
-                    s.adapt_status = format!("{}: {}", if res.success { "accepted" } else { "not applied" }, res.message);
-                }
+                record_result(&stats, &res, started);
                 tracing::info!("adaptation finished: {}", res.message);
                 respond(server, id, res.success, res.message).await;
             }
+        }
+    }
+}
+
+/// What an adaptation's end leaves on /diagnostics: its count, time, the query's AOE before
+/// and with the candidate kept, the model now running, and the verdict.
+fn record_result(stats: &Mutex<NodeStats>, res: &JobResult, started: Instant) {
+    let mut s = stats.lock().expect("stats lock");
+    s.adaptations += 1;
+    s.adapt_seconds = Some(started.elapsed().as_secs_f64());
+    if let Some(r) = &res.report {
+        s.adapt_query_aoe_before_deg = Some(r.query_before.aoe_deg);
+        // The candidate kept (the adapted networks where none was).
+        s.adapt_query_aoe_after_deg = Some(r.kept_query().unwrap_or(&r.query_after).aoe_deg);
+    }
+    if let Some(n) = &res.model_name {
+        s.model.clone_from(n);
+    }
+    s.adapt_status = format!("{}: {}", if res.success { "accepted" } else { "not applied" }, res.message);
+}
+
+impl Job {
+    /// A job on what the buffers hold now (copied: the node goes on filling them).
+    fn of_buffers(
+        setup: &AdaptSetup,
+        params: &NodeParams,
+        buffers: &Arc<Mutex<Buffers>>,
+        known_power_on_bias: Option<crate::standstill::BiasEstimate>,
+        archive: Option<Arc<SupportArchive>>,
+        requested_by: String,
+        cancel: crate::adapt::CancelFlag,
+    ) -> Job {
+        let (imu, gt): (Vec<SeqSample>, Vec<crate::core::PoseSample>) = {
+            let b = buffers.lock().expect("buffers lock");
+            (b.imu.iter().copied().collect(), b.ground_truth.iter().copied().collect())
+        };
+        Job {
+            model: setup.model.clone(),
+            imu_calibration: setup.imu.clone(),
+            handle: setup.handle.clone(),
+            buffers: buffers.clone(),
+            imu,
+            gt,
+            support_seconds: params.adapt_support_seconds,
+            ground_truth: format!("{} as {}", params.ground_truth_topic, params.ground_truth_type),
+            out_dir: params.adapted_model_dir.clone(),
+            cfg: crate::adapt::AdaptConfig { cancel, ..params.adapt.clone() },
+            known_power_on_bias,
+            archive,
+            requested_by,
         }
     }
 }
@@ -417,20 +437,7 @@ impl Job {
         }
         let mut r = outcome.report;
         r.requested_by = Some(self.requested_by.clone());
-        let figures = format!(
-            "query AOE {:.3}° → {:.3}° (raw gyro {:.3}°), support {:.1} s, query {:.1} s, {} steps in {:.1} s",
-            r.query_before.aoe_deg,
-            r.kept_query().unwrap_or(&r.query_after).aoe_deg,
-            r.query_raw.aoe_deg,
-            r.support_seconds,
-            r.query_seconds,
-            r.steps,
-            r.step_seconds
-        );
-        let figures = match r.kind {
-            Some(k) => format!("{}: {figures}", k.name()),
-            None => figures,
-        };
+        let figures = figures_of(&r);
         let figures = [Some(figures), Some(judged_on), kept_as].into_iter().flatten().collect::<Vec<_>>().join("; ");
         let Some(adapted) = outcome.adapted else {
             return Ok(JobResult { success: false, message: format!("{}; {figures}", r.verdict), report: Some(r), model_name: None });
@@ -440,8 +447,26 @@ impl Job {
         let unix = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
         let name = format!("{}-adapted-{unix}", loaded.metadata.name);
         let paths = crate::adapt::save_adapted(&adapted, &r, &dir, &name)?;
+        let swapped = self.hand_over(&paths.torchscript)?;
+        Ok(JobResult {
+            success: true,
+            message: format!(
+                "adapted: {figures}; saved {}; {swapped}; total {:.1} s",
+                paths.torchscript.display(),
+                t0.elapsed().as_secs_f64()
+            ),
+            report: Some(r),
+            model_name: Some(name),
+        })
+    }
+}
+
+impl Job {
+    /// The adapted model handed to the pipeline: warmed on the recent history and swapped in
+    /// between two samples; says where it was swapped in (or that it will be).
+    fn hand_over(&self, torchscript: &Path) -> Result<String, JobError> {
         // Its own (adapted) Ĉ_ω.
-        let mut corrector = ModelCorrector::load(&paths.torchscript, None)?;
+        let mut corrector = ModelCorrector::load(torchscript, None)?;
         // Warm the new streaming model on the recent history, then hand it over: the
         // pipeline catches up on what arrived meanwhile and swaps between two samples. While
         // the model is fed periods, the buffer's samples are not its inputs: offered cold, it
@@ -469,16 +494,26 @@ impl Job {
             (n, Some((seq, caught_up))) if n > swaps_before => format!("swapped in at sample {seq} (caught up {caught_up} samples)"),
             _ => "will be swapped in at the next sample".to_string(),
         };
-        Ok(JobResult {
-            success: true,
-            message: format!(
-                "adapted: {figures}; saved {}; {swapped}; total {:.1} s",
-                paths.torchscript.display(),
-                t0.elapsed().as_secs_f64()
-            ),
-            report: Some(r),
-            model_name: Some(name),
-        })
+        Ok(swapped)
+    }
+}
+
+/// The adaptation's figures for the reply: the query's AOE before and with the candidate
+/// kept, raw, the sets' lengths, the steps; the kind kept first.
+fn figures_of(r: &crate::adapt::AdaptReport) -> String {
+    let figures = format!(
+        "query AOE {:.3}° → {:.3}° (raw gyro {:.3}°), support {:.1} s, query {:.1} s, {} steps in {:.1} s",
+        r.query_before.aoe_deg,
+        r.kept_query().unwrap_or(&r.query_after).aoe_deg,
+        r.query_raw.aoe_deg,
+        r.support_seconds,
+        r.query_seconds,
+        r.steps,
+        r.step_seconds
+    );
+    match r.kind {
+        Some(k) => format!("{}: {figures}", k.name()),
+        None => figures,
     }
 }
 

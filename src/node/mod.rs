@@ -164,16 +164,7 @@ pub async fn run_node_with_adaptation(
     let spinner = node.spinner().map_err(|e| NodeError::Dds(format!("{e:?}")))?;
 
     let memory_writer = power_on::BiasMemoryWriter::new(&params.power_on_bias_memory, &pipeline);
-    let stats = Arc::new(Mutex::new(NodeStats {
-        power_on_bias_memory: memory_writer.as_ref().map_or(String::new(), power_on::BiasMemoryWriter::started),
-        model: pipeline.corrector_name().to_string(),
-        security: env.security.clone(),
-        window: pipeline.window(),
-        model_status,
-        warming_up: true,
-        adapt_status: adapt.status(),
-        ..Default::default()
-    }));
+    let stats = Arc::new(Mutex::new(initial_stats(&pipeline, memory_writer.as_ref(), &env, model_status, &adapt)));
     tracing::info!(input = %params.input_topic, output = %params.output_topic, domain = env.domain_id, localhost_only = env.localhost_only, "node {node_name} up");
 
     let spin = tokio::spawn(async move {
@@ -246,6 +237,27 @@ pub async fn run_node_with_adaptation(
     node.stop_spinner();
     spin.abort();
     Ok(stats)
+}
+
+/// What /diagnostics says before the first sample: the model, its window, the security, the
+/// bias memory and the adaptation service.
+fn initial_stats(
+    pipeline: &Pipeline,
+    memory_writer: Option<&power_on::BiasMemoryWriter>,
+    env: &RosEnvironment,
+    model_status: String,
+    adapt: &AdaptService,
+) -> NodeStats {
+    NodeStats {
+        power_on_bias_memory: memory_writer.map_or(String::new(), power_on::BiasMemoryWriter::started),
+        model: pipeline.corrector_name().to_string(),
+        security: env.security.clone(),
+        window: pipeline.window(),
+        model_status,
+        warming_up: true,
+        adapt_status: adapt.status(),
+        ..Default::default()
+    }
 }
 
 /// The ROS node on `context`, every parameter declared (`ros2 param get`), two settable while

@@ -185,10 +185,27 @@ fn event_list(stats: &NodeStats) -> String {
 
 /// Build the /diagnostics message from the stats and what the status clock measured.
 pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, stamp: Time) -> DiagnosticArray {
+    let (level, message) = level_and_message(stats, live);
+    let mut values = key_values(stats, live);
+    adaptation_values(stats, &mut values);
+    DiagnosticArray {
+        header: Header { stamp, frame_id: String::new() },
+        status: vec![DiagnosticStatus {
+            level,
+            name: format!("{node_name}: gyro denoiser"),
+            message,
+            hardware_id: stats.frame_id.clone(),
+            values,
+        }],
+    }
+}
+
+/// The status's level and one-line message: the worst news first.
+fn level_and_message(stats: &NodeStats, live: &Liveness) -> (u8, String) {
     let c = &stats.counters;
     let recent = live.since_event_s.is_some_and(|s| s < EVENT_WARN_S);
     // A driver gone silent is the worst news, whatever the model's state.
-    let (level, message) = if let Some(s) = live.since_input_s.filter(|s| *s > INPUT_STALE_AFTER_S && c.received > 0) {
+    if let Some(s) = live.since_input_s.filter(|s| *s > INPUT_STALE_AFTER_S && c.received > 0) {
         let model = if stats.model_status != "ok" { format!("; {}", stats.model_status) } else { String::new() };
         (DiagnosticStatus::ERROR, format!("no input for {s:.1} s{model}"))
     } else if stats.model_status != "ok" {
@@ -211,9 +228,17 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         (DiagnosticStatus::OK, format!("running; earlier: {}", event_list(stats)))
     } else {
         (DiagnosticStatus::OK, "running".to_string())
-    };
-    let kv = |k: &str, v: String| KeyValue { key: k.into(), value: v };
-    let values = vec![
+    }
+}
+
+fn kv(k: &str, v: String) -> KeyValue {
+    KeyValue { key: k.into(), value: v }
+}
+
+/// The values every status carries, and those present only when they say something.
+fn key_values(stats: &NodeStats, live: &Liveness) -> Vec<KeyValue> {
+    let c = &stats.counters;
+    let mut values = vec![
         kv("model", stats.model.clone()),
         kv("window_samples", stats.window.to_string()),
         kv("input_rate_hz", format!("{:.2}", live.input_rate_hz)),
@@ -266,13 +291,17 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
         kv("incompatible_peers", stats.incompatible_peers.present.to_string()),
         kv("incompatible_peers_said", stats.incompatible_peers.said.to_string()),
     ];
-    let mut values = values;
     if !stats.incompatible_peers.described.is_empty() {
         values.push(kv("incompatible_peer_list", stats.incompatible_peers.described.join("; ")));
     }
     if !stats.security.is_empty() {
         values.push(kv("security", stats.security.clone()));
     }
+    values
+}
+
+/// What the adaptation service did, when it is on.
+fn adaptation_values(stats: &NodeStats, values: &mut Vec<KeyValue>) {
     if stats.adapt_status == super::ADAPTATION_OFF {
         values.push(kv("adaptation", stats.adapt_status.clone()));
     } else if !stats.adapt_status.is_empty() {
@@ -289,16 +318,6 @@ pub fn diagnostics_message(stats: &NodeStats, live: &Liveness, node_name: &str, 
             values.push(kv(&format!("latency_{state}_p99_us"), format!("{:.0}", h.quantile_us(0.99))));
             values.push(kv(&format!("latency_{state}_max_us"), format!("{:.0}", h.max_us())));
         }
-    }
-    DiagnosticArray {
-        header: Header { stamp, frame_id: String::new() },
-        status: vec![DiagnosticStatus {
-            level,
-            name: format!("{node_name}: gyro denoiser"),
-            message,
-            hardware_id: stats.frame_id.clone(),
-            values,
-        }],
     }
 }
 

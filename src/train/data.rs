@@ -479,6 +479,50 @@ pub fn check_length(task: &Task, needed: usize, what: &str, available: usize) ->
     Ok(())
 }
 
+/// Why no IMU sample has ground truth: the poses cover the IMU's span but with holes longer
+/// than the interpolation allows, or the two do not overlap at all.
+fn not_covered(rec: &Recording, cfg: &DatasetConfig) -> DataError {
+    let (i0, i1) = (rec.imu[0].stamp_ns, rec.imu[rec.imu.len() - 1].stamp_ns);
+    let (g0, g1) = (rec.ground_truth[0].stamp_ns, rec.ground_truth[rec.ground_truth.len() - 1].stamp_ns);
+    if g0 <= i1 && g1 >= i0 {
+        return DataError::NotCovered {
+            name: rec.name.clone(),
+            poses: rec.ground_truth.len(),
+            gt_start: g0 as f64 * 1e-9,
+            gt_end: g1 as f64 * 1e-9,
+            max_gap_ms: cfg.max_interpolation_gap_ms,
+        };
+    }
+    DataError::NoOverlap {
+        name: rec.name.clone(),
+        imu_start: i0 as f64 * 1e-9,
+        imu_end: i1 as f64 * 1e-9,
+        gt_start: g0 as f64 * 1e-9,
+        gt_end: g1 as f64 * 1e-9,
+    }
+}
+
+/// A hole in the IMU stream (a dropout of more than the node's gap rule) is no interval to
+/// integrate over: the samples either side are masked like a ground-truth gap, and said.
+fn mask_imu_holes(name: &str, imu: &[crate::core::ImuSample], valid: &mut [bool]) {
+    let n = imu.len();
+    let period_ns = 1e9 / crate::core::nominal_rate_hz(imu).max(1e-9);
+    let limit_ns = (crate::resample::GAP_PERIODS * period_ns) as i64;
+    let holes: Vec<usize> = (1..n).filter(|&k| imu[k].stamp_ns - imu[k - 1].stamp_ns > limit_ns).collect();
+    if let Some(longest) = holes.iter().map(|&k| imu[k].stamp_ns - imu[k - 1].stamp_ns).max() {
+        tracing::warn!(
+            "{}: {} gap(s) in the IMU stream (longest {:.3} s): the increments across them are left out of the loss",
+            name,
+            holes.len(),
+            longest as f64 * 1e-9
+        );
+        for &k in &holes {
+            valid[k - 1] = false;
+            valid[k] = false;
+        }
+    }
+}
+
 /// [`load_task`] on a recording already in memory (the checks, ground truth at the IMU
 /// stamps, the crop of `src.start_s` / `src.end_s` and the support split): the node's
 /// buffered data and `imu-fsda adapt`'s split bag go through the trainer's own path.
@@ -491,26 +535,7 @@ pub fn task_from_recording(
     let (gt, valid) = ground_truth_at_imu(&rec, cfg);
     let first = gt.iter().position(Option::is_some);
     let last = gt.iter().rposition(Option::is_some);
-    let (Some(first), Some(last)) = (first, last) else {
-        let (i0, i1) = (rec.imu[0].stamp_ns, rec.imu[rec.imu.len() - 1].stamp_ns);
-        let (g0, g1) = (rec.ground_truth[0].stamp_ns, rec.ground_truth[rec.ground_truth.len() - 1].stamp_ns);
-        if g0 <= i1 && g1 >= i0 {
-            return Err(DataError::NotCovered {
-                name: rec.name.clone(),
-                poses: rec.ground_truth.len(),
-                gt_start: g0 as f64 * 1e-9,
-                gt_end: g1 as f64 * 1e-9,
-                max_gap_ms: cfg.max_interpolation_gap_ms,
-            });
-        }
-        return Err(DataError::NoOverlap {
-            name: rec.name.clone(),
-            imu_start: i0 as f64 * 1e-9,
-            imu_end: i1 as f64 * 1e-9,
-            gt_start: g0 as f64 * 1e-9,
-            gt_end: g1 as f64 * 1e-9,
-        });
-    };
+    let (Some(first), Some(last)) = (first, last) else { return Err(not_covered(&rec, cfg)) };
     // Optional crop, in seconds from the first covered sample.
     let t0 = rec.imu[first].stamp_ns;
     let covered_s = (rec.imu[last].stamp_ns - t0) as f64 * 1e-9;
@@ -530,23 +555,7 @@ pub fn task_from_recording(
     let gt = &gt[a..=b];
     let mut valid = valid[a..=b].to_vec();
     let n = imu.len();
-    // A hole in the IMU stream (a dropout of more than the node's gap rule) is no interval to
-    // integrate over: the samples either side are masked like a ground-truth gap, and said.
-    let period_ns = 1e9 / crate::core::nominal_rate_hz(&imu).max(1e-9);
-    let limit_ns = (crate::resample::GAP_PERIODS * period_ns) as i64;
-    let holes: Vec<usize> = (1..n).filter(|&k| imu[k].stamp_ns - imu[k - 1].stamp_ns > limit_ns).collect();
-    if let Some(longest) = holes.iter().map(|&k| imu[k].stamp_ns - imu[k - 1].stamp_ns).max() {
-        tracing::warn!(
-            "{}: {} gap(s) in the IMU stream (longest {:.3} s): the increments across them are left out of the loss",
-            rec.name,
-            holes.len(),
-            longest as f64 * 1e-9
-        );
-        for &k in &holes {
-            valid[k - 1] = false;
-            valid[k] = false;
-        }
-    }
+    mask_imu_holes(&rec.name, &imu, &mut valid);
     let valid = &valid[..];
     let cropped = Recording { name: rec.name.clone(), imu, ground_truth: rec.ground_truth, temperature: Vec::new() };
 
