@@ -336,7 +336,9 @@ fn adapt_service_answers_when_it_cannot_adapt() {
 
     // ---- a flood of calls: each answered and counted, the log one line a second.
     let mut peer_args = csv_args.to_vec();
-    peer_args.extend(["--count", "2000", "--requests", "3x50", "--after-s", "1", "--no-ground-truth-reader"]);
+    // A reply timeout well inside the run's: should replies go missing, the peer and the node
+    // still end and say how many calls the node counted beside the replies that came.
+    peer_args.extend(["--count", "2000", "--requests", "3x50", "--after-s", "1", "--no-ground-truth-reader", "--reply-timeout-s", "15"]);
     let params = write_params(dir.path(), &adapted_dir);
     let o = run(
         &pre,
@@ -349,7 +351,12 @@ fn adapt_service_answers_when_it_cannot_adapt() {
     );
     let logs = &o.logs;
     assert_eq!(o.rc, vec![0, 0], "flood: peer / node exit codes\n{logs}");
-    assert_eq!(o.peer["replies"].as_array().unwrap().len(), 50, "flood: every call answered\n{logs}");
+    assert_eq!(
+        o.peer["replies"].as_array().unwrap().len(),
+        50,
+        "flood: every call answered (the node counted {} refused)\n{logs}",
+        o.node_stats["adapt_calls_refused"]
+    );
     assert_eq!(o.node_stats["adapt_calls_refused"], 50, "flood: every call counted\n{logs}");
     let lines = logs.matches("(refused: ").count();
     assert!((1..=5).contains(&lines), "flood: {lines} log lines for 50 calls\n{logs}");
