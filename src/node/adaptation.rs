@@ -283,16 +283,8 @@ pub(super) async fn respond(
     success: bool,
     message: String,
 ) {
-    if let Err(e) = server.async_send_response(id, TriggerResponse { success, message }).await {
-        tracing::warn!("~/adapt response: {e:?}");
-    }
-    // Replies a millisecond apart: a flood answered in one burst lost 10 of 50 replies to a
-    // Cyclone DDS client in 3 of 6 runs, never repaired (tests/dds_adapt.rs, the flood).
-    tokio::time::sleep(REPLY_SPACING).await;
+    super::endpoints::reply_spaced(server, id, TriggerResponse { success, message }, "~/adapt").await;
 }
-
-/// The least time between two replies of a service.
-const REPLY_SPACING: Duration = Duration::from_millis(1);
 
 /// Why an adaptation job ended without a model (the reply says it, then "the current model
 /// keeps running").

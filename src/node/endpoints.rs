@@ -115,3 +115,21 @@ impl Endpoints {
 pub(super) fn service_qos() -> QosProfile {
     QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 100 })
 }
+
+/// Sends a service's reply, then waits [`REPLY_SPACING`]: a flood answered in one burst lost
+/// 10 of 50 replies to a Cyclone DDS client in 3 of 6 runs, never repaired (tests/dds_adapt.rs,
+/// the flood). A failed send is logged under `service`.
+pub(super) async fn reply_spaced(
+    server: &ros2_client::service::Server<TriggerRequest, TriggerResponse>,
+    id: ros2_client::RmwRequestId,
+    reply: TriggerResponse,
+    service: &str,
+) {
+    if let Err(e) = server.async_send_response(id, reply).await {
+        tracing::warn!("{service} response: {e:?}");
+    }
+    tokio::time::sleep(REPLY_SPACING).await;
+}
+
+/// The least time between two replies of a service.
+const REPLY_SPACING: std::time::Duration = std::time::Duration::from_millis(1);

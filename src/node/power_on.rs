@@ -35,9 +35,7 @@ pub(super) async fn retake_service_loop(server: &Server, retake: &AtomicBool) {
                 retake.store(true, Ordering::Release);
                 tracing::info!("~/retake_power_on_bias: {RETAKE_REPLY}");
                 let reply = TriggerResponse { success: true, message: RETAKE_REPLY.into() };
-                if let Err(e) = server.async_send_response(id, reply).await {
-                    tracing::warn!("~/retake_power_on_bias response: {e:?}");
-                }
+                super::endpoints::reply_spaced(server, id, reply, "~/retake_power_on_bias").await;
             }
             Err(e) => tracing::warn!("~/retake_power_on_bias request: {e:?}"),
         }
