@@ -4,19 +4,13 @@
 //! sample; on simulated power-ons of a consumer part, whose turn-on bias is drawn anew each
 //! time, nothing is predicted and nothing changes.
 
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod common;
 
-use common::{bin, shared_data};
-
-fn ok(cmd: &mut Command) -> String {
-    let o = cmd.output().expect("spawn imu-fsda");
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(o.status.success(), "{cmd:?} failed:\n{err}");
-    err
-}
+use common::{bin, eval_power_on_bias, ok, shared_data};
 
 fn import(data: &Path, seq: &str, dir: &Path) -> PathBuf {
     let bag = dir.join(format!("{seq}.mcap"));
@@ -26,15 +20,8 @@ fn import(data: &Path, seq: &str, dir: &Path) -> PathBuf {
 
 /// `eval --method power-on-bias` on `bag` (with `memory`, if given): (AOE °, the row's note).
 fn power_on_bias(bag: &Path, memory: Option<&Path>, dir: &Path) -> (f64, String) {
-    let json = dir.join("eval.json");
-    let mut cmd = Command::new(bin());
-    cmd.arg("eval").arg(bag).args(["--method", "power-on-bias", "--json"]).arg(&json);
-    if let Some(m) = memory {
-        cmd.arg("--bias-memory").arg(m);
-    }
-    ok(&mut cmd);
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    let row = &v["rows"][0];
+    let extra: Vec<&OsStr> = memory.map(|m| vec![OsStr::new("--bias-memory"), m.as_os_str()]).unwrap_or_default();
+    let row = eval_power_on_bias(bag, &extra, dir);
     (row["aoe_deg"].as_f64().unwrap_or_else(|| panic!("no AOE: {row}")), row["note"].as_str().unwrap_or_default().to_string())
 }
 

@@ -4,29 +4,18 @@
 //! seconds; a simulated car, whose sustained accelerations the filter takes for a bias until
 //! its check refuses them, is why the switch is off by default.
 
+use std::ffi::OsStr;
 use std::path::Path;
 use std::process::Command;
 
 mod common;
 
-use common::{bin, shared_data};
+use common::{bin, eval_power_on_bias, ok, shared_data};
 
-fn ok(cmd: &mut Command) {
-    let o = cmd.output().expect("spawn imu-fsda");
-    assert!(o.status.success(), "{cmd:?} failed:\n{}", String::from_utf8_lossy(&o.stderr));
-}
-
-/// `eval --method power-on-bias` on `bag`: (AOE °, tilt RMS °).
+/// `eval --method power-on-bias` on `bag` (with `params`, if given): (AOE °, tilt RMS °).
 fn power_on_bias(bag: &Path, params: Option<&Path>, dir: &Path) -> (f64, f64) {
-    let json = dir.join("eval.json");
-    let mut cmd = Command::new(bin());
-    cmd.arg("eval").arg(bag).args(["--method", "power-on-bias", "--json"]).arg(&json);
-    if let Some(p) = params {
-        cmd.arg("--params").arg(p);
-    }
-    ok(&mut cmd);
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    let row = &v["rows"][0];
+    let extra: Vec<&OsStr> = params.map(|p| vec![OsStr::new("--params"), p.as_os_str()]).unwrap_or_default();
+    let row = eval_power_on_bias(bag, &extra, dir);
     let deg = |k: &str| row[k].as_f64().unwrap_or_else(|| panic!("no {k}: {row}"));
     (deg("aoe_deg"), deg("tilt_rmse_deg"))
 }

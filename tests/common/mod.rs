@@ -98,6 +98,22 @@ impl Drop for Guarded {
     }
 }
 
+/// Runs `cmd` to completion; panics with its stderr on failure, else returns the stderr.
+pub fn ok(cmd: &mut Command) -> String {
+    let o = cmd.output().expect("spawn imu-fsda");
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{cmd:?} failed:\n{err}");
+    err
+}
+
+/// `imu-fsda eval BAG --method power-on-bias EXTRA…`: the one row of its `--json` (written in `dir`).
+pub fn eval_power_on_bias(bag: &Path, extra: &[&OsStr], dir: &Path) -> Value {
+    let json = dir.join("eval.json");
+    ok(Command::new(bin()).arg("eval").arg(bag).args(["--method", "power-on-bias"]).args(extra).arg("--json").arg(&json));
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("eval wrote its --json")).expect("eval's --json parses");
+    v["rows"][0].clone()
+}
+
 /// Run `imu-fsda args` to completion within `timeout`, output captured; panics with it on failure.
 pub fn run_cli(args: &[&str], what: &str, timeout: Duration) -> String {
     let mut cmd = Command::new(bin());
