@@ -78,6 +78,13 @@ pub struct MotionBiasConfig {
     /// multirotor, a hand-held device, a legged robot); a car's sustained accelerations are
     /// taken for a bias until the check refuses them (docs/poweron.md).
     pub apply_before_check: bool,
+    /// A platform that moves along its body x axis (a car: no side slip, no vertical
+    /// velocity in its own frame): its forward speed is a state, 0 ± this at the start, m/s
+    /// (0: not such a platform). A block's mean acceleration is then the speed's change along
+    /// x plus speed × turn rate across it (a bend's centripetal acceleration), not an error.
+    pub forward_speed_stddev: f64,
+    /// How fast that speed changes, m/s/√s (a braking of 5 m/s² for 2 s is 10 m/s).
+    pub forward_speed_walk: f64,
 }
 
 impl Default for MotionBiasConfig {
@@ -105,6 +112,8 @@ impl Default for MotionBiasConfig {
             max_block_nis: f64::INFINITY,
             min_tilt_about_up: 0.5,
             apply_before_check: false,
+            forward_speed_stddev: 0.0,
+            forward_speed_walk: 3.0,
         }
     }
 }
@@ -148,6 +157,11 @@ impl MotionBiasConfig {
         if !(self.bias_random_walk.is_finite() && self.bias_random_walk >= 0.0) {
             return Err(format!("bias_random_walk must be finite and ≥ 0, not {}", self.bias_random_walk).into());
         }
+        for (key, value) in [("forward_speed_stddev", self.forward_speed_stddev), ("forward_speed_walk", self.forward_speed_walk)] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("{key} must be finite and ≥ 0, not {value}").into());
+            }
+        }
         Ok(())
     }
 }
@@ -162,11 +176,22 @@ struct Block {
     /// Σ R̂ and Σ R̂ (t − start), s: how a bias error since each sample reaches the block end.
     rotation: Matrix3<f64>,
     rotation_t: Matrix3<f64>,
+    /// Σ R̂ (ω × x) and Σ R̂ (ω × x) (t − start), s: a forward speed's centripetal acceleration.
+    bend: Vector3<f64>,
+    bend_t: Vector3<f64>,
 }
 
 impl Block {
     fn empty(start_ns: i64) -> Self {
-        Block { start_ns, n: 0, force: Vector3::zeros(), rotation: Matrix3::zeros(), rotation_t: Matrix3::zeros() }
+        Block {
+            start_ns,
+            n: 0,
+            force: Vector3::zeros(),
+            rotation: Matrix3::zeros(),
+            rotation_t: Matrix3::zeros(),
+            bend: Vector3::zeros(),
+            bend_t: Vector3::zeros(),
+        }
     }
 }
 
@@ -181,8 +206,12 @@ pub enum BlockVerdict {
 }
 
 /// The error state: attitude about world x, y, z (rad), gyro bias (rad/s), accelerometer bias
-/// (m/s²), IMU axes for both.
-type Cov = SMatrix<f64, 9, 9>;
+/// (m/s²), IMU axes for both; the forward speed (m/s; zero and unused unless
+/// `forward_speed_stddev` is set).
+const N: usize = 10;
+type Cov = SMatrix<f64, N, N>;
+/// Where the forward speed sits in the state.
+const U: usize = 9;
 
 /// The running filter.
 #[derive(Debug, Clone)]
@@ -191,6 +220,8 @@ pub struct MotionBias {
     world_from_body: Option<UnitQuaternion<f64>>,
     bias: Vector3<f64>,
     accel_bias: Vector3<f64>,
+    /// The forward speed at the start of the block in progress, m/s.
+    speed: f64,
     p: Cov,
     last: Option<(i64, Vector3<f64>)>,
     block: Block,
@@ -215,11 +246,13 @@ impl MotionBias {
         let mut p = Cov::zeros();
         p.fixed_view_mut::<3, 3>(3, 3).copy_from(&(Matrix3::identity() * cfg.prior_stddev.powi(2)));
         p.fixed_view_mut::<3, 3>(6, 6).copy_from(&(Matrix3::identity() * cfg.accel_bias_stddev.powi(2)));
+        p[(U, U)] = cfg.forward_speed_stddev.powi(2);
         MotionBias {
             cfg,
             world_from_body: None,
             bias: Vector3::zeros(),
             accel_bias: Vector3::zeros(),
+            speed: 0.0,
             p,
             last: None,
             block: Block::empty(0),
@@ -343,8 +376,8 @@ impl MotionBias {
     pub fn start_at(&mut self, world_from_body: UnitQuaternion<f64>, covariance: Matrix3<f64>, at_ns: i64, gyro: Vector3<f64>) {
         self.world_from_body = Some(world_from_body);
         let mut p = self.p;
-        p.fixed_view_mut::<3, 9>(0, 0).fill(0.0);
-        p.fixed_view_mut::<9, 3>(0, 0).fill(0.0);
+        p.fixed_view_mut::<3, N>(0, 0).fill(0.0);
+        p.fixed_view_mut::<N, 3>(0, 0).fill(0.0);
         // A tilt found from the specific force carries the accelerometer's bias: level in the
         // estimate means R̂ (f) ∥ z, so δθ_x = (R̂ b_a)_y / g and δθ_y = −(R̂ b_a)_x / g. Its
         // variance and its correlation with b_a are part of the start (without them, the error
@@ -375,6 +408,9 @@ impl MotionBias {
         for i in 0..3 {
             self.p[(i, i)] += added_variance;
         }
+        if self.cfg.forward_speed_stddev > 0.0 {
+            self.p[(U, U)] += self.cfg.forward_speed_walk.powi(2) * (at_ns - self.block.start_ns).max(0) as f64 * 1e-9;
+        }
         self.block = Block::empty(at_ns);
     }
 
@@ -389,8 +425,8 @@ impl MotionBias {
         self.bias = bias;
         self.seeded = true;
         let mut p = self.p;
-        p.fixed_view_mut::<3, 9>(3, 0).fill(0.0);
-        p.fixed_view_mut::<9, 3>(0, 3).fill(0.0);
+        p.fixed_view_mut::<3, N>(3, 0).fill(0.0);
+        p.fixed_view_mut::<N, 3>(0, 3).fill(0.0);
         p.fixed_view_mut::<3, 3>(3, 3).copy_from(&Matrix3::from_diagonal(&variance));
         self.p = p;
         self.decide_applied();
@@ -429,8 +465,8 @@ impl MotionBias {
         self.world_from_body = Some(tilt);
         let v = self.cfg.initial_tilt_stddev.powi(2);
         let mut p = self.p;
-        p.fixed_view_mut::<3, 9>(0, 0).fill(0.0);
-        p.fixed_view_mut::<9, 3>(0, 0).fill(0.0);
+        p.fixed_view_mut::<3, N>(0, 0).fill(0.0);
+        p.fixed_view_mut::<N, 3>(0, 0).fill(0.0);
         p.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::from_diagonal(&Vector3::new(v, v, 1.0)));
         self.p = p;
         self.block = Block::empty(s.stamp_ns);
@@ -443,7 +479,15 @@ impl MotionBias {
         b.n += 1;
         b.force += r * (s.accel - self.accel_bias);
         b.rotation += r;
-        b.rotation_t += r * ((s.stamp_ns - b.start_ns) as f64 * 1e-9);
+        let t = (s.stamp_ns - b.start_ns) as f64 * 1e-9;
+        b.rotation_t += r * t;
+        if self.cfg.forward_speed_stddev > 0.0 {
+            // ω × x = (0, ω_z, −ω_y).
+            let w = s.gyro - self.bias;
+            let bend = r * Vector3::new(0.0, w.z, -w.y);
+            b.bend += bend;
+            b.bend_t += bend * t;
+        }
     }
 
     /// The attitude turned by the last rate minus the bias; the error's covariance grown:
@@ -454,12 +498,12 @@ impl MotionBias {
         // Φ = I + E, E's only block A = −R̂ dt at (attitude, bias): Φ P Φᵀ = P + E P + (E P)ᵀ
         // + E P Eᵀ, with E P = A P[bias rows] in the attitude rows (≈ 150 products, not 1,500).
         let a = -r * dt;
-        let ep: SMatrix<f64, 3, 9> = a * self.p.fixed_view::<3, 9>(3, 0);
+        let ep: SMatrix<f64, 3, N> = a * self.p.fixed_view::<3, N>(3, 0);
         let epe: Matrix3<f64> = ep.fixed_view::<3, 3>(0, 3) * a.transpose();
         let mut p = self.p;
-        let mut rows = p.fixed_view_mut::<3, 9>(0, 0);
+        let mut rows = p.fixed_view_mut::<3, N>(0, 0);
         rows += ep;
-        let mut cols = p.fixed_view_mut::<9, 3>(0, 0);
+        let mut cols = p.fixed_view_mut::<N, 3>(0, 0);
         cols += ep.transpose();
         let mut corner = p.fixed_view_mut::<3, 3>(0, 0);
         corner += epe;
@@ -474,29 +518,59 @@ impl MotionBias {
         }
     }
 
-    /// The block's world-frame mean specific force against gravity: a 3-row update.
+    /// Closes the block ending at `end_ns`: its measurement; the forward speed carried to the
+    /// next block's start even where the block is not used.
     fn close_block(&mut self, end_ns: i64) -> BlockVerdict {
+        let verdict = self.measure_block(end_ns);
+        if verdict != BlockVerdict::Used && self.cfg.forward_speed_stddev > 0.0 {
+            self.p[(U, U)] += self.cfg.forward_speed_walk.powi(2) * (end_ns - self.block.start_ns) as f64 * 1e-9;
+        }
+        verdict
+    }
+
+    /// The block's world-frame mean specific force against gravity: a 3-row update. With a
+    /// forward speed u (u_end = u_start + w over the block, linear in between), the block's mean
+    /// acceleration is w (mean(R̂ x) / T + mean(R̂ (ω × x) t / T)) + u_start mean(R̂ (ω × x)):
+    /// the update is made on the state and this block's w together, then u carried to u_end.
+    fn measure_block(&mut self, end_ns: i64) -> BlockVerdict {
         let b = self.block;
         let n = f64::from(b.n.max(1));
         let mean = b.force / n;
-        if b.n == 0 || (mean.norm() - STANDARD_GRAVITY).abs() > self.cfg.max_gravity_error {
+        let span_s = (end_ns - b.start_ns) as f64 * 1e-9;
+        let car = self.cfg.forward_speed_stddev > 0.0 && span_s > 0.0;
+        // Gravity plus the acceleration the forward speed predicts (a bend's, for a car).
+        let predicted = if car { b.bend / n * self.speed } else { Vector3::zeros() };
+        if b.n == 0 || ((mean - predicted).norm() - STANDARD_GRAVITY).abs() > self.cfg.max_gravity_error {
             self.skipped_blocks += 1;
             return BlockVerdict::NotGravity;
         }
         let Some(q) = self.world_from_body else { return BlockVerdict::NotGravity };
-        // m/g ≈ e_z + e_z × δθ̄ + R̄ δb_a / g, with δθ̄ = δθ_end + mean(R̂ (t_end − t)) δb the
-        // block's mean attitude error and R̄ its mean attitude.
-        let span_s = (end_ns - b.start_ns) as f64 * 1e-9;
+        // m/g ≈ e_z + e_z × δθ̄ + R̄ δb_a / g + ā / g, with δθ̄ = δθ_end + mean(R̂ (t_end − t)) δb
+        // the block's mean attitude error, R̄ its mean attitude and ā the platform's mean
+        // acceleration where it is modelled (a forward speed).
         let lag = (b.rotation * span_s - b.rotation_t) / n;
-        let residual = mean / STANDARD_GRAVITY - Vector3::z();
+        let (h_speed, h_change, q_w) = if car {
+            let h_speed = b.bend / (n * STANDARD_GRAVITY);
+            let h_change = (b.rotation.column(0) / span_s + b.bend_t / span_s) / (n * STANDARD_GRAVITY);
+            (h_speed, h_change, self.cfg.forward_speed_walk.powi(2) * span_s)
+        } else {
+            (Vector3::zeros(), Vector3::zeros(), 0.0)
+        };
+        let residual = mean / STANDARD_GRAVITY - Vector3::z() - h_speed * self.speed;
         // e_z × δθ = (−δθ_y, δθ_x, 0).
         let cross = Matrix3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-        let mut h = SMatrix::<f64, 3, 9>::zeros();
+        // The state and this block's speed change w (one more, independent of the state).
+        let mut h = SMatrix::<f64, 3, { N + 1 }>::zeros();
         h.fixed_view_mut::<3, 3>(0, 0).copy_from(&cross);
         h.fixed_view_mut::<3, 3>(0, 3).copy_from(&(cross * lag));
         h.fixed_view_mut::<3, 3>(0, 6).copy_from(&(b.rotation / (n * STANDARD_GRAVITY)));
+        h.fixed_view_mut::<3, 1>(0, U).copy_from(&h_speed);
+        h.fixed_view_mut::<3, 1>(0, N).copy_from(&h_change);
+        let mut p = SMatrix::<f64, { N + 1 }, { N + 1 }>::zeros();
+        p.fixed_view_mut::<N, N>(0, 0).copy_from(&self.p);
+        p[(N, N)] = q_w;
         let sigma = self.cfg.accel_stddev / STANDARD_GRAVITY;
-        let s = h * self.p * h.transpose() + Matrix3::identity() * sigma * sigma;
+        let s = h * p * h.transpose() + Matrix3::identity() * sigma * sigma;
         let Some(s_inv) = s.try_inverse() else {
             self.skipped_blocks += 1;
             return BlockVerdict::NotGravity;
@@ -507,14 +581,22 @@ impl MotionBias {
             return BlockVerdict::Outlier;
         }
         self.nis += (nis - self.nis) / f64::from(self.cfg.fit_blocks);
-        let k = self.p * h.transpose() * s_inv;
-        let dx: SVector<f64, 9> = k * residual;
-        let i_kh = Cov::identity() - k * h;
-        self.p = i_kh * self.p * i_kh.transpose() + k * k.transpose() * (sigma * sigma);
+        let k = p * h.transpose() * s_inv;
+        let dx: SVector<f64, { N + 1 }> = k * residual;
+        let i_kh = SMatrix::<f64, { N + 1 }, { N + 1 }>::identity() - k * h;
+        let p = i_kh * p * i_kh.transpose() + k * k.transpose() * (sigma * sigma);
+        // u_end = u_start + w.
+        let mut f = SMatrix::<f64, N, { N + 1 }>::zeros();
+        f.fixed_view_mut::<N, N>(0, 0).fill_with_identity();
+        f[(U, N)] = 1.0;
+        self.p = f * p * f.transpose();
         let dtheta = Vector3::new(dx[0], dx[1], dx[2]);
         self.world_from_body = Some(renormalize(exp(&dtheta) * q));
         self.bias += Vector3::new(dx[3], dx[4], dx[5]);
         self.accel_bias += Vector3::new(dx[6], dx[7], dx[8]);
+        if car {
+            self.speed += dx[U] + dx[N];
+        }
         self.used_blocks += 1;
         let up = b.rotation.transpose() * Vector3::z();
         let up = up.try_normalize(1e-9).unwrap_or_else(Vector3::z);
@@ -660,7 +742,7 @@ mod tests {
     #[test]
     fn the_covariance_step_is_the_dense_one() {
         let mut f = MotionBias::new(MotionBiasConfig::default());
-        let m = SMatrix::<f64, 9, 9>::from_fn(|i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
+        let m = Cov::from_fn(|i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
         f.p = m * m.transpose() + Cov::identity() * 0.1;
         let q = UnitQuaternion::from_euler_angles(0.3, -0.2, 1.1);
         let (w, dt) = (Vector3::new(0.2, -0.4, 0.1), 0.005);
@@ -674,6 +756,61 @@ mod tests {
             dense[(i + 3, i + 3)] += nb;
         }
         assert!((f.p - dense).amax() < 1e-15, "{}", (f.p - dense).amax());
+    }
+
+    /// A car: level, driving at 12 ± 2 m/s along its x axis through bends of up to 0.3 rad/s
+    /// (centripetal accelerations of up to 4 m/s², lasting seconds), braking and speeding up
+    /// by 0.2–0.6 m/s²; its gyro biased. Returns the samples and its true up in the body (z).
+    fn car(bias: Vector3<f64>, seconds: f64) -> Vec<ImuSample> {
+        let dt = 0.005;
+        let heading = |t: f64| 1.2 * (0.25 * t).sin() + 0.05 * t;
+        let speed = |t: f64| 12.0 + 2.0 * (0.1 * t).sin() + (0.3 * t).cos();
+        (0..(seconds / dt) as usize)
+            .map(|k| {
+                let t = k as f64 * dt;
+                let (h, h_rate) = (heading(t), (heading(t + 1e-4) - heading(t - 1e-4)) / 2e-4);
+                let velocity = |t: f64| Vector3::new(heading(t).cos(), heading(t).sin(), 0.0) * speed(t);
+                let accel = (velocity(t + 1e-4) - velocity(t - 1e-4)) / 2e-4;
+                let q = UnitQuaternion::from_euler_angles(0.0, 0.0, h);
+                let f = q.inverse() * (accel + Vector3::z() * STANDARD_GRAVITY);
+                ImuSample { stamp_ns: 1_000_000_000 + (t * 1e9) as i64, gyro: Vector3::new(0.0, 0.0, h_rate) + bias, accel: f }
+            })
+            .collect()
+    }
+
+    /// The filter's tilt error on the car (RMS over its second half, rad) and the largest
+    /// tilt NEES-like ratio error² / stated variance there.
+    fn tilt_on_car(cfg: MotionBiasConfig) -> (f64, f64) {
+        let imu = car(Vector3::new(0.004, -0.003, 0.002), 600.0);
+        let mut f = MotionBias::new(cfg);
+        let (mut sq, mut n, mut worst) = (0.0, 0.0, 0.0_f64);
+        for (k, s) in imu.iter().enumerate() {
+            f.push(s);
+            if k > imu.len() / 2 && k % 200 == 0 {
+                let q = f.world_from_body().expect("started");
+                // The truth is level: the estimate's up in the body against z.
+                let tilt = (q.inverse() * Vector3::z()).angle(&Vector3::z());
+                sq += tilt * tilt;
+                n += 1.0;
+                let p = f.attitude_covariance();
+                worst = worst.max(tilt * tilt / (p[(0, 0)] + p[(1, 1)]));
+            }
+        }
+        ((sq / n).sqrt(), worst)
+    }
+
+    /// On a car the bends' centripetal and the brakings' accelerations last seconds: taken as
+    /// the block's noise they tilt the estimate by degrees; with the forward speed as a state
+    /// they are predicted (speed × turn rate across, its change along), and the tilt follows
+    /// the truth to a fraction of that, within what the filter states.
+    #[test]
+    fn a_forward_speed_state_holds_a_car_level_through_its_bends() {
+        let plain = MotionBiasConfig::default();
+        let (without, _) = tilt_on_car(plain);
+        let (with, worst) = tilt_on_car(MotionBiasConfig { forward_speed_stddev: 20.0, accel_stddev: 0.5, ..plain });
+        eprintln!("car, tilt RMS: {:.3}° without the forward speed, {:.3}° with it", without.to_degrees(), with.to_degrees());
+        assert!(with < 0.3 * without, "{with} rad with the forward speed against {without} rad without");
+        assert!(worst < 16.0, "an error beyond 4 σ of what is stated: {worst}");
     }
 
     #[test]

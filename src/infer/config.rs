@@ -50,6 +50,37 @@ pub struct PipelineConfig {
     pub orientation: super::OrientationMode,
     /// The gravity-aided filter's settings.
     pub gravity_aided: super::GravityAidedConfig,
+    /// What carries the IMU: `any`, or `car` (a wheeled vehicle moving along the IMU's x axis),
+    /// whose settings [`Platform::preset`] fills in where the parameter file leaves them unset.
+    pub platform: Platform,
+}
+
+/// What carries the IMU, for the two gravity filters' model of its own accelerations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Platform {
+    /// Any platform: its accelerations are a block's noise.
+    #[default]
+    Any,
+    /// A car or another wheeled vehicle: it moves along the IMU's x axis (REP-103: x forward),
+    /// so a bend's acceleration is its speed × yaw rate and a braking is its speed's change
+    /// (`gravity_aided.forward_speed_stddev`): the published attitude's tilt holds through them.
+    Car,
+}
+
+impl Platform {
+    /// The settings a platform implies, as (key path below `pipeline`, YAML value): filled in
+    /// where the parameter file does not set them.
+    pub fn preset(self) -> &'static [(&'static [&'static str], &'static str)] {
+        match self {
+            Platform::Any => &[],
+            // Measured in docs/node.md ("A car"): a speed of 0 ± 20 m/s, the rest of a block
+            // 0.5 m/s² once bends and brakings are predicted. Not the bias seen in motion: there
+            // the speed × yaw rate ties the bias about up to the accelerometer's lateral bias
+            // (docs/log/2026-12-06-car-platform.md).
+            Platform::Car => &[(&["gravity_aided", "forward_speed_stddev"], "20.0"), (&["gravity_aided", "accel_stddev"], "0.5")],
+        }
+    }
 }
 
 impl Default for PipelineConfig {
@@ -71,6 +102,7 @@ impl Default for PipelineConfig {
             model_on_new_imu: false,
             orientation: super::OrientationMode::GravityAided,
             gravity_aided: super::GravityAidedConfig::default(),
+            platform: Platform::Any,
         }
     }
 }

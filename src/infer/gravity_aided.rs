@@ -54,6 +54,11 @@ pub struct GravityAidedConfig {
     pub bias_random_walk: f64,
     /// The accelerometer's bias before anything is measured: 0 ± this, m/s².
     pub accel_bias_stddev: f64,
+    /// A platform that moves along its body x (a car): its forward speed's prior σ, m/s (0:
+    /// not such a platform) ([`MotionBiasConfig::forward_speed_stddev`]).
+    pub forward_speed_stddev: f64,
+    /// How fast that speed changes, m/s/√s.
+    pub forward_speed_walk: f64,
 }
 
 impl Default for GravityAidedConfig {
@@ -78,6 +83,8 @@ impl Default for GravityAidedConfig {
             uncorrected_rate_error_fraction: 0.1,
             bias_random_walk: m.bias_random_walk,
             accel_bias_stddev: m.accel_bias_stddev,
+            forward_speed_stddev: m.forward_speed_stddev,
+            forward_speed_walk: m.forward_speed_walk,
         }
     }
 }
@@ -103,6 +110,8 @@ impl GravityAidedConfig {
             rate_error_fraction,
             bias_random_walk: self.bias_random_walk,
             accel_bias_stddev: self.accel_bias_stddev,
+            forward_speed_stddev: self.forward_speed_stddev,
+            forward_speed_walk: self.forward_speed_walk,
             prior_stddev: bias_stddev,
             // The pipeline's gaps are held (`hold`), never integrated: no sample gap restarts it.
             max_sample_gap_s: 1e9,

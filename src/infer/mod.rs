@@ -14,7 +14,7 @@ mod stamps;
 
 pub use attitude::{INIT_TURN_RATE, TURNING_INTERVALS};
 pub use choice::{choose, Correction, ModelDomain};
-pub use config::PipelineConfig;
+pub use config::{PipelineConfig, Platform};
 pub use corrector::{BiasCorrector, FullWindowCorrector, GyroCorrector, ModelCorrector, PassThrough};
 pub use counters::{Counters, Dropped};
 pub use gravity_aided::{GravityAidedConfig, OrientationMode, CHI2_3DOF_999};

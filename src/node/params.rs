@@ -176,7 +176,8 @@ impl NodeParams {
                 found: doc.keys().cloned().collect::<Vec<_>>().join(", "),
             });
         };
-        let params = doc[key].get("ros__parameters").cloned().unwrap_or(serde_yaml::Value::Null);
+        let mut params = doc[key].get("ros__parameters").cloned().unwrap_or(serde_yaml::Value::Null);
+        fill_platform_preset(&mut params);
         let params: Self = serde_yaml::from_value(params).map_err(|e| NodeError::Params { path: "<yaml>".into(), source: Box::new(e) })?;
         params.validate().map_err(|msg| NodeError::Params { path: "<yaml>".into(), source: msg.into() })?;
         Ok(params)
@@ -276,11 +277,49 @@ impl NodeParams {
     }
 }
 
+/// `pipeline.platform`'s settings ([`crate::infer::Platform::preset`]) written into the
+/// parameters where they do not set them: the file's own values win.
+fn fill_platform_preset(params: &mut serde_yaml::Value) {
+    let Some(pipeline) = params.get_mut("pipeline") else { return };
+    let Some(platform) = pipeline.get("platform").cloned() else { return };
+    // An unknown name is left for serde to refuse with the choices.
+    let Ok(platform) = serde_yaml::from_value::<crate::infer::Platform>(platform) else { return };
+    for (path, value) in platform.preset() {
+        let mut at = &mut *pipeline;
+        for key in &path[..path.len() - 1] {
+            let Some(map) = at.as_mapping_mut() else { return };
+            at = map.entry((*key).into()).or_insert_with(|| serde_yaml::Value::Mapping(Default::default()));
+        }
+        if let Some(map) = at.as_mapping_mut() {
+            let leaf = serde_yaml::Value::from(path[path.len() - 1]);
+            if let (false, Ok(value)) = (map.contains_key(&leaf), serde_yaml::from_str::<serde_yaml::Value>(value)) {
+                map.insert(leaf, value);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     /// A relative path in a parameter file is the file's folder's, whatever the working folder.
+    /// `platform: car` fills in its settings where the file leaves them, and not where it sets them.
+    #[test]
+    fn a_platform_fills_in_what_the_file_leaves_unset() {
+        let car = "imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: car\n";
+        let aided = NodeParams::from_yaml_str(car, "imu_fsda").unwrap().pipeline.gravity_aided;
+        assert_eq!((aided.forward_speed_stddev, aided.accel_stddev), (20.0, 0.5));
+        let p = NodeParams::from_yaml_str(&format!("{car}      gravity_aided:\n        accel_stddev: 0.7\n"), "imu_fsda").unwrap();
+        let aided = &p.pipeline.gravity_aided;
+        assert_eq!((aided.forward_speed_stddev, aided.accel_stddev), (20.0, 0.7), "the file's 0.7 stays");
+        assert_eq!(p.pipeline.standstill, crate::standstill::StandstillConfig::default(), "the bias seen in motion is not a car's");
+        let any = NodeParams::from_yaml_str("imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: any\n", "imu_fsda").unwrap();
+        assert_eq!(any.pipeline.gravity_aided, crate::infer::GravityAidedConfig::default());
+        let e = NodeParams::from_yaml_str("imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: boat\n", "imu_fsda").unwrap_err();
+        assert!(e.to_string().contains("car") || format!("{e:?}").contains("car"), "{e:?}");
+    }
+
     #[test]
     fn relative_paths_are_the_parameter_files_own() {
         let dir = tempfile::tempdir().unwrap();
