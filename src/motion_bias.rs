@@ -414,6 +414,11 @@ impl MotionBias {
         self.block = Block::empty(at_ns);
     }
 
+    /// The forward speed and its σ, m/s, where it is modelled (`forward_speed_stddev`).
+    pub fn forward_speed(&self) -> Option<(f64, f64)> {
+        (self.cfg.forward_speed_stddev > 0.0).then(|| (self.speed, self.p[(U, U)].max(0.0).sqrt()))
+    }
+
     /// Blocks used as measurements, and blocks left out.
     pub fn blocks(&self) -> (u64, u64) {
         (self.used_blocks, self.skipped_blocks)

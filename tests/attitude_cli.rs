@@ -173,6 +173,10 @@ fn a_car_declared_as_one_holds_its_tilt_through_its_bends() {
     };
     let (any, any_within) = tilt(None, "any");
     let (declared, declared_within) = tilt(Some(&car), "declared");
+    // /diagnostics says which attitude runs, and the speed it carries.
+    let said = run(Command::new(bin()).arg("bag").arg("echo").arg(d.join("declared.mcap")).args(["--topic", "/diagnostics"]));
+    let last = said.lines().last().expect("/diagnostics was written");
+    assert!(last.contains("gravity aided: ") && last.contains("a car, forward speed"), "{last}");
     eprintln!("car, 5 min: tilt RMS {any:.2}° as any platform, {declared:.2}° declared a car");
     assert!(declared < 0.5 * any, "{declared}° declared a car against {any}° as any platform");
     assert!(any_within >= 0.95 && declared_within >= 0.95, "within the stated 95 %: {any_within}, {declared_within}");

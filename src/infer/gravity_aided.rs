@@ -158,6 +158,11 @@ impl GravityAided {
     pub(super) fn blocks(&self) -> (u64, u64) {
         self.filter.blocks()
     }
+
+    /// A car's forward speed and its σ, m/s (`platform: car`).
+    pub(super) fn forward_speed(&self) -> Option<(f64, f64)> {
+        self.filter.forward_speed()
+    }
 }
 
 #[cfg(test)]

@@ -189,6 +189,12 @@ impl Pipeline {
         (self.cfg.orientation == OrientationMode::GravityAided).then(|| self.gravity_aided.as_ref().map_or((0, 0), GravityAided::blocks))
     }
 
+    /// The gravity-aided filter's forward speed and its σ, m/s, where it carries one
+    /// (`platform: car`).
+    pub fn gravity_aided_forward_speed(&self) -> Option<(f64, f64)> {
+        self.gravity_aided.as_ref().and_then(GravityAided::forward_speed)
+    }
+
     /// True while the platform is standing still (the last window judged was still).
     pub fn standing(&self) -> bool {
         self.standstill.standing()

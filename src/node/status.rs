@@ -15,6 +15,8 @@ pub struct NodeStats {
     /// The gravity-aided attitude's blocks used and left out (`orientation: gravity_aided`);
     /// `None`: the orientation is integrated open loop.
     pub gravity_aided_blocks: Option<(u64, u64)>,
+    /// The gravity-aided filter's forward speed and its σ, m/s (`platform: car`).
+    pub forward_speed: Option<(f64, f64)>,
     pub latency: LatencyHistogram,
     pub frame_changes: u64,
     pub decode_errors: u64,
@@ -249,7 +251,10 @@ fn key_values(stats: &NodeStats, live: &Liveness) -> Vec<KeyValue> {
             "orientation",
             match stats.gravity_aided_blocks {
                 None => "open loop".to_string(),
-                Some((used, left_out)) => format!("gravity aided: {used} blocks of gravity used, {left_out} left out"),
+                Some((used, left_out)) => {
+                    let car = stats.forward_speed.map_or(String::new(), |(u, s)| format!("; a car, forward speed {u:.1} ± {s:.1} m/s"));
+                    format!("gravity aided: {used} blocks of gravity used, {left_out} left out{car}")
+                }
             },
         ),
         kv(
