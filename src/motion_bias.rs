@@ -408,15 +408,25 @@ impl MotionBias {
         for i in 0..3 {
             self.p[(i, i)] += added_variance;
         }
-        if self.cfg.forward_speed_stddev > 0.0 {
-            self.p[(U, U)] += self.cfg.forward_speed_walk.powi(2) * (at_ns - self.block.start_ns).max(0) as f64 * 1e-9;
-        }
+        self.let_speed_wander((at_ns - self.block.start_ns).max(0) as f64 * 1e-9);
         self.block = Block::empty(at_ns);
     }
 
     /// The forward speed and its σ, m/s, where it is modelled (`forward_speed_stddev`).
     pub fn forward_speed(&self) -> Option<(f64, f64)> {
-        (self.cfg.forward_speed_stddev > 0.0).then(|| (self.speed, self.p[(U, U)].max(0.0).sqrt()))
+        self.models_speed().then(|| (self.speed, self.p[(U, U)].max(0.0).sqrt()))
+    }
+
+    /// True where the platform's forward speed is a state (a car).
+    fn models_speed(&self) -> bool {
+        self.cfg.forward_speed_stddev > 0.0
+    }
+
+    /// The forward speed's variance grown over `seconds` with nothing measured.
+    fn let_speed_wander(&mut self, seconds: f64) {
+        if self.models_speed() {
+            self.p[(U, U)] += self.cfg.forward_speed_walk.powi(2) * seconds;
+        }
     }
 
     /// Blocks used as measurements, and blocks left out.
@@ -480,13 +490,14 @@ impl MotionBias {
     fn accumulate(&mut self, s: &ImuSample) {
         let Some(q) = self.world_from_body else { return };
         let r = *q.to_rotation_matrix().matrix();
+        let models_speed = self.models_speed();
         let b = &mut self.block;
         b.n += 1;
         b.force += r * (s.accel - self.accel_bias);
         b.rotation += r;
         let t = (s.stamp_ns - b.start_ns) as f64 * 1e-9;
         b.rotation_t += r * t;
-        if self.cfg.forward_speed_stddev > 0.0 {
+        if models_speed {
             // ω × x = (0, ω_z, −ω_y).
             let w = s.gyro - self.bias;
             let bend = r * Vector3::new(0.0, w.z, -w.y);
@@ -527,8 +538,8 @@ impl MotionBias {
     /// next block's start even where the block is not used.
     fn close_block(&mut self, end_ns: i64) -> BlockVerdict {
         let verdict = self.measure_block(end_ns);
-        if verdict != BlockVerdict::Used && self.cfg.forward_speed_stddev > 0.0 {
-            self.p[(U, U)] += self.cfg.forward_speed_walk.powi(2) * (end_ns - self.block.start_ns) as f64 * 1e-9;
+        if verdict != BlockVerdict::Used {
+            self.let_speed_wander((end_ns - self.block.start_ns) as f64 * 1e-9);
         }
         verdict
     }
@@ -542,7 +553,7 @@ impl MotionBias {
         let n = f64::from(b.n.max(1));
         let mean = b.force / n;
         let span_s = (end_ns - b.start_ns) as f64 * 1e-9;
-        let car = self.cfg.forward_speed_stddev > 0.0 && span_s > 0.0;
+        let car = self.models_speed() && span_s > 0.0;
         // Gravity plus the acceleration the forward speed predicts (a bend's, for a car).
         let predicted = if car { b.bend / n * self.speed } else { Vector3::zeros() };
         if b.n == 0 || ((mean - predicted).norm() - STANDARD_GRAVITY).abs() > self.cfg.max_gravity_error {
@@ -765,7 +776,7 @@ mod tests {
 
     /// A car: level, driving at 12 ± 2 m/s along its x axis through bends of up to 0.3 rad/s
     /// (centripetal accelerations of up to 4 m/s², lasting seconds), braking and speeding up
-    /// by 0.2–0.6 m/s²; its gyro biased. Returns the samples and its true up in the body (z).
+    /// by 0.2–0.6 m/s²; its gyro biased. Its true up in the body is z throughout.
     fn car(bias: Vector3<f64>, seconds: f64) -> Vec<ImuSample> {
         let dt = 0.005;
         let heading = |t: f64| 1.2 * (0.25 * t).sin() + 0.05 * t;

@@ -3,6 +3,7 @@
 //! matrices), whether the covariance the node states covers its tilt error on the bundled
 //! bags, and clear errors for bags it cannot score.
 
+use std::path::Path;
 use std::process::Command;
 
 mod common;
@@ -13,6 +14,22 @@ fn run(cmd: &mut Command) -> String {
     let out = cmd.output().expect("run");
     assert!(out.status.success(), "{cmd:?} failed: {}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
     String::from_utf8(out.stdout).unwrap()
+}
+
+/// `imu-fsda replay BAG MODEL_ARGS [--params P] -o DIR/TAG.mcap`, then `imu-fsda attitude` on
+/// it: the row's errors.
+fn replay_and_score(bag: &Path, model_args: &[String], params: Option<&Path>, dir: &Path, tag: &str) -> serde_json::Value {
+    let out = dir.join(format!("{tag}.mcap"));
+    let mut cmd = Command::new(bin());
+    cmd.arg("replay").arg(bag).arg("-o").arg(&out).args(model_args);
+    if let Some(p) = params {
+        cmd.arg("--params").arg(p);
+    }
+    run(&mut cmd);
+    let json = dir.join(format!("{tag}.json"));
+    run(Command::new(bin()).arg("attitude").arg(&out).arg("--json").arg(&json));
+    let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    doc["rows"][0]["errors"].clone()
 }
 
 /// The bundled bags through the node's pipeline (pass-through: the orientation is the raw
@@ -108,19 +125,7 @@ fn gravity_aided_orientation_holds_the_tilt_and_states_its_error() {
         (&sim, vec!["--model".to_string(), String::new()]),
         (&euroc, vec!["--model".into(), model.display().to_string(), "--imu".into(), "euroc".into()]),
     ] {
-        let score = |params: Option<&std::path::Path>, tag: &str| -> serde_json::Value {
-            let out = d.join(format!("{tag}.mcap"));
-            let mut cmd = Command::new(bin());
-            cmd.arg("replay").arg(bag).arg("-o").arg(&out).args(&model_args);
-            if let Some(p) = params {
-                cmd.arg("--params").arg(p);
-            }
-            run(&mut cmd);
-            let json = d.join(format!("{tag}.json"));
-            run(Command::new(bin()).arg("attitude").arg(&out).arg("--json").arg(&json));
-            let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-            doc["rows"][0]["errors"].clone()
-        };
+        let score = |params: Option<&Path>, tag: &str| replay_and_score(bag, &model_args, params, d, tag);
         let name = bag.file_stem().unwrap().to_string_lossy().to_string();
         // Gravity aided is the default.
         let (open, fused) = (score(Some(&open_loop), &format!("{name}-open")), score(None, &format!("{name}-aided")));
@@ -157,18 +162,9 @@ fn a_car_declared_as_one_holds_its_tilt_through_its_bends() {
         .arg(&bag));
     let car = d.join("car.yaml");
     std::fs::write(&car, "imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: car\n").unwrap();
-    let tilt = |params: Option<&std::path::Path>, name: &str| {
-        let out = d.join(format!("{name}.mcap"));
-        let mut cmd = Command::new(bin());
-        cmd.arg("replay").arg(&bag).arg("-o").arg(&out).args(["--model", ""]);
-        if let Some(p) = params {
-            cmd.arg("--params").arg(p);
-        }
-        run(&mut cmd);
-        let json = d.join(format!("{name}.json"));
-        run(Command::new(bin()).arg("attitude").arg(&out).arg("--json").arg(&json));
-        let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-        let e = &doc["rows"][0]["errors"];
+    let no_model = ["--model".to_string(), String::new()];
+    let tilt = |params: Option<&Path>, name: &str| {
+        let e = replay_and_score(&bag, &no_model, params, d, name);
         (e["tilt_rmse_deg"].as_f64().unwrap(), e["tilt_within_95"].as_f64().unwrap())
     };
     let (any, any_within) = tilt(None, "any");

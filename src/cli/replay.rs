@@ -211,8 +211,7 @@ impl Replay {
         stats.decode_errors = self.decode_errors;
         stats.rate_off_nominal = self.pipeline.rate_off_nominal();
         stats.resampling = self.pipeline.resampling();
-        stats.gravity_aided_blocks = self.pipeline.gravity_aided_blocks();
-        stats.forward_speed = self.pipeline.gravity_aided_forward_speed();
+        stats.take_orientation(&self.pipeline);
         stats.take_power_on(&self.pipeline);
         stats.frame_id = self.last_frame.clone().unwrap_or_default();
         let live = self.clock.tick(stats, now_ns as i64);

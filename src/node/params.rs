@@ -290,12 +290,8 @@ fn fill_platform_preset(params: &mut serde_yaml::Value) {
             let Some(map) = at.as_mapping_mut() else { return };
             at = map.entry((*key).into()).or_insert_with(|| serde_yaml::Value::Mapping(Default::default()));
         }
-        if let Some(map) = at.as_mapping_mut() {
-            let leaf = serde_yaml::Value::from(path[path.len() - 1]);
-            if let (false, Ok(value)) = (map.contains_key(&leaf), serde_yaml::from_str::<serde_yaml::Value>(value)) {
-                map.insert(leaf, value);
-            }
-        }
+        let (Some(map), Ok(value)) = (at.as_mapping_mut(), serde_yaml::from_str::<serde_yaml::Value>(value)) else { continue };
+        map.entry(path[path.len() - 1].into()).or_insert(value);
     }
 }
 
@@ -303,7 +299,6 @@ fn fill_platform_preset(params: &mut serde_yaml::Value) {
 mod tests {
     use super::*;
 
-    /// A relative path in a parameter file is the file's folder's, whatever the working folder.
     /// `platform: car` fills in its settings where the file leaves them, and not where it sets them.
     #[test]
     fn a_platform_fills_in_what_the_file_leaves_unset() {
@@ -320,6 +315,7 @@ mod tests {
         assert!(e.to_string().contains("car") || format!("{e:?}").contains("car"), "{e:?}");
     }
 
+    /// A relative path in a parameter file is the file's folder's, whatever the working folder.
     #[test]
     fn relative_paths_are_the_parameter_files_own() {
         let dir = tempfile::tempdir().unwrap();

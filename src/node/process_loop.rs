@@ -240,8 +240,7 @@ fn record_status(
     s.warming_up = result.as_ref().is_ok_and(|c| c.warming_up);
     say_rate_changes(s, pipeline);
     s.resampling = pipeline.resampling();
-    s.gravity_aided_blocks = pipeline.gravity_aided_blocks();
-    s.forward_speed = pipeline.gravity_aided_forward_speed();
+    s.take_orientation(pipeline);
     s.take_power_on(pipeline);
     s.rate_off_nominal = pipeline.rate_off_nominal();
 }

@@ -86,6 +86,14 @@ pub struct NodeStats {
     pub denoised_before_a_reader: u64,
 }
 
+impl NodeStats {
+    /// Which orientation the pipeline publishes, for /diagnostics `orientation`.
+    pub fn take_orientation(&mut self, pipeline: &crate::infer::Pipeline) {
+        self.gravity_aided_blocks = pipeline.gravity_aided_blocks();
+        self.forward_speed = pipeline.gravity_aided_forward_speed();
+    }
+}
+
 /// How many readers each output topic has matched (ROS's "subscription count").
 #[derive(Debug, Clone, Copy, Default, serde::Serialize)]
 pub struct SubscriptionCounts {
