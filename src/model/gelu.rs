@@ -61,7 +61,7 @@ pub const FAST_GELU_MAX_ERROR: f64 = 3e-7;
 /// GELU in f32: erf from Abramowitz & Stegun 7.1.26 (|error| ≤ 1.5e-7 in exact arithmetic),
 /// `erf(z) ≈ 1 − t (a₁ + t (a₂ + t (a₃ + t (a₄ + t a₅)))) e^{−z²}`, `t = 1 / (1 + p z)`.
 /// Arithmetic, bit operations and selects only (no call): a layer's activations vectorise.
-#[inline]
+#[inline(always)]
 pub fn gelu_f32(x: f32) -> f32 {
     const P: f32 = 0.327_591_1;
     const A: [f32; 5] = [0.254_829_6, -0.284_496_74, 1.421_413_7, -1.453_152, 1.061_405_4];
