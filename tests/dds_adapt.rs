@@ -394,7 +394,8 @@ fn adapt_service_answers_when_it_cannot_adapt() {
 /// bundled model and no `imu_calibration` (a new IMU to it: the node runs the power-on bias,
 /// not the model), the node measures the power-on bias at the rest; a call at 20 s is answered
 /// at once, the node forgets the bias (/diagnostics: empty until a later standstill), and
-/// counts the re-take.
+/// counts the re-take. Then a flood, 50 calls at 25 s: each answered and counted, the caller
+/// named, the log a line a second.
 #[test]
 fn power_on_bias_is_retaken_on_demand_over_dds() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -421,9 +422,11 @@ fn power_on_bias_is_retaken_on_demand_over_dds() {
             "--service",
             "retake_power_on_bias",
             "--requests",
-            "20",
+            "20,25x50",
             "--after-s",
             "2",
+            "--reply-timeout-s",
+            "15",
         ],
         RESTART_RUN_TIMEOUT,
     );
@@ -431,9 +434,16 @@ fn power_on_bias_is_retaken_on_demand_over_dds() {
     assert_eq!(p["matched"], true, "the peer never matched the node: {}\n{logs}", p["match_status"]);
     assert_eq!(o.rc, vec![0, 0], "peer / node exit codes\n{logs}");
     let replies = p["replies"].as_array().unwrap();
-    assert_eq!(replies.len(), 1, "one call, one reply\n{logs}");
+    assert_eq!(replies.len(), 51, "51 calls, 51 replies (the node counted {} calls)\n{logs}", o.node_stats["power_on_bias_retake_calls"]);
     assert!(replies[0]["success"] == true && replies[0]["message"].as_str().unwrap().contains("power-on bias forgotten"), "{}", replies[0]);
-    assert_eq!(o.node_stats["power_on_bias_retakes"].as_u64(), Some(1), "stats: {}\n{logs}", o.node_stats);
+    assert_eq!(o.node_stats["power_on_bias_retake_calls"].as_u64(), Some(51), "stats: {}\n{logs}", o.node_stats);
+    // The calls that reach the node between two samples are one re-take: the flood is at least one more.
+    let retakes = o.node_stats["power_on_bias_retakes"].as_u64().unwrap_or(0);
+    assert!((2..=51).contains(&retakes), "re-takes {retakes}: stats {}\n{logs}", o.node_stats);
+    assert!(o.node_stats["retake_requested_by"].as_str().unwrap_or("").starts_with("client "), "stats: {}", o.node_stats);
+    let lines = logs.matches("~/retake_power_on_bias called by client").count();
+    assert!((1..=6).contains(&lines), "{lines} log lines for 51 calls\n{logs}");
+    eprintln!("retake flood: 51 calls answered, {retakes} re-takes, {lines} log lines");
     // Measured at the rest before the call; forgotten after it (V1_03 has no standstill in
     // the 2 s after it).
     let values: Vec<&serde_json::Map<String, Value>> = p["diagnostics"].as_array().unwrap().iter().filter_map(diag_values).collect();

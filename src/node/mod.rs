@@ -188,7 +188,7 @@ pub async fn run_node_with_adaptation(
     let processing = process_loop::process_loop(topics, pipeline, stats.clone(), limits, controls);
     let retake_task = async {
         match &retake_server {
-            Some(srv) => power_on::retake_service_loop(srv, &retake).await,
+            Some(srv) => power_on::retake_service_loop(srv, &retake, &stats).await,
             None => std::future::pending().await,
         }
     };

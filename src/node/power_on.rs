@@ -5,6 +5,9 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use super::log_throttle::{self, LogThrottle, LOG_EVERY};
 
 use super::{topic_name, NodeError, NodeStats, ServiceMapping, TriggerRequest, TriggerResponse};
 use crate::infer::Pipeline;
@@ -27,13 +30,24 @@ pub(super) fn retake_server(node: &mut ros2_client::Node, node_name: &str, mappi
     .map_err(|e| NodeError::Dds(format!("{e:?}")))
 }
 
-/// Answers every call at once; the process loop forgets the bias before its next sample.
-pub(super) async fn retake_service_loop(server: &Server, retake: &AtomicBool) {
+/// Answers every call at once; the process loop forgets the bias before its next sample (the
+/// calls that reach it between two samples are one re-take). Every call is counted and its
+/// caller kept for /diagnostics; a flood is logged one line a second.
+pub(super) async fn retake_service_loop(server: &Server, retake: &AtomicBool, stats: &Mutex<NodeStats>) {
+    let mut log = LogThrottle::new(LOG_EVERY);
     loop {
         match server.async_receive_request().await {
             Ok((id, _)) => {
+                let caller = super::adaptation::caller_of(&id);
                 retake.store(true, Ordering::Release);
-                tracing::info!("~/retake_power_on_bias: {RETAKE_REPLY}");
+                // At the default level: it changes what the node removes.
+                if let Some(n) = log.admit(Instant::now()) {
+                    tracing::warn!("~/retake_power_on_bias called by {caller}: {RETAKE_REPLY}{}", log_throttle::unsaid(n));
+                }
+                if let Ok(mut s) = stats.lock() {
+                    s.power_on_bias_retake_calls += 1;
+                    s.retake_requested_by = caller;
+                }
                 let reply = TriggerResponse { success: true, message: RETAKE_REPLY.into() };
                 super::endpoints::reply_spaced(server, id, reply, "~/retake_power_on_bias").await;
             }

@@ -42,8 +42,12 @@ pub struct NodeStats {
     pub standstill_bias: Option<crate::standstill::BiasEstimate>,
     pub standstills: crate::standstill::StandstillCounters,
     pub standing: bool,
-    /// Times `~/retake_power_on_bias` made the node forget the power-on bias.
+    /// Times `~/retake_power_on_bias` made the node forget the power-on bias (the calls
+    /// between two samples are one).
     pub power_on_bias_retakes: u64,
+    /// Calls of `~/retake_power_on_bias`, every one; and the last caller.
+    pub power_on_bias_retake_calls: u64,
+    pub retake_requested_by: String,
     /// Run-time parameters set by clients (`ros2 param set`) since the start.
     pub parameters_set: u64,
     /// What the bias memory (`power_on_bias_memory`) predicted at start and whether this
@@ -275,6 +279,8 @@ fn key_values(stats: &NodeStats, live: &Liveness) -> Vec<KeyValue> {
         kv("standing", stats.standing.to_string()),
         kv("standstill_windows", stats.standstills.still_windows.to_string()),
         kv("power_on_bias_retakes", stats.power_on_bias_retakes.to_string()),
+        kv("power_on_bias_retake_calls", stats.power_on_bias_retake_calls.to_string()),
+        kv("retake_requested_by", stats.retake_requested_by.clone()),
         kv("parameters_set", stats.parameters_set.to_string()),
         kv("power_on_bias_memory", stats.power_on_bias_memory.clone()),
         kv("latency_p50_us", format!("{:.0}", stats.latency.quantile_us(0.5))),
