@@ -61,10 +61,15 @@ fn uncalibrated(calibrated: &Path, out: &Path) {
 }
 
 fn diagnose(dir: &Path, real: &Path, name: &str) -> serde_json::Value {
+    diagnose_sensors(dir, real, name, "gyro")
+}
+
+/// `diagnose --sensors SENSORS` against the simulation of the bag's own ground truth.
+fn diagnose_sensors(dir: &Path, real: &Path, name: &str, sensors: &str) -> serde_json::Value {
     let out = dir.join(name);
     let noise = Path::new(env!("CARGO_MANIFEST_DIR")).join("params/noise/bmi160_tumvi.yaml");
     run(Command::new(bin())
-        .args(["diagnose", "--sensors", "gyro", "--noise-model"])
+        .args(["diagnose", "--sensors", sensors, "--noise-model"])
         .arg(noise)
         .arg("--real")
         .arg(real)
@@ -88,41 +93,51 @@ fn a_known_calibration_is_found_on_a_real_recording_and_none_on_the_calibrated_s
     let Some(calibrated) = imported_room2(dir.path()) else { return };
     let raw = dir.path().join("room2_uncalibrated.mcap");
     uncalibrated(&calibrated, &raw);
+    // The gyro alone, and both sensors (the default): the accelerometer's reference is the
+    // mocap's second derivative, and its terms must not take the gyro's.
+    for sensors in ["gyro", "both"] {
+        let control = diagnose_sensors(dir.path(), &calibrated, &format!("control_{sensors}"), sensors);
+        let artefacts = control["recording_artefacts"].to_string();
+        assert!(artefacts.contains("dropouts"), "the reference's dropouts are said: {artefacts}");
+        assert!(control["notes"].to_string().contains("compared at the reference's bandwidth"), "{}", control["notes"]);
+        let own: Vec<String> = fitted(&control).iter().map(|f| f["term"].as_str().unwrap().to_string()).collect();
+        assert!(
+            !own.iter().any(|t| t == "gyro_scale" || t == "gyro_bias"),
+            "{sensors}: the calibrated stream shows no gyro scale or bias: {own:?}"
+        );
 
-    let control = diagnose(dir.path(), &calibrated, "control");
-    let artefacts = control["recording_artefacts"].to_string();
-    assert!(artefacts.contains("dropouts"), "the reference's dropouts are said: {artefacts}");
-    assert!(control["notes"].to_string().contains("compared at the reference's bandwidth"), "{}", control["notes"]);
-    let own: Vec<String> = fitted(&control).iter().map(|f| f["term"].as_str().unwrap().to_string()).collect();
-    assert!(!own.iter().any(|t| t == "gyro_scale" || t == "gyro_bias"), "the calibrated stream shows no gyro scale or bias: {own:?}");
-
-    let r = diagnose(dir.path(), &raw, "uncalibrated");
-    let terms = fitted(&r);
-    let find = |name: &str| terms.iter().find(|f| f["term"] == name).unwrap_or_else(|| panic!("no {name} in {terms:#?}")).clone();
-    eprintln!(
-        "control: {own:?}; uncalibrated: {:#}",
-        serde_json::Value::Array(
-            terms
-                .iter()
-                .map(|f| serde_json::json!({"term": f["term"], "params": f["params"], "sd": f["uncertainty"], "ci": f["interval_95"]}))
-                .collect()
-        )
-    );
-    let scale = find("gyro_scale");
-    assert!(scale.get("implausible").is_none(), "{scale}");
-    for (got, want) in vec3(&scale["params"]["scale"]).iter().zip(GYRO_SCALE) {
-        assert!((got - want).abs() < 0.2 * want.abs(), "gyro scale {got} for {want}");
+        let r = diagnose_sensors(dir.path(), &raw, &format!("uncalibrated_{sensors}"), sensors);
+        let terms = fitted(&r);
+        let find =
+            |name: &str| terms.iter().find(|f| f["term"] == name).unwrap_or_else(|| panic!("{sensors}: no {name} in {terms:#?}")).clone();
+        eprintln!(
+            "{sensors}: control: {own:?}; uncalibrated: {:#}",
+            serde_json::Value::Array(
+                terms
+                    .iter()
+                    .map(|f| serde_json::json!({"term": f["term"], "params": f["params"], "sd": f["uncertainty"], "ci": f["interval_95"]}))
+                    .collect()
+            )
+        );
+        let scale = find("gyro_scale");
+        assert!(scale.get("implausible").is_none(), "{sensors}: {scale}");
+        for (got, want) in vec3(&scale["params"]["scale"]).iter().zip(GYRO_SCALE) {
+            assert!((got - want).abs() < 0.2 * want.abs(), "{sensors}: gyro scale {got} for {want}");
+        }
+        // The stated 95 % intervals hold the calibration's values.
+        let ci = scale["interval_95"]["scale"].as_array().unwrap().iter().map(vec3).collect::<Vec<_>>();
+        for (lohi, want) in ci.iter().zip(GYRO_SCALE) {
+            assert!(lohi[0] <= want && want <= lohi[1], "{sensors}: gyro scale {want} outside the stated interval {lohi:?}");
+        }
+        // The bias is applied after the scale, in the sensor's output: found as applied.
+        for (got, want) in vec3(&find("gyro_bias")["params"]["bias"]).iter().zip(GYRO_BIAS) {
+            assert!((got - want).abs() < 0.2 * want.abs(), "{sensors}: gyro bias {got} for {want}");
+        }
+        assert!(terms.iter().any(|f| f["term"] == "gyro_misalignment"), "{sensors}: {terms:#?}");
+        if sensors == "both" {
+            assert!(terms.iter().any(|f| f["term"] == "accel_bias"), "both: the accelerometer's bias of 1.2 m/s² is found: {terms:#?}");
+        }
     }
-    // The stated 95 % intervals hold the calibration's values.
-    let ci = scale["interval_95"]["scale"].as_array().unwrap().iter().map(vec3).collect::<Vec<_>>();
-    for (lohi, want) in ci.iter().zip(GYRO_SCALE) {
-        assert!(lohi[0] <= want && want <= lohi[1], "gyro scale {want} outside the stated interval {lohi:?}");
-    }
-    // The bias is applied after the scale, in the sensor's output: found as applied.
-    for (got, want) in vec3(&find("gyro_bias")["params"]["bias"]).iter().zip(GYRO_BIAS) {
-        assert!((got - want).abs() < 0.2 * want.abs(), "gyro bias {got} for {want}");
-    }
-    assert!(terms.iter().any(|f| f["term"] == "gyro_misalignment"), "{terms:#?}");
 }
 
 /// The injected-effects score (`scripts/score_diagnosis.sh`'s real set) on one recording:
