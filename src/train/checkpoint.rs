@@ -1,6 +1,6 @@
 //! Checkpoints: `<out>/<name>.ckpt.ot` (every VarStore variable as `vs.<path>`, Adam's
 //! moments as `adam.{m,v}.<path>`, and, when a best model is being kept, its variables as
-//! `best.<path>`, and, with `train.ema_decay`, the moving average as `ema.<path>`) plus `<name>.ckpt.json` ([`CheckpointMeta`]: the epoch reached, Adam's step
+//! `best.<path>`) plus `<name>.ckpt.json` ([`CheckpointMeta`]: the epoch reached, Adam's step
 //! count, the seed, the config, the loss history and evaluations so far).
 //!
 //! What resumes exactly: weights, BatchNorm statistics, Adam's moments and step count, the
@@ -88,7 +88,6 @@ pub fn save(
     vs: &VarStore,
     adam: &Adam,
     best: Option<&BTreeMap<String, Tensor>>,
-    ema: Option<&BTreeMap<String, Tensor>>,
     meta: &CheckpointMeta,
 ) -> Result<PathBuf, TrainError> {
     let io = |path: &Path| {
@@ -103,9 +102,6 @@ pub fn save(
     named.extend(adam.state());
     if let Some(best) = best {
         named.extend(best.iter().map(|(n, t)| (format!("best.{n}"), t.shallow_clone())));
-    }
-    if let Some(ema) = ema {
-        named.extend(ema.iter().map(|(n, t)| (format!("ema.{n}"), t.shallow_clone())));
     }
     named.push((PAIR_KEY.to_string(), Tensor::from_slice(&[token])));
     let text = serde_json::to_string_pretty(&meta).map_err(|e| TrainError::refused("the checkpoint's record", e))?;
@@ -204,57 +200,6 @@ pub fn restore_snapshot(vs: &VarStore, snap: &BTreeMap<String, Tensor>) -> Resul
     restore_vars(vs, &prefixed, "s")
 }
 
-/// Exponential moving average of every floating-point variable of a VarStore.
-pub struct Ema {
-    pub decay: f64,
-    pub avg: BTreeMap<String, Tensor>,
-    updates: u64,
-}
-
-impl Ema {
-    /// Starts the average at the current weights (or at `ema.`-prefixed tensors of a checkpoint).
-    pub fn new(vs: &VarStore, decay: f64, from: Option<&BTreeMap<String, Tensor>>, updates: u64) -> Self {
-        let mut avg = snapshot(vs);
-        if let Some(from) = from {
-            for (n, t) in avg.iter_mut() {
-                if let Some(src) = from.get(&format!("ema.{n}")).filter(|s| s.size() == t.size()) {
-                    *t = src.detach().copy();
-                }
-            }
-        }
-        Self { decay, avg, updates }
-    }
-
-    /// avg ← d·avg + (1 − d)·var, with d ramped up over the first steps (min(d, (1+k)/(10+k)))
-    /// so the average does not remember the random initialisation.
-    pub fn update(&mut self, vs: &VarStore) {
-        self.updates += 1;
-        let k = self.updates as f64;
-        let d = self.decay.min((1.0 + k) / (10.0 + k));
-        tch::no_grad(|| {
-            for (n, v) in vs.variables() {
-                if let Some(a) = self.avg.get_mut(&n) {
-                    if a.is_floating_point() {
-                        let _ = a.g_mul_scalar_(d);
-                        let _ = a.g_add_(&(v.detach() * (1.0 - d)));
-                    } else {
-                        a.copy_(&v);
-                    }
-                }
-            }
-        });
-    }
-
-    /// Runs `f` with the averaged weights in `vs`, then puts the trained ones back.
-    pub fn with_average<T>(&self, vs: &VarStore, f: impl FnOnce() -> T) -> Result<T, TrainError> {
-        let current = snapshot(vs);
-        restore_snapshot(vs, &self.avg)?;
-        let out = f();
-        restore_snapshot(vs, &current)?;
-        Ok(out)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -275,7 +220,7 @@ mod tests {
         let write = |name: &str, w: f32, epoch: usize| {
             let vs = VarStore::new(tch::Device::Cpu);
             let _ = vs.root().var_copy("w", &Tensor::from_slice(&[w, w]));
-            save(dir.path(), name, &vs, &Adam::new(&vs), None, None, &meta(epoch)).unwrap()
+            save(dir.path(), name, &vs, &Adam::new(&vs), None, &meta(epoch)).unwrap()
         };
         let a = write("a", 1.0, 3);
         let b = write("b", 2.0, 6);

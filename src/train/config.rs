@@ -370,12 +370,6 @@ pub struct TrainSettings {
     /// the schedule is not rescaled, so size `epochs` to fit and keep this a guard.
     #[serde(default)]
     pub max_train_seconds: f64,
-    /// Decay of an exponential moving average of every variable (weights and BatchNorm
-    /// statistics), kept beside the trained ones; 0 (default): off. When on, evaluations,
-    /// best-model selection and the export use the averaged weights: the last epochs' Adam
-    /// noise averages out of the slowly learned parts (the static bias, Ĉ_ω).
-    #[serde(default)]
-    pub ema_decay: f64,
     /// After training, fit one correction gain per IMU of `dataset.validation`
     /// ([`crate::train::fit::fit_correction_gains`]) and export it with the model
     /// (`ModelMetadata::imu_correction_gains`); the test recordings are scored with their IMU's.
@@ -695,9 +689,6 @@ impl TrainConfig {
         }
         if !non_negative(t.max_train_seconds) {
             return Err(format!("train.max_train_seconds must be finite and ≥ 0 (0: no budget), got {}", t.max_train_seconds).into());
-        }
-        if !(0.0..1.0).contains(&t.ema_decay) {
-            return Err(format!("train.ema_decay must be in [0, 1), got {}", t.ema_decay).into());
         }
         if t.threads < 1 {
             return Err("train.threads must be ≥ 1".into());

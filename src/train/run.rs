@@ -13,7 +13,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tch::{nn::VarStore, Device, Tensor};
 
-use super::checkpoint::{self, CheckpointMeta, Ema, Loaded};
+use super::checkpoint::{self, CheckpointMeta, Loaded};
 use super::config::TrainConfig;
 use super::data::{self, Task};
 use super::error::{refuse, Context, TrainError};
@@ -62,7 +62,6 @@ pub struct TrainRun<'o> {
     vs: VarStore,
     net: Net,
     adam: Adam,
-    ema: Option<Ema>,
     record: RunRecord,
     start_epoch: usize,
     /// Seconds trained before a resumed checkpoint: the wall-time budget is the whole run's.
@@ -125,8 +124,6 @@ impl<'o> TrainRun<'o> {
                 opts.resume.as_ref().map_or(String::new(), |p| p.display().to_string())
             );
         }
-        let ema = (cfg.train.ema_decay > 0.0)
-            .then(|| Ema::new(&vs, cfg.train.ema_decay, resume.as_ref().map(|r| &r.tensors), adam.step.max(0) as u64));
         carry_evaluations(&mut record, &data, &eopts, resume.is_some())?;
         let progress = progress_bar(opts, &cfg, start_epoch);
         Ok(TrainRun {
@@ -140,7 +137,6 @@ impl<'o> TrainRun<'o> {
             vs,
             net,
             adam,
-            ema,
             record,
             start_epoch,
             prior_seconds,
@@ -180,9 +176,6 @@ impl<'o> TrainRun<'o> {
         }
         let grad_norm = self.adam.grad_norm();
         self.adam.step(lr, cfg.train.weight_decay);
-        if let Some(e) = self.ema.as_mut() {
-            e.update(&self.vs);
-        }
         self.ran += 1;
         self.record.history.push(EpochRecord {
             epoch,
@@ -245,8 +238,8 @@ impl<'o> TrainRun<'o> {
         }
     }
 
-    /// The validation and monitor recordings scored after epoch `done` (with the averaged
-    /// weights when `ema_decay` is on); the best validated epoch kept.
+    /// The validation and monitor recordings scored after epoch `done`; the best validated
+    /// epoch kept.
     fn evaluate_held_out(&mut self, done: usize, msg: &mut String) -> Result<(), TrainError> {
         let (net, data, eopts) = (&self.net, &self.data, &self.eopts);
         let record = &mut self.record;
@@ -256,10 +249,7 @@ impl<'o> TrainRun<'o> {
             }
             Ok(())
         };
-        match &self.ema {
-            Some(e) => e.with_average(&self.vs, || evals(&mut record.validation, &mut record.monitor))??,
-            None => evals(&mut record.validation, &mut record.monitor)?,
-        }
+        evals(&mut record.validation, &mut record.monitor)?;
         let how = self.cfg.train.task_weighting;
         let m = validation_score(&record.validation, None, how).unwrap_or(f64::NAN);
         let mon = validation_score(&record.monitor, None, how).map_or(String::new(), |x| format!(", monitor {x:.3}°"));
@@ -267,10 +257,7 @@ impl<'o> TrainRun<'o> {
         msg.push_str(&format!(", val AOE {m:.2}°"));
         if self.cfg.train.select_best && !data.validation.is_empty() && record.best.is_none_or(|(_, b)| m < b) {
             record.best = Some((done, m));
-            record.best_vars = Some(match &self.ema {
-                Some(e) => e.avg.iter().map(|(n, t)| (n.clone(), t.copy())).collect(),
-                None => checkpoint::snapshot(&self.vs),
-            });
+            record.best_vars = Some(checkpoint::snapshot(&self.vs));
         }
         Ok(())
     }
@@ -296,8 +283,7 @@ impl<'o> TrainRun<'o> {
             pair_token: None,
             data_fingerprints: self.fingerprints.clone(),
         };
-        let ema = self.ema.as_ref().map(|e| &e.avg);
-        checkpoint::save(&self.opts.out_dir, &self.opts.name, &self.vs, &self.adam, r.best_vars.as_ref(), ema, &meta)
+        checkpoint::save(&self.opts.out_dir, &self.opts.name, &self.vs, &self.adam, r.best_vars.as_ref(), &meta)
     }
 
     /// The last checkpoint; the exported weights chosen; gains per IMU fitted; the test
@@ -375,12 +361,9 @@ impl<'o> TrainRun<'o> {
         self.opts.stop_requested.is_some_and(|f| f())
     }
 
-    /// The best validated epoch's weights if asked, else the last (averaged when `ema_decay`
-    /// is on), put in the network; returns their epoch.
+    /// The best validated epoch's weights if asked, else the last, put in the network; returns
+    /// their epoch.
     fn choose_exported_weights(&self, last_epoch: usize) -> Result<usize, TrainError> {
-        if let Some(e) = &self.ema {
-            checkpoint::restore_snapshot(&self.vs, &e.avg)?;
-        }
         if let (true, Some((e, _)), Some(snap)) = (self.cfg.train.select_best, self.record.best, self.record.best_vars.as_ref()) {
             checkpoint::restore_snapshot(&self.vs, snap)?;
             return Ok(e);
