@@ -97,7 +97,7 @@ pub(super) async fn service_loop(
     let mut running: Option<(ros2_client::RmwRequestId, tokio::sync::oneshot::Receiver<JobResult>, Instant)> = None;
     // Started with the node: its start names this power-on's supports.
     let archive = SupportArchive::new(&params.adapt_support_archive, params.adapt_judge_power_ons).map(Arc::new);
-    let mut refused_log = LogThrottle::new(LOG_EVERY);
+    let (mut refused_log, mut bad_log) = (LogThrottle::new(LOG_EVERY), LogThrottle::new(LOG_EVERY));
     loop {
         let finished = async {
             match running.as_mut() {
@@ -110,7 +110,7 @@ pub(super) async fn service_loop(
                 let id = match req {
                     Ok((id, _)) => id,
                     Err(e) => {
-                        tracing::warn!("~/adapt request: {e:?}");
+                        super::endpoints::bad_request("~/adapt", &e, &mut bad_log, &stats);
                         continue;
                     }
                 };
@@ -230,7 +230,7 @@ pub(super) async fn refusing_service_loop(
     why: &str,
     stats: &Mutex<NodeStats>,
 ) {
-    let mut refused_log = LogThrottle::new(LOG_EVERY);
+    let (mut refused_log, mut bad_log) = (LogThrottle::new(LOG_EVERY), LogThrottle::new(LOG_EVERY));
     loop {
         match server.async_receive_request().await {
             Ok((id, _)) => {
@@ -245,7 +245,7 @@ pub(super) async fn refusing_service_loop(
                 }
                 respond(server, id, false, format!("cannot adapt: {why}")).await
             }
-            Err(e) => tracing::warn!("~/adapt request: {e:?}"),
+            Err(e) => super::endpoints::bad_request("~/adapt", &e, &mut bad_log, stats),
         }
     }
 }

@@ -7,6 +7,7 @@ use ros2_client::service::Server;
 use ros2_client::{MessageTypeName, Node, NodeName, Publisher, QosProfile, Subscription};
 
 use super::adaptation::GroundTruthSub;
+use super::log_throttle::{self, LogThrottle};
 use super::messages::{topic_name, type_name, TriggerRequest, TriggerResponse};
 use super::peer_check::OwnEndpoint;
 use super::{power_on, sensor_data_qos, NodeError, NodeParams};
@@ -116,6 +117,18 @@ pub(super) fn service_qos() -> QosProfile {
     QosProfile::publisher_default().history(ros2_client::qos::History::KeepLast { depth: 100 })
 }
 
+/// A request that does not decode (another layout under the service's type name, a wrong
+/// size): counted (`service_request_errors` on /diagnostics) and logged at most a line a
+/// second, whatever the rate it comes at; nothing is answered (its id is not known).
+pub(super) fn bad_request(service: &str, err: &impl std::fmt::Debug, log: &mut LogThrottle, stats: &std::sync::Mutex<super::NodeStats>) {
+    if let Ok(mut s) = stats.lock() {
+        s.service_request_errors += 1;
+    }
+    if let Some(n) = log.admit(std::time::Instant::now()) {
+        tracing::warn!("{service}: a request that does not decode, not answered: {err:?}{}", log_throttle::unsaid(n));
+    }
+}
+
 /// Sends a service's reply, then waits [`REPLY_SPACING`]: a flood answered in one burst lost
 /// 10 of 50 replies to a Cyclone DDS client in 3 of 6 runs, never repaired (tests/dds_adapt.rs,
 /// the flood). A failed send is logged under `service`.
@@ -133,3 +146,24 @@ pub(super) async fn reply_spaced(
 
 /// The least time between two replies of a service.
 const REPLY_SPACING: std::time::Duration = std::time::Duration::from_millis(1);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A flood of requests that do not decode: every one counted, the log throttled, nothing
+    /// else of the node's state touched.
+    #[test]
+    fn requests_that_do_not_decode_are_counted_every_one() {
+        let stats = std::sync::Mutex::new(super::super::NodeStats::default());
+        let mut log = LogThrottle::new(log_throttle::LOG_EVERY);
+        for _ in 0..50 {
+            bad_request("~/adapt", &"CDR: unexpected end of input", &mut log, &stats);
+        }
+        let s = stats.lock().unwrap();
+        assert_eq!(s.service_request_errors, 50);
+        assert_eq!((s.adapt_calls_refused, s.power_on_bias_retake_calls, s.power_on_bias_retakes), (0, 0, 0));
+        // Within the second the 49 after the first are left unsaid, and said with the next line.
+        assert_eq!(log.admit(std::time::Instant::now()), None);
+    }
+}

@@ -34,7 +34,7 @@ pub(super) fn retake_server(node: &mut ros2_client::Node, node_name: &str, mappi
 /// calls that reach it between two samples are one re-take). Every call is counted and its
 /// caller kept for /diagnostics; a flood is logged one line a second.
 pub(super) async fn retake_service_loop(server: &Server, retake: &AtomicBool, stats: &Mutex<NodeStats>) {
-    let mut log = LogThrottle::new(LOG_EVERY);
+    let (mut log, mut bad_log) = (LogThrottle::new(LOG_EVERY), LogThrottle::new(LOG_EVERY));
     loop {
         match server.async_receive_request().await {
             Ok((id, _)) => {
@@ -51,7 +51,7 @@ pub(super) async fn retake_service_loop(server: &Server, retake: &AtomicBool, st
                 let reply = TriggerResponse { success: true, message: RETAKE_REPLY.into() };
                 super::endpoints::reply_spaced(server, id, reply, "~/retake_power_on_bias").await;
             }
-            Err(e) => tracing::warn!("~/retake_power_on_bias request: {e:?}"),
+            Err(e) => super::endpoints::bad_request("~/retake_power_on_bias", &e, &mut bad_log, stats),
         }
     }
 }

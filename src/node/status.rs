@@ -45,6 +45,8 @@ pub struct NodeStats {
     /// Times `~/retake_power_on_bias` made the node forget the power-on bias (the calls
     /// between two samples are one).
     pub power_on_bias_retakes: u64,
+    /// Service requests that did not decode (either service), every one.
+    pub service_request_errors: u64,
     /// Calls of `~/retake_power_on_bias`, every one; and the last caller.
     pub power_on_bias_retake_calls: u64,
     pub retake_requested_by: String,
@@ -281,6 +283,7 @@ fn key_values(stats: &NodeStats, live: &Liveness) -> Vec<KeyValue> {
         kv("power_on_bias_retakes", stats.power_on_bias_retakes.to_string()),
         kv("power_on_bias_retake_calls", stats.power_on_bias_retake_calls.to_string()),
         kv("retake_requested_by", stats.retake_requested_by.clone()),
+        kv("service_request_errors", stats.service_request_errors.to_string()),
         kv("parameters_set", stats.parameters_set.to_string()),
         kv("power_on_bias_memory", stats.power_on_bias_memory.clone()),
         kv("latency_p50_us", format!("{:.0}", stats.latency.quantile_us(0.5))),
