@@ -157,7 +157,7 @@ impl<T: Real> AffineWeights<T> {
     /// W_s[i][o], back from the layout.
     fn get(&self, s: usize, i: usize, o: usize) -> T {
         let per_out = self.terms * self.n_in;
-        // Blocks of `size` outputs from output `first`, at `base` in the layout.
+        // Blocks of `size` outputs from output `first`, whose weights start at `first · per_out`.
         let in_blocks =
             |first: usize, size: usize| first * per_out + ((o - first) / size * per_out + s * self.n_in + i) * size + (o - first) % size;
         self.weights[if o < self.wide {
@@ -165,7 +165,7 @@ impl<T: Real> AffineWeights<T> {
         } else if o < self.blocked_out {
             in_blocks(self.wide, BLOCK)
         } else {
-            self.blocked_out * per_out + (o - self.blocked_out) * per_out + s * self.n_in + i
+            o * per_out + s * self.n_in + i
         }]
     }
 
