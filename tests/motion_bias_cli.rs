@@ -2,7 +2,8 @@
 //! real multirotor that starts moving (EuRoC's MH_01, its ADIS16448's 80 mrad/s turn-on bias
 //! unremoved until its first standstill at 21 s) gets the bias across up removed within
 //! seconds; a simulated car, whose sustained accelerations the filter takes for a bias until
-//! its check refuses them, is why the switch is off by default.
+//! its check refuses them, is why the switch is off by default and on only for the platforms
+//! that declare it (`pipeline.platform: multirotor | legged | handheld`).
 
 use std::ffi::OsStr;
 use std::path::Path;
@@ -30,6 +31,13 @@ fn before_check_params(dir: &Path) -> std::path::PathBuf {
     p
 }
 
+/// A parameter file that declares what carries the IMU (`pipeline.platform`).
+fn platform_params(dir: &Path, platform: &str) -> std::path::PathBuf {
+    let p = dir.join(format!("{platform}.yaml"));
+    std::fs::write(&p, format!("imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: {platform}\n")).unwrap();
+    p
+}
+
 #[test]
 fn a_multirotor_that_starts_moving_has_its_bias_removed_before_the_check() {
     let Some(data) = shared_data() else { return };
@@ -39,8 +47,12 @@ fn a_multirotor_that_starts_moving_has_its_bias_removed_before_the_check() {
     ok(Command::new(bin()).arg("import").arg(data.join("euroc/MH_01_easy")).arg("-o").arg(&bag));
     let (waits, _) = power_on_bias(&bag, None, d);
     let (applies, _) = power_on_bias(&bag, Some(&before_check_params(d)), d);
-    eprintln!("MH_01_easy: power-on bias {waits:.2}° waiting for the check, {applies:.2}° applying before it");
+    let (declared, _) = power_on_bias(&bag, Some(&platform_params(d, "multirotor")), d);
+    eprintln!(
+        "MH_01_easy: power-on bias {waits:.2}° waiting for the check, {applies:.2}° applying before it, {declared:.2}° declared a multirotor"
+    );
     assert!(applies < 0.8 * waits, "{applies}° before the check against {waits}° after it");
+    assert_eq!(declared, applies, "`platform: multirotor` is the switch");
 }
 
 #[test]
@@ -54,6 +66,10 @@ fn a_car_that_starts_moving_is_why_the_switch_is_off_by_default() {
         .arg(&bag));
     let (_, waits) = power_on_bias(&bag, None, d);
     let (_, applies) = power_on_bias(&bag, Some(&before_check_params(d)), d);
-    eprintln!("car, ADIS16448, no rest: tilt {waits:.2}° waiting for the check, {applies:.2}° applying before it");
+    let (_, declared) = power_on_bias(&bag, Some(&platform_params(d, "car")), d);
+    eprintln!(
+        "car, ADIS16448, no rest: tilt {waits:.2}° waiting for the check, {applies:.2}° applying before it, {declared:.2}° declared a car"
+    );
+    assert_eq!(declared, waits, "a car declared as one waits for the check");
     assert!(applies > 1.2 * waits, "{applies}° before the check against {waits}° after it");
 }

@@ -66,6 +66,13 @@ pub enum Platform {
     /// so a bend's acceleration is its speed × yaw rate and a braking is its speed's change
     /// (`gravity_aided.forward_speed_stddev`): the published attitude's tilt holds through them.
     Car,
+    /// A multirotor: its accelerations average out within seconds, so the bias seen in motion is
+    /// removed before its model check (`standstill.motion.apply_before_check`).
+    Multirotor,
+    /// A legged robot: the same as a multirotor.
+    Legged,
+    /// A hand-held device: the same as a multirotor.
+    Handheld,
 }
 
 impl Platform {
@@ -79,6 +86,10 @@ impl Platform {
             // the speed × yaw rate ties the bias about up to the accelerometer's lateral bias
             // (docs/log/2026-12-06-car-platform.md).
             Platform::Car => &[(&["gravity_aided", "forward_speed_stddev"], "20.0"), (&["gravity_aided", "accel_stddev"], "0.5")],
+            // Measured in docs/poweron.md ("Before the check"): on these the bias of a power-on
+            // that starts moving is removed within seconds; a car's sustained braking and bends
+            // would be taken for a bias until the check refuses them, hence not `Any`'s.
+            Platform::Multirotor | Platform::Legged | Platform::Handheld => &[(&["standstill", "motion", "apply_before_check"], "true")],
         }
     }
 }

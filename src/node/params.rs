@@ -299,7 +299,7 @@ fn fill_platform_preset(params: &mut serde_yaml::Value) {
 mod tests {
     use super::*;
 
-    /// `platform: car` fills in its settings where the file leaves them, and not where it sets them.
+    /// A platform fills in its settings where the file leaves them, and not where it sets them.
     #[test]
     fn a_platform_fills_in_what_the_file_leaves_unset() {
         let car = "imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: car\n";
@@ -311,6 +311,15 @@ mod tests {
         assert_eq!(p.pipeline.standstill, crate::standstill::StandstillConfig::default(), "the bias seen in motion is not a car's");
         let any = NodeParams::from_yaml_str("imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: any\n", "imu_fsda").unwrap();
         assert_eq!(any.pipeline.gravity_aided, crate::infer::GravityAidedConfig::default());
+        for platform in ["multirotor", "legged", "handheld"] {
+            let file = format!("imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: {platform}\n");
+            let p = NodeParams::from_yaml_str(&file, "imu_fsda").unwrap().pipeline;
+            assert!(p.standstill.motion.apply_before_check, "{platform}: the bias seen in motion before the check");
+            assert_eq!(p.gravity_aided, crate::infer::GravityAidedConfig::default(), "{platform}: not a car's attitude");
+            let own = format!("{file}      standstill:\n        motion:\n          apply_before_check: false\n");
+            let p = NodeParams::from_yaml_str(&own, "imu_fsda").unwrap().pipeline;
+            assert!(!p.standstill.motion.apply_before_check, "{platform}: the file's false stays");
+        }
         let e = NodeParams::from_yaml_str("imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: boat\n", "imu_fsda").unwrap_err();
         assert!(e.to_string().contains("car") || format!("{e:?}").contains("car"), "{e:?}");
     }
