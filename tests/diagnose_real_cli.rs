@@ -176,6 +176,37 @@ fn injected_scales_and_biases_are_scored_against_the_control() {
     assert!(csv.lines().any(|l| l.starts_with("room2,control,")), "{csv}");
 }
 
+/// An accelerometer bias injected into room2 (both sensors) brings in the recording's own
+/// accelerometer scale, which the control (no bias in its model) leaves under the threshold:
+/// counted spurious, and found alike in the mirrored case (the bias's sign turned), so the
+/// score says it is the recording's, not made by the injection.
+#[test]
+fn a_term_the_injection_reveals_is_found_alike_in_the_mirror() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(bag) = imported_room2(dir.path()) else { return };
+    let out = dir.path().join("score");
+    let noise = Path::new(env!("CARGO_MANIFEST_DIR")).join("params/noise/bmi160_tumvi.yaml");
+    run(Command::new(bin())
+        .args(["diagnose", "--score-only", "accel_bias", "--score-draws", "1", "--seed", "1", "--noise-model"])
+        .arg(noise)
+        .arg("--score-injected")
+        .arg(&bag)
+        .arg("-o")
+        .arg(&out));
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap();
+    assert_eq!(s["recall"], 1.0, "{s:#}");
+    assert_eq!(s["parameters_within_20pct"], 1.0, "{s:#}");
+    let spurious = s["spurious_terms"].as_u64().unwrap();
+    assert!(spurious >= 1, "room2's own accelerometer scale comes in with the bias: {s:#}");
+    assert_eq!(s["spurious_alike_in_the_mirror"]["terms"].as_u64(), Some(spurious), "{s:#}");
+    let csv = std::fs::read_to_string(out.join("cases.csv")).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = header.iter().position(|h| *h == "spurious_alike_in_mirror").unwrap();
+    for row in csv.lines().filter(|l| l.starts_with("room2,0")) {
+        assert!(row.split(',').nth(col).unwrap().contains("accel_scale"), "{row}");
+    }
+}
+
 /// A reference on its own clock, 0.5 s behind the IMU (a motion-capture system stamping on
 /// its own time base): lined up first and said, so the comparison finds what the recording
 /// as stamped finds, not a delay or a scale made of the offset.

@@ -217,6 +217,15 @@ fn effect_error(found: &Term, mirror_found: Option<&Term>, control: Option<&Term
     relative_error(&estimate, &t, p.sim_variance, &p.judged)
 }
 
+/// A term found in a case and in its mirror whose effects differ by at most 20 % (the recall's
+/// yardstick): it did not turn with the injected sign, so it is the recording's own, its
+/// evidence below the threshold in the control and above it once an injected term is in the
+/// model (a scale whose bias partner the control lacked).
+fn mirror_invariant(here: &Term, mirror: &Term, p: &Prepared) -> bool {
+    let (Some(a), Some(b)) = (linear_effect(here, &p.ideal), linear_effect(mirror, &p.ideal)) else { return false };
+    relative_error(&a, &b, p.sim_variance, &p.judged) <= 0.2
+}
+
 /// Tallies over every injected case.
 #[derive(Default)]
 struct Tally {
@@ -225,6 +234,8 @@ struct Tally {
     within: usize,
     reported_beyond_control: usize,
     spurious: usize,
+    /// Of the spurious terms, those the mirrored case found alike ([`mirror_invariant`]).
+    spurious_own: usize,
     not_explained: usize,
     errors: Vec<f64>,
     /// Per injected term's name: (injected, found).
@@ -249,7 +260,7 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
     let mut tally = Tally::default();
     let mut controls = Vec::new();
     let mut csv =
-        String::from("recording,case,injected,control,found,effect_errors,spurious,verdict,seconds_taken,margins,injected_terms\n");
+        String::from("recording,case,injected,control,found,effect_errors,spurious,spurious_alike_in_mirror,verdict,seconds_taken,margins,injected_terms\n");
     for bag in set.bags {
         let name = bag.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let p = prepare(bag, set).with_context(|| format!("{}", bag.display()))?;
@@ -260,7 +271,7 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
         out!("{name}: control (as recorded): [{}]  {}", own.join(", "), control.verdict.statement)?;
         controls
             .push(serde_json::json!({"recording": name, "terms": own, "explained": control.verdict.explained, "seconds": control.seconds}));
-        let _ = writeln!(csv, "{name},control,,{},,,,{},{:.2},,", own.join(" "), control.verdict.explained, control.seconds);
+        let _ = writeln!(csv, "{name},control,,{},,,,,{},{:.2},,", own.join(" "), control.verdict.explained, control.seconds);
         let recorded = AsRecorded { name: &name, p: &p, control: &control, own, rate, window };
         for draw in 0..set.draws {
             let truth = draw_case(&mut rng, &names, rate);
@@ -372,17 +383,22 @@ impl Tally {
         let injected_and_own = compared.iter().filter(|t| own.contains(&t.name()) && d.terms.iter().any(|f| f.name() == t.name())).count();
         self.reported_beyond_control += beyond.len() + injected_and_own;
         self.spurious += spurious.len();
+        let in_both = |n: &str| d.terms.iter().find(|t| t.name() == n).zip(other.terms.iter().find(|t| t.name() == n));
+        let own_of_recording: Vec<&str> =
+            spurious.iter().copied().filter(|n| in_both(n).is_some_and(|(a, b)| mirror_invariant(a, b, r.p))).collect();
+        self.spurious_own += own_of_recording.len();
         self.not_explained += !d.verdict.explained as usize;
         let tn: Vec<&str> = terms.iter().map(|t| t.name()).collect();
         let fnm: Vec<&str> = d.terms.iter().map(|t| t.name()).collect();
         let _ = writeln!(
             csv,
-            "{name},{case},{},{},{},{},{},{},{:.2},{},\"{}\"",
+            "{name},{case},{},{},{},{},{},{},{},{:.2},{},\"{}\"",
             tn.join(" "),
             own.join(" "),
             fnm.join(" "),
             errs.join(" "),
             spurious.join(" "),
+            own_of_recording.join(" "),
             d.verdict.explained,
             d.seconds,
             margins.join(" "),
@@ -390,11 +406,12 @@ impl Tally {
         );
         tracing::info!("{name} case {case}: truth {terms:?}; found {:?}", d.terms);
         out!(
-            "{name} case {case:3}  injected [{}]  found [{}]  {}{}",
+            "{name} case {case:3}  injected [{}]  found [{}]  {}{}{}",
             tn.join(", "),
             fnm.join(", "),
             errs.join(", "),
-            if spurious.is_empty() { String::new() } else { format!("  [spurious: {}]", spurious.join(", ")) }
+            if spurious.is_empty() { String::new() } else { format!("  [spurious: {}]", spurious.join(", ")) },
+            if own_of_recording.is_empty() { String::new() } else { format!(" [alike in the mirror: {}]", own_of_recording.join(", ")) }
         )?;
         Ok(())
     }
@@ -408,6 +425,11 @@ impl Tally {
             "recall": self.found as f64 / self.injected.max(1) as f64,
             "spurious_terms": self.spurious,
             "spurious_rate": self.spurious as f64 / self.reported_beyond_control.max(1) as f64,
+            "spurious_alike_in_the_mirror": {
+                "rule": "of the spurious terms, those the mirrored case (the injected terms' signs turned) found with an effect within 20 % of this case's: the recording's own, not made by the injected sign",
+                "terms": self.spurious_own,
+                "rate_of_the_others": (self.spurious - self.spurious_own) as f64 / self.reported_beyond_control.max(1) as f64,
+            },
             "parameters_within_20pct": self.within as f64 / self.found.max(1) as f64,
             "median_effect_error": self.errors.get(self.errors.len() / 2).copied().unwrap_or(f64::NAN),
             "cases_not_explained": self.not_explained,
