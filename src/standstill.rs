@@ -9,7 +9,9 @@
 //! - its mean specific force is gravity (within `max_gravity_error`);
 //! - its mean rate is a plausible bias (≤ `max_bias`): faster is a turn;
 //! - gravity has not turned in the body since the standstill began (≤ `max_tilt_change`): a
-//!   slow turn about a horizontal axis tilts it, and a standstill that tilts is dropped whole;
+//!   slow turn about a horizontal axis tilts it, and a standstill that tilts is dropped whole,
+//!   unless it was level for at least two windows first (a rest that ended in a slow turn:
+//!   that rest is kept, its variance widened by the turn rate its tilt allows);
 //! - after an earlier standstill, its mean is within `max_bias_change` (plus 5 σ) of the
 //!   estimate: a steady turn about gravity reads like a bias to one IMU, and it is at least not
 //!   mixed into a bias already measured.
@@ -275,9 +277,27 @@ impl Sums {
     const ZERO: Sums = Sums { gyro: Vector3::new(0.0, 0.0, 0.0), accel: Vector3::new(0.0, 0.0, 0.0), n: 0 };
 }
 
+/// A standstill's gravity may turn by this fraction of `max_tilt_change` and still count as
+/// level: where a standstill ends tilting, its windows up to the one before the last level one
+/// are kept.
+const LEVEL_FRACTION: f64 = 0.25;
+
 /// One standstill in progress: consecutive still windows.
 #[derive(Debug, Clone, Copy)]
 struct Run {
+    sums: RunSums,
+    /// Its first window's gravity direction, and that window's middle.
+    gravity: Vector3<f64>,
+    first_mid_ns: i64,
+    /// Its sums up to the window before the last one whose gravity was within
+    /// `LEVEL_FRACTION × max_tilt_change` of the first's: what was a rest, should it end in a
+    /// slow turn.
+    level: Option<RunSums>,
+}
+
+/// The sums over a run's windows.
+#[derive(Debug, Clone, Copy)]
+struct RunSums {
     start_ns: i64,
     end_ns: i64,
     gyro_sum: Vector3<f64>,
@@ -286,11 +306,9 @@ struct Run {
     block_sum: Vector3<f64>,
     block_sq: Vector3<f64>,
     blocks: u32,
-    /// Its first window's gravity direction.
-    gravity: Vector3<f64>,
 }
 
-impl Run {
+impl RunSums {
     fn mean(&self) -> Vector3<f64> {
         self.gyro_sum / self.n.max(1) as f64
     }
@@ -304,6 +322,12 @@ impl Run {
 
     fn seconds(&self) -> f64 {
         (self.end_ns - self.start_ns) as f64 * 1e-9
+    }
+
+    /// What these windows measured, with `extra_variance` per axis added.
+    fn estimate(&self, extra_variance: f64) -> BiasEstimate {
+        let variance = self.variance().add_scalar(extra_variance);
+        BiasEstimate { bias: self.mean(), variance, at_ns: self.end_ns, still_s: self.seconds() }
     }
 }
 
@@ -525,11 +549,7 @@ impl PowerOnBias {
             }
             Err(why) => {
                 if why == NotStill::Tilting {
-                    // A standstill that tilts was a slow turn from its start: none of it was a
-                    // bias (a turn at 0.03 rad/s about x passed as runs of a few still windows).
-                    self.estimate = self.prior;
-                    self.run = None;
-                    self.seed_motion();
+                    self.keep_the_level_part();
                 }
                 self.end_run();
                 let c = &mut self.counters;
@@ -588,30 +608,76 @@ impl PowerOnBias {
         self.counters.still_windows += 1;
         let k = self.blocks_done;
         let n = self.window.n.max(1) as f64;
+        let gravity = self.window.accel / n;
         let run = self.run.get_or_insert(Run {
-            start_ns,
-            end_ns,
-            gyro_sum: Vector3::zeros(),
-            n: 0,
-            block_sum: Vector3::zeros(),
-            block_sq: Vector3::zeros(),
-            blocks: 0,
-            gravity: self.window.accel / n,
+            sums: RunSums {
+                start_ns,
+                end_ns,
+                gyro_sum: Vector3::zeros(),
+                n: 0,
+                block_sum: Vector3::zeros(),
+                block_sq: Vector3::zeros(),
+                blocks: 0,
+            },
+            gravity,
+            first_mid_ns: start_ns + (end_ns - start_ns) / 2,
+            level: None,
         });
-        run.end_ns = end_ns;
-        run.gyro_sum += self.window.gyro;
-        run.n += self.window.n as u64;
-        for m in &self.gyro_means[..k] {
-            run.block_sum += m;
-            run.block_sq += m.component_mul(m);
+        let tilt = run.gravity.angle(&gravity);
+        if run.sums.n > 0 && tilt <= LEVEL_FRACTION * self.cfg.max_tilt_change {
+            run.level = Some(run.sums);
         }
-        run.blocks += k as u32;
-        let measured = BiasEstimate { bias: run.mean(), variance: run.variance(), at_ns: end_ns, still_s: run.seconds() };
+        // Gravity turned by `tilt` between the first window and this one: a turn about a
+        // horizontal axis at tilt / span reads as bias, so what of it stands out of the
+        // windows' own noise (twice the σ their block means' scatter gives two window means'
+        // difference) is stated as σ.
+        let span_s = (start_ns + (end_ns - start_ns) / 2 - run.first_mid_ns) as f64 * 1e-9;
+        let noise_sq = 2.0 * block_scatter(&self.accel_means[..k]) / k as f64 / (STANDARD_GRAVITY * STANDARD_GRAVITY);
+        let turned_sq = (tilt * tilt - 4.0 * noise_sq).max(0.0);
+        let turn_allowed = if span_s > 0.0 { turned_sq.sqrt() / span_s } else { 0.0 };
+        let sums = &mut run.sums;
+        sums.end_ns = end_ns;
+        sums.gyro_sum += self.window.gyro;
+        sums.n += self.window.n as u64;
+        for m in &self.gyro_means[..k] {
+            sums.block_sum += m;
+            sums.block_sq += m.component_mul(m);
+        }
+        sums.blocks += k as u32;
+        let measured = sums.estimate(turn_allowed * turn_allowed);
+        self.set_measured(measured);
+    }
+
+    /// This standstill's measurement, fused with what earlier ones measured.
+    fn set_measured(&mut self, measured: BiasEstimate) {
         self.estimate = Some(match &self.prior {
             None => measured,
             Some(p) => fuse(p, &measured, self.cfg.bias_random_walk),
         });
         self.seed_motion();
+    }
+
+    /// A standstill that tilts was a slow turn about a horizontal axis (a turn at 0.03 rad/s
+    /// passes as runs of a few still windows). From its start, none of it was a bias: it is
+    /// dropped. After a rest (at least two windows level before the turn), the rest is kept,
+    /// its variance at least the square of the turn rate its own tilt allows (the tilt allowed
+    /// over its span): a 10-s rest before a robot leans is not lost.
+    fn keep_the_level_part(&mut self) {
+        let rest = self.run.as_mut().and_then(|r| r.level.take()).filter(|l| l.blocks >= 2 * self.cfg.blocks as u32);
+        match rest {
+            Some(level) => {
+                let bound = LEVEL_FRACTION * self.cfg.max_tilt_change / level.seconds().max(1e-3);
+                if let Some(r) = self.run.as_mut() {
+                    r.sums = level;
+                }
+                self.set_measured(level.estimate(bound * bound));
+            }
+            None => {
+                self.estimate = self.prior;
+                self.run = None;
+                self.seed_motion();
+            }
+        }
     }
 
     /// The filter in motion starts from what the standstills measured (or from its prior, when
@@ -630,6 +696,16 @@ impl PowerOnBias {
             self.prior = self.estimate;
         }
     }
+}
+
+/// The block means' variance about their mean, summed over the axes.
+fn block_scatter(means: &[Vector3<f64>]) -> f64 {
+    let k = means.len();
+    if k < 2 {
+        return 0.0;
+    }
+    let mean = means.iter().sum::<Vector3<f64>>() / k as f64;
+    means.iter().map(|m| (m - mean).norm_squared()).sum::<f64>() / (k - 1) as f64
 }
 
 /// Inverse-variance fusion of an earlier estimate (grown by the random walk up to the new one)
@@ -804,6 +880,12 @@ mod tests {
         Vector3::new(0.0, 0.0, STANDARD_GRAVITY)
     }
 
+    /// An accelerometer's white noise of `sigma` per axis, a function of the stamp alone.
+    fn accel_noise(t: f64, sigma: f64) -> Vector3<f64> {
+        let u = |k: f64| ((t * 7919.0 + k) * 12.9898).sin() * 43758.5453 % 1.0;
+        Vector3::new(u(1.0), u(2.0), u(3.0)) * (sigma * 3f64.sqrt())
+    }
+
     fn run(imu: &[ImuSample]) -> PowerOnBias {
         let mut p = PowerOnBias::new(StandstillConfig::default());
         for s in imu {
@@ -853,6 +935,46 @@ mod tests {
         // At most the first windows, before gravity had turned by max_tilt_change.
         let e = p.estimate().map_or(0.0, |e| e.still_s);
         assert!(e <= 1.0, "{e}");
+        // Slower turns pass as level for longer: what is kept of them states the turn as σ
+        // (an accelerometer with a consumer part's noise: the turn must stand out of it).
+        for w in [0.01, 0.005, 0.002] {
+            let imu = stream(
+                20.0,
+                Vector3::zeros(),
+                0.001,
+                |_| Vector3::new(w, 0.0, 0.0),
+                |t| Vector3::new(0.0, (w * t).sin(), (w * t).cos()) * STANDARD_GRAVITY + accel_noise(t, 0.03),
+            );
+            if let Some(e) = run(&imu).estimate() {
+                assert!(e.bias[0].abs() < 3.0 * e.variance[0].sqrt(), "{w} rad/s read as a bias {} ± {}", e.bias[0], e.variance[0].sqrt());
+            }
+        }
+    }
+
+    /// A rest of 10 s, then a turn at 0.03 rad/s about x from rest (a robot that starts to lean,
+    /// a device lifted slowly): the turn's first windows pass the spreads and tilt the
+    /// standstill, but what came before them was a rest and is kept, its bias unbiased by the
+    /// turn.
+    #[test]
+    fn a_rest_that_ends_in_a_slow_turn_keeps_its_rest() {
+        let (bias, w, t_turn) = (Vector3::new(0.01, -0.02, 0.03), 0.03, 10.0);
+        let tilt = |t: f64| w * (t - t_turn).max(0.0);
+        let imu = stream(
+            16.0,
+            bias,
+            0.002,
+            |t| if t < t_turn { Vector3::zeros() } else { Vector3::new(w, 0.0, 0.0) },
+            |t| Vector3::new(0.0, tilt(t).sin(), tilt(t).cos()) * STANDARD_GRAVITY + accel_noise(t, 0.03),
+        );
+        let p = run(&imu);
+        assert!(p.counters().tilting_windows > 0, "{:?}", p.counters());
+        let e = p.estimate().expect("the rest before the turn");
+        assert!(e.still_s >= 8.0, "{}", e.still_s);
+        let err = e.bias - bias;
+        assert!(err.amax() < 1e-3, "{err}");
+        for i in 0..3 {
+            assert!(err[i].abs() < 4.0 * e.variance[i].sqrt(), "axis {i}: error {} σ {}", err[i], e.variance[i].sqrt());
+        }
     }
 
     #[test]
