@@ -146,34 +146,36 @@ fn a_known_calibration_is_found_on_a_real_recording_and_none_on_the_calibrated_s
 #[test]
 fn injected_scales_and_biases_are_scored_against_the_control() {
     let dir = tempfile::tempdir().unwrap();
-    let Some(bag) = imported_room2(dir.path()) else { return };
-    let out = dir.path().join("score");
+    let Some((s, csv)) = score_injected_on_room2(
+        dir.path(),
+        &["--sensors", "gyro", "--score-only", "gyro_scale,gyro_bias", "--score-draws", "2", "--seed", "3"],
+    ) else {
+        return;
+    };
+    assert_eq!(s["cases"], 4, "{s:#}");
+    assert_eq!(s["recall"], 1.0, "{s:#}");
+    assert_eq!(s["spurious_terms"], 0, "{s:#}");
+    assert_eq!(s["parameters_within_20pct"], 1.0, "{s:#}");
+    assert!(csv.lines().any(|l| l.starts_with("room2,control,")), "{csv}");
+}
+
+/// `diagnose --score-injected` on room2 with `args` (the noise model is the TUM-VI BMI160's):
+/// its score.json and cases.csv.
+fn score_injected_on_room2(dir: &Path, args: &[&str]) -> Option<(serde_json::Value, String)> {
+    let bag = imported_room2(dir)?;
+    let out = dir.join("score");
     let noise = Path::new(env!("CARGO_MANIFEST_DIR")).join("params/noise/bmi160_tumvi.yaml");
     run(Command::new(bin())
-        .args([
-            "diagnose",
-            "--sensors",
-            "gyro",
-            "--score-only",
-            "gyro_scale,gyro_bias",
-            "--score-draws",
-            "2",
-            "--seed",
-            "3",
-            "--noise-model",
-        ])
+        .arg("diagnose")
+        .args(args)
+        .arg("--noise-model")
         .arg(noise)
         .arg("--score-injected")
         .arg(&bag)
         .arg("-o")
         .arg(&out));
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap();
-    assert_eq!(s["cases"], 4, "{s:#}");
-    assert_eq!(s["recall"], 1.0, "{s:#}");
-    assert_eq!(s["spurious_terms"], 0, "{s:#}");
-    assert_eq!(s["parameters_within_20pct"], 1.0, "{s:#}");
-    let csv = std::fs::read_to_string(out.join("cases.csv")).unwrap();
-    assert!(csv.lines().any(|l| l.starts_with("room2,control,")), "{csv}");
+    let s = serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap();
+    Some((s, std::fs::read_to_string(out.join("cases.csv")).unwrap()))
 }
 
 /// An accelerometer bias injected into room2 (both sensors) brings in the recording's own
@@ -183,23 +185,14 @@ fn injected_scales_and_biases_are_scored_against_the_control() {
 #[test]
 fn a_term_the_injection_reveals_is_found_alike_in_the_mirror() {
     let dir = tempfile::tempdir().unwrap();
-    let Some(bag) = imported_room2(dir.path()) else { return };
-    let out = dir.path().join("score");
-    let noise = Path::new(env!("CARGO_MANIFEST_DIR")).join("params/noise/bmi160_tumvi.yaml");
-    run(Command::new(bin())
-        .args(["diagnose", "--score-only", "accel_bias", "--score-draws", "1", "--seed", "1", "--noise-model"])
-        .arg(noise)
-        .arg("--score-injected")
-        .arg(&bag)
-        .arg("-o")
-        .arg(&out));
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap();
+    let Some((s, csv)) = score_injected_on_room2(dir.path(), &["--score-only", "accel_bias", "--score-draws", "1", "--seed", "1"]) else {
+        return;
+    };
     assert_eq!(s["recall"], 1.0, "{s:#}");
     assert_eq!(s["parameters_within_20pct"], 1.0, "{s:#}");
     let spurious = s["spurious_terms"].as_u64().unwrap();
     assert!(spurious >= 1, "room2's own accelerometer scale comes in with the bias: {s:#}");
     assert_eq!(s["spurious_alike_in_the_mirror"]["terms"].as_u64(), Some(spurious), "{s:#}");
-    let csv = std::fs::read_to_string(out.join("cases.csv")).unwrap();
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
     let col = header.iter().position(|h| *h == "spurious_alike_in_mirror").unwrap();
     for row in csv.lines().filter(|l| l.starts_with("room2,0")) {
