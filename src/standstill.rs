@@ -627,14 +627,8 @@ impl PowerOnBias {
         if run.sums.n > 0 && tilt <= LEVEL_FRACTION * self.cfg.max_tilt_change {
             run.level = Some(run.sums);
         }
-        // Gravity turned by `tilt` between the first window and this one: a turn about a
-        // horizontal axis at tilt / span reads as bias, so what of it stands out of the
-        // windows' own noise (twice the σ their block means' scatter gives two window means'
-        // difference) is stated as σ.
         let span_s = (start_ns + (end_ns - start_ns) / 2 - run.first_mid_ns) as f64 * 1e-9;
-        let noise_sq = 2.0 * block_scatter(&self.accel_means[..k]) / k as f64 / (STANDARD_GRAVITY * STANDARD_GRAVITY);
-        let turned_sq = (tilt * tilt - 4.0 * noise_sq).max(0.0);
-        let turn_allowed = if span_s > 0.0 { turned_sq.sqrt() / span_s } else { 0.0 };
+        let turn_allowed = turn_rate_shown(tilt, span_s, &self.accel_means[..k]);
         let sums = &mut run.sums;
         sums.end_ns = end_ns;
         sums.gyro_sum += self.window.gyro;
@@ -696,6 +690,18 @@ impl PowerOnBias {
             self.prior = self.estimate;
         }
     }
+}
+
+/// Gravity turned by `tilt` (rad) between a standstill's first window and one `span_s` later:
+/// a turn about a horizontal axis at tilt / span reads as bias. What of the tilt stands out of
+/// the windows' own noise (twice the σ that `accel_means`, a window's block means, give the
+/// difference of two window means) is that turn, rad/s.
+fn turn_rate_shown(tilt: f64, span_s: f64, accel_means: &[Vector3<f64>]) -> f64 {
+    if span_s <= 0.0 {
+        return 0.0;
+    }
+    let noise_sq = 2.0 * block_scatter(accel_means) / accel_means.len().max(1) as f64 / (STANDARD_GRAVITY * STANDARD_GRAVITY);
+    (tilt * tilt - 4.0 * noise_sq).max(0.0).sqrt() / span_s
 }
 
 /// The block means' variance about their mean, summed over the axes.
