@@ -609,6 +609,7 @@ impl PowerOnBias {
         let k = self.blocks_done;
         let n = self.window.n.max(1) as f64;
         let gravity = self.window.accel / n;
+        let mid_ns = start_ns + (end_ns - start_ns) / 2;
         let run = self.run.get_or_insert(Run {
             sums: RunSums {
                 start_ns,
@@ -620,14 +621,14 @@ impl PowerOnBias {
                 blocks: 0,
             },
             gravity,
-            first_mid_ns: start_ns + (end_ns - start_ns) / 2,
+            first_mid_ns: mid_ns,
             level: None,
         });
         let tilt = run.gravity.angle(&gravity);
         if run.sums.n > 0 && tilt <= LEVEL_FRACTION * self.cfg.max_tilt_change {
             run.level = Some(run.sums);
         }
-        let span_s = (start_ns + (end_ns - start_ns) / 2 - run.first_mid_ns) as f64 * 1e-9;
+        let span_s = (mid_ns - run.first_mid_ns) as f64 * 1e-9;
         let turn_allowed = turn_rate_shown(tilt, span_s, &self.accel_means[..k]);
         let sums = &mut run.sums;
         sums.end_ns = end_ns;
@@ -660,10 +661,8 @@ impl PowerOnBias {
         let rest = self.run.as_mut().and_then(|r| r.level.take()).filter(|l| l.blocks >= 2 * self.cfg.blocks as u32);
         match rest {
             Some(level) => {
+                // The run ends here (`end_run`): its estimate becomes the prior.
                 let bound = LEVEL_FRACTION * self.cfg.max_tilt_change / level.seconds().max(1e-3);
-                if let Some(r) = self.run.as_mut() {
-                    r.sums = level;
-                }
                 self.set_measured(level.estimate(bound * bound));
             }
             None => {
