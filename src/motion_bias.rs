@@ -62,6 +62,12 @@ pub struct MotionBiasConfig {
     /// a fraction of |ω|: a turn of θ within a block adds (this · θ)² to the attitude's
     /// variance (a systematic error between two measurements, not a white one). 0: none.
     pub rate_error_fraction: f64,
+    /// The gyro's scale and cross-axis errors left in it, each of the nine entries of a 3×3
+    /// error ΔC (ω read as (I + ΔC) ω) 0 ± this, as states that are *considered*, not
+    /// estimated (Schmidt): a constant error turns the attitude by ΔC times the net rotation,
+    /// which cancels as a body turns back and forth and about gravity, where the white
+    /// `rate_error_fraction` adds up every turn. 0: not modelled.
+    pub rate_error_stddev: f64,
     /// A block whose normalised innovation squared exceeds this is not used (a sustained
     /// acceleration: a car braking, a launch); infinite: every block within
     /// `max_gravity_error` is.
@@ -109,6 +115,7 @@ impl Default for MotionBiasConfig {
             fit_blocks: 30,
             max_accel_bias_sigmas: 2.0,
             rate_error_fraction: 0.0,
+            rate_error_stddev: 0.0,
             max_block_nis: f64::INFINITY,
             min_tilt_about_up: 0.5,
             apply_before_check: false,
@@ -141,6 +148,9 @@ impl MotionBiasConfig {
         }
         if !(self.rate_error_fraction.is_finite() && self.rate_error_fraction >= 0.0) {
             return Err(format!("rate_error_fraction must be finite and ≥ 0, not {}", self.rate_error_fraction).into());
+        }
+        if !(self.rate_error_stddev.is_finite() && self.rate_error_stddev >= 0.0) {
+            return Err(format!("rate_error_stddev must be finite and ≥ 0, not {}", self.rate_error_stddev).into());
         }
         if self.max_block_nis.is_nan() || self.max_block_nis <= 0.0 {
             return Err(format!("max_block_nis must be > 0 (.inf: no gate), not {}", self.max_block_nis).into());
@@ -179,6 +189,10 @@ struct Block {
     /// Σ R̂ (ω × x) and Σ R̂ (ω × x) (t − start), s: a forward speed's centripetal acceleration.
     bend: Vector3<f64>,
     bend_t: Vector3<f64>,
+    /// ∫ R̂ D(ω) dt from the block's start to the last sample (D(ω) δc = ΔC ω), and its sum
+    /// over the block's samples: how the considered gyro errors reach each sample.
+    turned: SMatrix<f64, 3, 9>,
+    turned_sum: SMatrix<f64, 3, 9>,
 }
 
 impl Block {
@@ -191,6 +205,8 @@ impl Block {
             rotation_t: Matrix3::zeros(),
             bend: Vector3::zeros(),
             bend_t: Vector3::zeros(),
+            turned: SMatrix::zeros(),
+            turned_sum: SMatrix::zeros(),
         }
     }
 }
@@ -207,11 +223,14 @@ pub enum BlockVerdict {
 
 /// The error state: attitude about world x, y, z (rad), gyro bias (rad/s), accelerometer bias
 /// (m/s²), IMU axes for both; the forward speed (m/s; zero and unused unless
-/// `forward_speed_stddev` is set).
-const N: usize = 10;
+/// `forward_speed_stddev` is set); the gyro's scale and cross-axis error ΔC, row by row
+/// (considered, never estimated; zero and unused unless `rate_error_stddev` is set).
+const N: usize = 19;
 type Cov = SMatrix<f64, N, N>;
 /// Where the forward speed sits in the state.
 const U: usize = 9;
+/// Where ΔC's nine entries start.
+const C: usize = 10;
 
 /// The running filter.
 #[derive(Debug, Clone)]
@@ -247,6 +266,7 @@ impl MotionBias {
         p.fixed_view_mut::<3, 3>(3, 3).copy_from(&(Matrix3::identity() * cfg.prior_stddev.powi(2)));
         p.fixed_view_mut::<3, 3>(6, 6).copy_from(&(Matrix3::identity() * cfg.accel_bias_stddev.powi(2)));
         p[(U, U)] = cfg.forward_speed_stddev.powi(2);
+        p.fixed_view_mut::<9, 9>(C, C).copy_from(&(SMatrix::<f64, 9, 9>::identity() * cfg.rate_error_stddev.powi(2)));
         MotionBias {
             cfg,
             world_from_body: None,
@@ -422,6 +442,11 @@ impl MotionBias {
         self.cfg.forward_speed_stddev > 0.0
     }
 
+    /// True where the gyro's scale and cross-axis errors are considered (`rate_error_stddev`).
+    fn considers_rate_error(&self) -> bool {
+        self.cfg.rate_error_stddev > 0.0
+    }
+
     /// The forward speed's variance grown over `seconds` with nothing measured.
     fn let_speed_wander(&mut self, seconds: f64) {
         if self.models_speed() {
@@ -445,6 +470,12 @@ impl MotionBias {
         p.fixed_view_mut::<3, 3>(3, 3).copy_from(&Matrix3::from_diagonal(&variance));
         self.p = p;
         self.decide_applied();
+    }
+
+    /// The gyro it is fed has `delta` less bias from now on (removed upstream): the estimate
+    /// moves with it, its covariance unchanged.
+    pub fn shift_bias(&mut self, delta: Vector3<f64>) {
+        self.bias -= delta;
     }
 
     /// Forgets everything: a new power-on.
@@ -495,6 +526,7 @@ impl MotionBias {
         b.n += 1;
         b.force += r * (s.accel - self.accel_bias);
         b.rotation += r;
+        b.turned_sum += b.turned;
         let t = (s.stamp_ns - b.start_ns) as f64 * 1e-9;
         b.rotation_t += r * t;
         if models_speed {
@@ -514,8 +546,21 @@ impl MotionBias {
         // Φ = I + E, E's only block A = −R̂ dt at (attitude, bias): Φ P Φᵀ = P + E P + (E P)ᵀ
         // + E P Eᵀ, with E P = A P[bias rows] in the attitude rows (≈ 150 products, not 1,500).
         let a = -r * dt;
-        let ep: SMatrix<f64, 3, N> = a * self.p.fixed_view::<3, N>(3, 0);
-        let epe: Matrix3<f64> = ep.fixed_view::<3, 3>(0, 3) * a.transpose();
+        let mut ep: SMatrix<f64, 3, N> = a * self.p.fixed_view::<3, N>(3, 0);
+        let mut epe: Matrix3<f64> = ep.fixed_view::<3, 3>(0, 3) * a.transpose();
+        if self.considers_rate_error() {
+            // ΔC's block of E: −R̂ D(ω) dt, D(ω) = I ⊗ ωᵀ (entry (i, j) of ΔC adds ω_j to axis i).
+            let wb = w - self.bias;
+            let mut turned = SMatrix::<f64, 3, 9>::zeros();
+            for i in 0..3 {
+                for j in 0..3 {
+                    turned.set_column(3 * i + j, &(r.column(i) * (wb[j] * dt)));
+                }
+            }
+            ep -= turned * self.p.fixed_view::<9, N>(C, 0);
+            epe = ep.fixed_view::<3, 3>(0, 3) * a.transpose() - ep.fixed_view::<3, 9>(0, C) * turned.transpose();
+            self.block.turned += turned;
+        }
         let mut p = self.p;
         let mut rows = p.fixed_view_mut::<3, N>(0, 0);
         rows += ep;
@@ -582,6 +627,10 @@ impl MotionBias {
         h.fixed_view_mut::<3, 3>(0, 6).copy_from(&(b.rotation / (n * STANDARD_GRAVITY)));
         h.fixed_view_mut::<3, 1>(0, U).copy_from(&h_speed);
         h.fixed_view_mut::<3, 1>(0, N).copy_from(&h_change);
+        if self.considers_rate_error() {
+            // δθ̄ gains (∫ to the end − mean ∫ to each sample) of R̂ D(ω) dt times ΔC.
+            h.fixed_view_mut::<3, 9>(0, C).copy_from(&(cross * (b.turned - b.turned_sum / n)));
+        }
         let mut p = SMatrix::<f64, { N + 1 }, { N + 1 }>::zeros();
         p.fixed_view_mut::<N, N>(0, 0).copy_from(&self.p);
         p[(N, N)] = q_w;
@@ -597,7 +646,10 @@ impl MotionBias {
             return BlockVerdict::Outlier;
         }
         self.nis += (nis - self.nis) / f64::from(self.cfg.fit_blocks);
-        let k = p * h.transpose() * s_inv;
+        let mut k = p * h.transpose() * s_inv;
+        // ΔC is considered, not estimated: no gain on it (its covariance then stays its prior,
+        // its correlation with the rest is kept; the Joseph form below holds for any gain).
+        k.fixed_view_mut::<9, 3>(C, 0).fill(0.0);
         let dx: SVector<f64, { N + 1 }> = k * residual;
         let i_kh = SMatrix::<f64, { N + 1 }, { N + 1 }>::identity() - k * h;
         let p = i_kh * p * i_kh.transpose() + k * k.transpose() * (sigma * sigma);
@@ -764,6 +816,35 @@ mod tests {
         let (w, dt) = (Vector3::new(0.2, -0.4, 0.1), 0.005);
         let mut phi = Cov::identity();
         phi.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-*q.to_rotation_matrix().matrix() * dt));
+        let mut dense = phi * f.p * phi.transpose();
+        f.propagate(q, &w, dt);
+        let (ng, nb) = (f.cfg.gyro_noise_density.powi(2) * dt, f.cfg.bias_random_walk.powi(2) * dt);
+        for i in 0..3 {
+            dense[(i, i)] += ng;
+            dense[(i + 3, i + 3)] += nb;
+        }
+        assert!((f.p - dense).amax() < 1e-15, "{}", (f.p - dense).amax());
+    }
+
+    /// With the gyro's scale and cross-axis errors considered, Φ has a second block at
+    /// (attitude, ΔC): −R̂ D(ω) dt.
+    #[test]
+    fn the_covariance_step_with_rate_errors_is_the_dense_one() {
+        let mut f = MotionBias::new(MotionBiasConfig { rate_error_stddev: 0.03, ..MotionBiasConfig::default() });
+        let m = Cov::from_fn(|i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
+        f.p = m * m.transpose() + Cov::identity() * 0.1;
+        f.bias = Vector3::new(0.01, 0.02, -0.03);
+        let q = UnitQuaternion::from_euler_angles(0.3, -0.2, 1.1);
+        let (w, dt) = (Vector3::new(0.2, -0.4, 0.1), 0.005);
+        let r = *q.to_rotation_matrix().matrix();
+        let mut phi = Cov::identity();
+        phi.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-r * dt));
+        let wb = w - f.bias;
+        for i in 0..3 {
+            for j in 0..3 {
+                phi.fixed_view_mut::<3, 1>(0, C + 3 * i + j).copy_from(&(-r.column(i) * wb[j] * dt));
+            }
+        }
         let mut dense = phi * f.p * phi.transpose();
         f.propagate(q, &w, dt);
         let (ng, nb) = (f.cfg.gyro_noise_density.powi(2) * dt, f.cfg.bias_random_walk.powi(2) * dt);
