@@ -1,0 +1,162 @@
+//! The streaming standstill detector and the per-power-on bias it measures: its state, the
+//! bias in force (a standstill's, earlier power-ons', or the one seen in motion) and where it
+//! comes from, a re-take and a break. Its window is judged in `window.rs`, its standstill in
+//! progress kept in `run.rs`.
+
+use nalgebra::Vector3;
+
+use super::run::Run;
+use super::window::Sums;
+use super::{BiasEstimate, InMotion, StandstillConfig, StandstillCounters, MAX_BLOCKS};
+use crate::motion_bias::MotionBias;
+
+/// The streaming standstill detector and the per-power-on bias it measures.
+#[derive(Debug, Clone)]
+pub struct PowerOnBias {
+    pub(super) cfg: StandstillConfig,
+    pub(super) block_ns: i64,
+    pub(super) last: Option<(i64, Vector3<f64>)>,
+    pub(super) block: Sums,
+    pub(super) block_start_ns: i64,
+    /// The window's completed blocks' means.
+    pub(super) gyro_means: [Vector3<f64>; MAX_BLOCKS],
+    pub(super) accel_means: [Vector3<f64>; MAX_BLOCKS],
+    pub(super) blocks_done: usize,
+    pub(super) window: Sums,
+    pub(super) window_start_ns: Option<i64>,
+    /// ∫ω dt over the window so far, and its duration, s.
+    pub(super) window_turn: Vector3<f64>,
+    pub(super) window_s: f64,
+    pub(super) run: Option<Run>,
+    /// The estimate before the current run (what the run is fused with).
+    pub(super) prior: Option<BiasEstimate>,
+    pub(super) estimate: Option<BiasEstimate>,
+    pub(super) counters: StandstillCounters,
+    /// The bias seen in motion (unless `in_motion: off`).
+    pub(super) motion: Option<MotionBias>,
+}
+
+impl PowerOnBias {
+    pub fn new(cfg: StandstillConfig) -> Self {
+        let block_ns = (cfg.window_s / cfg.blocks.clamp(2, MAX_BLOCKS) as f64 * 1e9) as i64;
+        PowerOnBias {
+            cfg,
+            block_ns: block_ns.max(1),
+            last: None,
+            block: Sums::ZERO,
+            block_start_ns: 0,
+            gyro_means: [Vector3::zeros(); MAX_BLOCKS],
+            accel_means: [Vector3::zeros(); MAX_BLOCKS],
+            blocks_done: 0,
+            window: Sums::ZERO,
+            window_start_ns: None,
+            window_turn: Vector3::zeros(),
+            window_s: 0.0,
+            run: None,
+            prior: None,
+            estimate: None,
+            counters: StandstillCounters::default(),
+            motion: (cfg.in_motion != InMotion::Off).then(|| MotionBias::new(cfg.motion)),
+        }
+    }
+
+    pub fn config(&self) -> &StandstillConfig {
+        &self.cfg
+    }
+
+    /// The bias in force, if any standstill was measured.
+    pub fn estimate(&self) -> Option<&BiasEstimate> {
+        self.estimate.as_ref()
+    }
+
+    /// The bias to subtract now: the standstills' (and, per `in_motion`, the one seen in
+    /// motion); zero before any.
+    pub fn bias(&self) -> Vector3<f64> {
+        self.in_force(0).map_or(Vector3::zeros(), |e| e.bias)
+    }
+
+    /// The bias in force and its variance: a standstill's, or the one seen in motion where
+    /// `in_motion` uses it (stamped `now_ns`, its variance the filter's own).
+    pub fn in_force(&self, now_ns: i64) -> Option<BiasEstimate> {
+        let from_motion = |m: &MotionBias| BiasEstimate {
+            bias: m.applied().0,
+            variance: m.applied().1,
+            at_ns: now_ns,
+            still_s: self.estimate.map_or(0.0, |e| e.still_s),
+        };
+        // Before the first standstill, what earlier power-ons predict comes first: it covers
+        // the axis about gravity, which motion reveals only as the body turns.
+        if let Some(r) = self.cfg.remembered.filter(|r| self.estimate.is_none() && r.applies_any()) {
+            return Some(r.as_estimate(now_ns));
+        }
+        match (self.cfg.in_motion, self.motion.as_ref()) {
+            (InMotion::Always | InMotion::UntilStandstill, Some(m)) if self.estimate.is_none() => m.applies_any().then(|| from_motion(m)),
+            (InMotion::Always, Some(m)) if !m.misfit() => Some(from_motion(m)),
+            _ => self.estimate,
+        }
+    }
+
+    /// Where [`Self::in_force`] comes from: `standstill`, `memory` (earlier power-ons),
+    /// `motion`, `motion, across up` (not about the up of a body that stayed near level), or ""
+    /// (nothing yet).
+    pub fn source(&self) -> &'static str {
+        if self.estimate.is_none() && self.cfg.remembered.is_some_and(|r| r.applies_any()) {
+            return "memory";
+        }
+        let applies = self.motion.as_ref().is_some_and(MotionBias::applies_any);
+        let fits = self.motion.as_ref().is_some_and(|m| !m.misfit());
+        match (self.cfg.in_motion, applies, self.estimate.is_some()) {
+            (InMotion::Always, _, true) if fits => "standstill, then motion",
+            (_, _, true) => "standstill",
+            (InMotion::Always | InMotion::UntilStandstill, true, false) => {
+                if self.motion.as_ref().is_some_and(MotionBias::withholds_about_up) {
+                    "motion, across up"
+                } else {
+                    "motion"
+                }
+            }
+            _ => "",
+        }
+    }
+
+    /// The filter of the bias seen in motion, if it runs.
+    pub fn motion(&self) -> Option<&MotionBias> {
+        self.motion.as_ref()
+    }
+
+    pub fn counters(&self) -> &StandstillCounters {
+        &self.counters
+    }
+
+    /// True while the last window judged was still (the platform is standing).
+    pub fn standing(&self) -> bool {
+        self.run.is_some()
+    }
+
+    /// The start of the window in progress, ns (the sample that opened it).
+    pub fn window_start_ns(&self) -> Option<i64> {
+        self.window_start_ns
+    }
+
+    /// Forgets every standstill measured: the next one measures the bias afresh (a re-take on
+    /// demand, or a new power-on).
+    pub fn retake(&mut self) {
+        self.interrupt();
+        self.prior = None;
+        self.estimate = None;
+        if let Some(m) = self.motion.as_mut() {
+            m.restart();
+        }
+    }
+
+    /// Breaks the window and the standstill in progress (a gap, a clock that went back); what
+    /// was measured stays.
+    pub fn interrupt(&mut self) {
+        if self.window_start_ns.is_some() {
+            self.counters.interrupted_windows += 1;
+        }
+        self.end_run();
+        self.clear_window();
+        self.last = None;
+    }
+}
