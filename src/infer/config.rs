@@ -28,8 +28,9 @@ pub struct PipelineConfig {
     /// (the white noise alone, σ·√(t·dt), claimed 0.2° after 100 s where 3° were measured).
     pub bias_stddev: f64,
     /// [`Self::bias_stddev`] when nothing corrects the gyro at its rate (no model, or an input
-    /// rate off the model's): a MEMS gyro's own turn-on bias, rad/s. At 1 mrad/s a consumer
-    /// gyro's pass-through attitude claimed σ 5.8° where it was 14.8° off after 100 s.
+    /// rate off the model's): a MEMS gyro's own turn-on bias, rad/s (consumer parts: ±3–5 °/s,
+    /// EuRoC's ADIS16448 4.4 °/s). At 1 mrad/s a consumer gyro's pass-through attitude claimed
+    /// σ 5.8° where it was 14.8° off after 100 s; at 10 mrad/s EuRoC's tilt NEES was 6–24.
     pub uncorrected_bias_stddev: f64,
     /// Feed a model an input whose rate is off the model's in the model's periods
     /// ([`crate::resample`]); false runs it on the samples as they come (its window then spans
@@ -106,7 +107,7 @@ impl Default for PipelineConfig {
             initial_yaw_variance: std::f64::consts::PI * std::f64::consts::PI,
             gap_variance_per_second: 0.25,
             bias_stddev: 1e-3,
-            uncorrected_bias_stddev: 1e-2,
+            uncorrected_bias_stddev: 3e-2,
             resample_to_model_rate: true,
             power_on_bias: true,
             standstill: crate::standstill::StandstillConfig::default(),
