@@ -443,7 +443,7 @@ impl MotionBias {
     }
 
     /// True where the gyro's scale and cross-axis errors are considered (`rate_error_stddev`).
-    fn considers_rate_error(&self) -> bool {
+    pub fn considers_rate_error(&self) -> bool {
         self.cfg.rate_error_stddev > 0.0
     }
 
@@ -526,7 +526,9 @@ impl MotionBias {
         b.n += 1;
         b.force += r * (s.accel - self.accel_bias);
         b.rotation += r;
-        b.turned_sum += b.turned;
+        if self.cfg.rate_error_stddev > 0.0 {
+            b.turned_sum += b.turned;
+        }
         let t = (s.stamp_ns - b.start_ns) as f64 * 1e-9;
         b.rotation_t += r * t;
         if models_speed {
@@ -546,8 +548,6 @@ impl MotionBias {
         // Φ = I + E, E's only block A = −R̂ dt at (attitude, bias): Φ P Φᵀ = P + E P + (E P)ᵀ
         // + E P Eᵀ, with E P = A P[bias rows] in the attitude rows (≈ 150 products, not 1,500).
         let a = -r * dt;
-        let mut ep: SMatrix<f64, 3, N> = a * self.p.fixed_view::<3, N>(3, 0);
-        let mut epe: Matrix3<f64> = ep.fixed_view::<3, 3>(0, 3) * a.transpose();
         if self.considers_rate_error() {
             // ΔC's block of E: −R̂ D(ω) dt, D(ω) = I ⊗ ωᵀ (entry (i, j) of ΔC adds ω_j to axis i).
             let wb = w - self.bias;
@@ -557,18 +557,16 @@ impl MotionBias {
                     turned.set_column(3 * i + j, &(r.column(i) * (wb[j] * dt)));
                 }
             }
-            ep -= turned * self.p.fixed_view::<9, N>(C, 0);
-            epe = ep.fixed_view::<3, 3>(0, 3) * a.transpose() - ep.fixed_view::<3, 9>(0, C) * turned.transpose();
+            let ep: SMatrix<f64, 3, N> = a * self.p.fixed_view::<3, N>(3, 0) - turned * self.p.fixed_view::<9, N>(C, 0);
+            let epe = ep.fixed_view::<3, 3>(0, 3) * a.transpose() - ep.fixed_view::<3, 9>(0, C) * turned.transpose();
+            self.grow_attitude(&ep, &epe);
             self.block.turned += turned;
+        } else {
+            // ΔC's rows and columns are zero and stay so: only the first C states take part.
+            let ep: SMatrix<f64, 3, C> = a * self.p.fixed_view::<3, C>(3, 0);
+            let epe = ep.fixed_view::<3, 3>(0, 3) * a.transpose();
+            self.grow_attitude(&ep, &epe);
         }
-        let mut p = self.p;
-        let mut rows = p.fixed_view_mut::<3, N>(0, 0);
-        rows += ep;
-        let mut cols = p.fixed_view_mut::<N, 3>(0, 0);
-        cols += ep.transpose();
-        let mut corner = p.fixed_view_mut::<3, 3>(0, 0);
-        corner += epe;
-        self.p = p;
         // The rate-proportional error: (f |ω| dt)² per step summed over a block of n steps is
         // (f θ)² / n; times n (the steps of a block, block_s / dt) it is the block's (f θ)².
         let rate_error = (self.cfg.rate_error_fraction * (w - self.bias).norm()).powi(2) * dt * self.cfg.block_s;
@@ -577,6 +575,17 @@ impl MotionBias {
             self.p[(i, i)] += ng;
             self.p[(i + 3, i + 3)] += nb;
         }
+    }
+
+    /// P + E P + (E P)ᵀ + E P Eᵀ in place, E P = `ep` on the first M states' attitude rows and
+    /// E P Eᵀ = `epe`.
+    fn grow_attitude<const M: usize>(&mut self, ep: &SMatrix<f64, 3, M>, epe: &Matrix3<f64>) {
+        let mut rows = self.p.fixed_view_mut::<3, M>(0, 0);
+        rows += ep;
+        let mut cols = self.p.fixed_view_mut::<M, 3>(0, 0);
+        cols += ep.transpose();
+        let mut corner = self.p.fixed_view_mut::<3, 3>(0, 0);
+        corner += epe;
     }
 
     /// Closes the block ending at `end_ns`: its measurement; the forward speed carried to the
@@ -826,6 +835,9 @@ mod tests {
         let mut f = MotionBias::new(MotionBiasConfig::default());
         let m = Cov::from_fn(|i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
         f.p = m * m.transpose() + Cov::identity() * 0.1;
+        // ΔC not considered: its rows and columns are zero, as `new` makes them.
+        f.p.fixed_view_mut::<9, N>(C, 0).fill(0.0);
+        f.p.fixed_view_mut::<N, 9>(0, C).fill(0.0);
         let q = UnitQuaternion::from_euler_angles(0.3, -0.2, 1.1);
         let (w, dt) = (Vector3::new(0.2, -0.4, 0.1), 0.005);
         let mut phi = Cov::identity();

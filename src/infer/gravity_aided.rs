@@ -138,18 +138,13 @@ impl GravityAidedConfig {
 /// The running gravity-aided attitude.
 pub(super) struct GravityAided {
     filter: MotionBias,
-    /// Its residual bias follows the power-on bias removed upstream ([`Self::rebase_bias`]):
-    /// where the gyro's errors are considered constants (a white error of 10 % of every turn
-    /// forgets within a block, and following it there was measured mixed: EuRoC MH_01–03 worse).
-    follows_upstream_bias: bool,
 }
 
 impl GravityAided {
     /// `bias_stddev`: the bias left in the corrected gyro (the pipeline's, when it starts);
     /// `model_runs`: a model corrects it (its Ĉ_ω the scale and cross-axis).
     pub(super) fn new(cfg: &GravityAidedConfig, bias_stddev: f64, model_runs: bool) -> Self {
-        let filter = cfg.filter_config(bias_stddev, model_runs);
-        GravityAided { follows_upstream_bias: filter.rate_error_stddev > 0.0, filter: MotionBias::new(filter) }
+        GravityAided { filter: MotionBias::new(cfg.filter_config(bias_stddev, model_runs)) }
     }
 
     /// Starts at an attitude already known (the pipeline's gravity start-up) at sample
@@ -167,13 +162,18 @@ impl GravityAided {
     /// residual bias is that much less. `measured`: a standstill's variance of the bias, the
     /// residual then 0 within it (the standstill measured what the filter only inferred).
     pub(super) fn rebase_bias(&mut self, delta: Vector3<f64>, measured: Option<Vector3<f64>>) {
-        if !self.follows_upstream_bias {
-            return;
-        }
         match measured {
             Some(variance) => self.filter.seed(Vector3::zeros(), variance),
             None => self.filter.shift_bias(delta),
         }
+    }
+
+    /// True where its residual bias follows the power-on bias removed upstream
+    /// ([`Self::rebase_bias`]): where the gyro's errors are considered constants (a white error
+    /// of 10 % of every turn forgets within a block, and following it there was measured mixed:
+    /// EuRoC MH_01–03 worse).
+    pub(super) fn follows_upstream_bias(&self) -> bool {
+        self.filter.considers_rate_error()
     }
 
     /// Over a hole in the input that ends at `at_ns`: the attitude is held, `added_variance`

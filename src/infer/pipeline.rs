@@ -438,6 +438,9 @@ impl Pipeline {
     /// within its σ, at least `bias_stddev` (a rest's bias is not quite the one in motion:
     /// EuRoC's rotors-off rest is 1.8 mrad/s off its flight's, docs/training.md).
     fn keep_gravity_aided_bias_in_step(&mut self, correction: Correction) {
+        if self.gravity_aided.as_ref().is_some_and(|g| !g.follows_upstream_bias()) {
+            return;
+        }
         let removed = if self.cfg.power_on_bias && correction.removes_power_on_bias() { self.standstill.bias() } else { Vector3::zeros() };
         let from_standstill = self.bias_source() == "standstill";
         let first_standstill = from_standstill && !self.aided_from_standstill;
