@@ -86,7 +86,12 @@ impl Platform {
             // 0.5 m/s² once bends and brakings are predicted. Not the bias seen in motion: there
             // the speed × yaw rate ties the bias about up to the accelerometer's lateral bias
             // (docs/log/2026-12-06-car-platform.md).
-            Platform::Car => &[(&["gravity_aided", "forward_speed_stddev"], "20.0"), (&["gravity_aided", "accel_stddev"], "0.5")],
+            // Its 1-s blocks: a bend's acceleration is predicted sample by sample, not averaged out.
+            Platform::Car => &[
+                (&["gravity_aided", "forward_speed_stddev"], "20.0"),
+                (&["gravity_aided", "accel_stddev"], "0.5"),
+                (&["gravity_aided", "block_s"], "1.0"),
+            ],
             // Measured in docs/poweron.md ("Before the check"): on these the bias of a power-on
             // that starts moving is removed within seconds; a car's sustained braking and bends
             // would be taken for a bias until the check refuses them, hence not `Any`'s.

@@ -304,7 +304,7 @@ mod tests {
     fn a_platform_fills_in_what_the_file_leaves_unset() {
         let car = "imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: car\n";
         let aided = NodeParams::from_yaml_str(car, "imu_fsda").unwrap().pipeline.gravity_aided;
-        assert_eq!((aided.forward_speed_stddev, aided.accel_stddev), (20.0, 0.5));
+        assert_eq!((aided.forward_speed_stddev, aided.accel_stddev, aided.block_s), (20.0, 0.5, 1.0));
         let p = NodeParams::from_yaml_str(&format!("{car}      gravity_aided:\n        accel_stddev: 0.7\n"), "imu_fsda").unwrap();
         let aided = &p.pipeline.gravity_aided;
         assert_eq!((aided.forward_speed_stddev, aided.accel_stddev), (20.0, 0.7), "the file's 0.7 stays");
