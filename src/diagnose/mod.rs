@@ -52,7 +52,7 @@ use crate::physics::{ImuSignals, PhysicsError, Term};
 use align::Aligned;
 use catalogue::Catalogue;
 use locate::Located;
-use residual::{base_signals, ChannelNoise, NoiseModel, CHANNELS};
+use residual::{base_signals, ChannelNoise, ResidualNoise, CHANNELS};
 use select::{Problem, SelectOptions, Selection};
 
 /// Errors of the diagnosis.
@@ -208,7 +208,7 @@ pub struct Diagnosis {
     /// The signals the terms were fitted on (sim bag, smoothed), for effect comparisons.
     pub base: ImuSignals,
     /// Per-sample residual noise after the fit (gyro, accel): white and walk variances.
-    pub noise: NoiseModel,
+    pub noise: ResidualNoise,
     /// Wall time of the diagnosis, s.
     pub seconds: f64,
 }
@@ -444,7 +444,7 @@ fn select_terms(
     let catalogue = catalogue_for(a, base, opts, temperature)?;
     let excluded = catalogue.excluded.clone();
     let sensor_noise = |s: usize| ChannelNoise { white_sim: sim_var[s], white_real: off.white_real[s], pole: 0.0, walk: sim_var[s] * 1e-6 };
-    let noise = NoiseModel { sensors: [sensor_noise(0), sensor_noise(1)] };
+    let noise = ResidualNoise { sensors: [sensor_noise(0), sensor_noise(1)] };
     let problem = Problem {
         y: y.clone(),
         mask: off.mask.clone(),
@@ -607,7 +607,7 @@ fn read_off_the_samples(a: &Aligned, opts: &DiagnoseOptions, notes: &mut Vec<Str
 
 /// The data behind the figures: Allan deviations and spectra of the residual before and
 /// after the fit (with the noise model's Allan curve), and ~300 block means of each.
-fn curves_of(y_all: &[Vec<f64>; 6], after: &[Vec<f64>; 6], mask: &[bool], noise: &NoiseModel, dt: f64) -> Curves {
+fn curves_of(y_all: &[Vec<f64>; 6], after: &[Vec<f64>; 6], mask: &[bool], noise: &ResidualNoise, dt: f64) -> Curves {
     let mut curves = Curves::default();
     // Left-out samples (gaps, the reference's dropouts, clipping) hold no comparison: the
     // spectra and Allan curves see the last compared value there, not the spikes.

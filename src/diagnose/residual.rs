@@ -352,7 +352,7 @@ pub struct ChannelNoise {
 
 /// Noise model of both sensors.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NoiseModel {
+pub struct ResidualNoise {
     pub sensors: [ChannelNoise; 2],
 }
 
@@ -460,7 +460,7 @@ pub type Column = [Option<Vec<f64>>; 6];
 pub fn block_stats(
     y: &[Vec<f64>; 6],
     columns: &[&Column],
-    noise: &NoiseModel,
+    noise: &ResidualNoise,
     mask: &[bool],
     blocks: &[std::ops::Range<usize>],
 ) -> Vec<BlockStats> {
@@ -502,7 +502,7 @@ pub fn blocks(n: usize, k: usize) -> Vec<std::ops::Range<usize>> {
 }
 
 /// Whitened residual channels (innovations / √S) under a noise model.
-pub fn whitened(y: &[Vec<f64>; 6], noise: &NoiseModel, mask: &[bool]) -> [Vec<f64>; 6] {
+pub fn whitened(y: &[Vec<f64>; 6], noise: &ResidualNoise, mask: &[bool]) -> [Vec<f64>; 6] {
     std::array::from_fn(|c| Whitener::new(&noise.sensors[sensor_of(c)], mask).whiten(&y[c]))
 }
 

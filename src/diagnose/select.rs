@@ -27,7 +27,7 @@ use super::catalogue::{atom_map, Catalogue};
 use super::fit::{evaluate_fixed, Fit};
 use super::golden::golden;
 use super::psd::{periodogram_peak, MotionLines};
-use super::residual::{block_stats, blocks, whitened, BlockStats, Column, NoiseModel};
+use super::residual::{block_stats, blocks, whitened, BlockStats, Column, ResidualNoise};
 use super::DiagnoseError;
 use crate::physics::{self, ImuSignals, LowPass, LowPassSensor, Term};
 
@@ -80,7 +80,7 @@ pub struct Problem<'a> {
     pub mask: Vec<bool>,
     pub base: &'a ImuSignals,
     pub catalogue: Catalogue,
-    pub noise: NoiseModel,
+    pub noise: ResidualNoise,
     /// The sensor noise the simulator states (per-sample variances), before any noise term.
     pub stated: (f64, f64),
     /// Judge gyro_noise_density (real and sim at the same rate).
@@ -104,7 +104,7 @@ pub struct Problem<'a> {
 pub struct Selection {
     pub chosen: Vec<Chosen>,
     pub noise_terms: Vec<NoiseTerm>,
-    pub noise: NoiseModel,
+    pub noise: ResidualNoise,
     pub fit: Fit,
     pub steps: Vec<Step>,
     pub vibration_hz: f64,
@@ -112,7 +112,7 @@ pub struct Selection {
     pub y: [Vec<f64>; 6],
     /// Baseline (no term) held-out log-likelihood per block and its noise model.
     pub baseline: Fit,
-    pub baseline_noise: NoiseModel,
+    pub baseline_noise: ResidualNoise,
     /// The catalogue, with the vibration candidate as last set.
     pub catalogue: Catalogue,
 }
@@ -131,7 +131,7 @@ pub fn design(cat: &Catalogue, chosen: &[Chosen]) -> DMatrix<f64> {
 }
 
 /// Statistics restricted to the atoms the chosen candidates use (for quick refits).
-fn reduced(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &NoiseModel) -> (Vec<BlockStats>, DMatrix<f64>) {
+fn reduced(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &ResidualNoise) -> (Vec<BlockStats>, DMatrix<f64>) {
     let a = design(&p.catalogue, chosen);
     let used: Vec<usize> = (0..a.nrows()).filter(|&r| a.row(r).iter().any(|v| *v != 0.0)).collect();
     let cols: Vec<&Column> = used.iter().map(|&i| &p.catalogue.atoms[i].column).collect();
@@ -141,7 +141,7 @@ fn reduced(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &NoiseModel
     (stats, ar)
 }
 
-fn fit_reduced(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &NoiseModel) -> Fit {
+fn fit_reduced(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &ResidualNoise) -> Fit {
     let (s, a) = reduced(p, y, chosen, noise);
     evaluate_fixed(&s, &a, &fixed_in_folds(&p.catalogue, chosen))
 }
@@ -168,7 +168,7 @@ fn fixed_in_folds(cat: &Catalogue, chosen: &[Chosen]) -> Vec<usize> {
 /// The model with these noise terms: the residual with their fixed mean effects removed and
 /// the noise model they imply (applied in order to the problem's own), the walk re-estimated,
 /// and its fit.
-fn with_noise_terms(p: &Problem, chosen: &[Chosen], terms: &[NoiseTerm]) -> Result<(Fit, [Vec<f64>; 6], NoiseModel), DiagnoseError> {
+fn with_noise_terms(p: &Problem, chosen: &[Chosen], terms: &[NoiseTerm]) -> Result<(Fit, [Vec<f64>; 6], ResidualNoise), DiagnoseError> {
     let (mut y, mut noise) = (p.y.clone(), p.noise);
     for t in terms {
         (y, noise) = apply_noise_term(p, t, &y, &noise)?;
@@ -199,7 +199,7 @@ fn exchange(
     chosen: &[Chosen],
     noise_terms: &[NoiseTerm],
     y: &[Vec<f64>; 6],
-    noise: &NoiseModel,
+    noise: &ResidualNoise,
     current: &Fit,
 ) -> Result<Option<Exchange>, DiagnoseError> {
     let per_param = p.opts.per_param;
@@ -264,7 +264,7 @@ fn exchange(
 /// T_ref unidentified (the bias takes the constant), so whatever T_ref the term entered with
 /// is arbitrary; the model without the bias must be judged at its own best T_ref — the bias
 /// is nested in the temperature term's offset −k T_ref only once T_ref is free.
-fn refit_reference(p: &Problem, y: &[Vec<f64>; 6], m: &mut [Chosen], noise: &NoiseModel) {
+fn refit_reference(p: &Problem, y: &[Vec<f64>; 6], m: &mut [Chosen], noise: &ResidualNoise) {
     let Some(j) = m.iter().position(|c| p.catalogue.candidates[c.cand].name == "gyro_bias_temperature") else { return };
     // Atoms of the model at a non-zero T_ref, so the bias atoms the reference acts through are in.
     let mut probe = m.to_vec();
@@ -289,7 +289,7 @@ fn refit_reference(p: &Problem, y: &[Vec<f64>; 6], m: &mut [Chosen], noise: &Noi
 }
 
 /// Maximum-likelihood walk variance per sensor for the chosen model.
-fn estimate_walk(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &mut NoiseModel) {
+fn estimate_walk(p: &Problem, y: &[Vec<f64>; 6], chosen: &[Chosen], noise: &mut ResidualNoise) {
     for s in (0..2).filter(|s| p.sensors.judges(*s)) {
         let white = noise.sensors[s].white_sim + noise.sensors[s].white_real;
         let lo = (white * 1e-12).log10();
@@ -308,8 +308,8 @@ fn apply_noise_term(
     p: &Problem,
     term: &NoiseTerm,
     y: &[Vec<f64>; 6],
-    noise: &NoiseModel,
-) -> Result<([Vec<f64>; 6], NoiseModel), DiagnoseError> {
+    noise: &ResidualNoise,
+) -> Result<([Vec<f64>; 6], ResidualNoise), DiagnoseError> {
     let mut n = *noise;
     let mut y2 = y.clone();
     match term {
@@ -342,7 +342,7 @@ fn noise_candidates(
     p: &Problem,
     y: &[Vec<f64>; 6],
     chosen: &[Chosen],
-    noise: &NoiseModel,
+    noise: &ResidualNoise,
     have: &[NoiseTerm],
 ) -> Result<Vec<NoiseTrial>, DiagnoseError> {
     let mut out = Vec::new();
@@ -386,7 +386,7 @@ fn noise_candidates(
 }
 
 /// A fitted noise-term candidate: the term, its fit, its noise model and residual.
-type NoiseTrial = (NoiseTerm, Fit, NoiseModel, [Vec<f64>; 6]);
+type NoiseTrial = (NoiseTerm, Fit, ResidualNoise, [Vec<f64>; 6]);
 
 /// A candidate of one round: name, gain, parameter count, the linear candidate or the index
 /// of the noise trial.
@@ -458,7 +458,7 @@ struct Stepwise<'a> {
     chosen: Vec<Chosen>,
     noise_terms: Vec<NoiseTerm>,
     y: [Vec<f64>; 6],
-    noise: NoiseModel,
+    noise: ResidualNoise,
     current: Fit,
     steps: Vec<Step>,
     vibration_hz: f64,
@@ -700,7 +700,7 @@ mod tests {
             mask: vec![true; n],
             base: &base,
             catalogue: cat,
-            noise: NoiseModel { sensors: [ch, ch] },
+            noise: ResidualNoise { sensors: [ch, ch] },
             stated: (white / 2.0, white / 2.0),
             judge_noise_density: false,
             full_rate: true,

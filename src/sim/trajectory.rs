@@ -1,7 +1,7 @@
 //! Smooth, analytically differentiable body trajectories for the simulator.
 //!
 //! Every scalar signal (a position coordinate, an Euler angle, the speed or heading of a
-//! vehicle) is a [`Channel`]: a sum of sinusoids, some modulated by a slow envelope, plus
+//! vehicle) is a [`Signal`]: a sum of sinusoids, some modulated by a slow envelope, plus
 //! a train of foot-impact pulses for the quadruped. A channel gives its value and its first
 //! five derivatives in closed form, so angular velocity, angular acceleration and linear
 //! acceleration are exact (no finite differences): they are carried through the Euler-angle
@@ -112,7 +112,7 @@ impl Mul for Jet {
     }
 }
 
-/// Number of derivatives a [`Channel`] provides (orders 0..=5).
+/// Number of derivatives a [`Signal`] provides (orders 0..=5).
 pub const ORDERS: usize = 6;
 
 /// A · sin(ω t + φ).
@@ -191,7 +191,7 @@ impl Pulses {
 
 /// One scalar signal of a trajectory, with exact derivatives.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-pub struct Channel {
+pub struct Signal {
     pub offset: f64,
     /// Linear trend, per second.
     pub slope: f64,
@@ -202,9 +202,9 @@ pub struct Channel {
     pub pulses: Option<Pulses>,
 }
 
-impl Channel {
-    pub fn constant(offset: f64) -> Channel {
-        Channel { offset, ..Default::default() }
+impl Signal {
+    pub fn constant(offset: f64) -> Signal {
+        Signal { offset, ..Default::default() }
     }
 
     /// Value and derivatives of orders 0..=5 at t (s).
@@ -248,9 +248,9 @@ impl Channel {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum Translation {
     /// x, y, z as channels of time, m.
-    Cartesian([Channel; 3]),
+    Cartesian([Signal; 3]),
     /// A vehicle moving along its heading at `speed` (m/s) in the plane, at `height` (m).
-    Planar { heading: Channel, speed: Channel, height: Channel },
+    Planar { heading: Signal, speed: Signal, height: Signal },
 }
 
 /// The simulated motions.
@@ -338,10 +338,10 @@ impl KinematicState {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Trajectory {
     pub profile: Profile,
-    pub roll: Channel,
-    pub pitch: Channel,
+    pub roll: Signal,
+    pub pitch: Signal,
     /// Yaw; for a planar translation, added to the heading.
-    pub yaw: Channel,
+    pub yaw: Signal,
     pub translation: Translation,
     /// Tilt into the acceleration: roll += gains[0]·a_left/g, pitch += gains[1]·a_forward/g,
     /// with the world acceleration expressed in the yawed (heading) frame.
@@ -454,7 +454,7 @@ fn sines(rng: &mut impl Rng, n: usize, (a0, a1): (f64, f64), (f0, f1): (f64, f64
 fn aerial(rng: &mut impl Rng) -> Trajectory {
     // Manoeuvre intensity: between 0.1 (hovering) and 1, period 15–25 s.
     let envelope = Envelope { mean: 0.55, sine: Sine::hz(0.45, 1.0 / uniform(rng, 15.0, 25.0), uniform(rng, 0.0, TAU)) };
-    let mut axis = |offset: f64, amp: (f64, f64), n: usize| Channel {
+    let mut axis = |offset: f64, amp: (f64, f64), n: usize| Signal {
         offset,
         modulated: sines(rng, n, amp, (0.05, 0.25)),
         envelope: Some(envelope),
@@ -465,9 +465,9 @@ fn aerial(rng: &mut impl Rng) -> Trajectory {
     let translation = Translation::Cartesian([axis(0.0, (0.3, 1.5), 3), axis(0.0, (0.3, 1.5), 3), axis(1.5, (0.1, 0.5), 2)]);
     Trajectory {
         profile: Profile::Aerial,
-        roll: Channel { sines: sines(rng, 2, (0.005, 0.02), (0.5, 2.0)), ..Default::default() },
-        pitch: Channel { sines: sines(rng, 2, (0.005, 0.02), (0.5, 2.0)), ..Default::default() },
-        yaw: Channel {
+        roll: Signal { sines: sines(rng, 2, (0.005, 0.02), (0.5, 2.0)), ..Default::default() },
+        pitch: Signal { sines: sines(rng, 2, (0.005, 0.02), (0.5, 2.0)), ..Default::default() },
+        yaw: Signal {
             offset: uniform(rng, -3.0, 3.0),
             slope: uniform(rng, -0.1, 0.1),
             sines: sines(rng, 2, (0.3, 1.0), (0.02, 0.1)),
@@ -480,23 +480,23 @@ fn aerial(rng: &mut impl Rng) -> Trajectory {
 
 fn handheld(rng: &mut impl Rng) -> Trajectory {
     let step_hz = uniform(rng, 1.7, 2.1);
-    let speed = Channel {
+    let speed = Signal {
         offset: 1.0,
         sines: [sines(rng, 2, (0.1, 0.25), (0.02, 0.08)), vec![Sine::hz(0.1, step_hz, uniform(rng, 0.0, TAU))]].concat(),
         ..Default::default()
     };
-    let heading = Channel {
+    let heading = Signal {
         offset: uniform(rng, -3.0, 3.0),
         slope: uniform(rng, -0.05, 0.05),
         sines: sines(rng, 3, (0.5, 1.5), (0.01, 0.05)),
         ..Default::default()
     };
-    let height = Channel {
+    let height = Signal {
         offset: 1.3,
         sines: [sines(rng, 1, (0.05, 0.1), (0.05, 0.15)), vec![Sine::hz(0.025, step_hz, uniform(rng, 0.0, TAU))]].concat(),
         ..Default::default()
     };
-    let hand = |rng: &mut _, a: (f64, f64)| Channel {
+    let hand = |rng: &mut _, a: (f64, f64)| Signal {
         sines: [sines(rng, 3, a, (0.1, 0.9)), vec![Sine::hz(0.02, step_hz, uniform(rng, 0.0, TAU))]].concat(),
         ..Default::default()
     };
@@ -511,20 +511,20 @@ fn handheld(rng: &mut impl Rng) -> Trajectory {
 }
 
 fn car(rng: &mut impl Rng) -> Trajectory {
-    let heading = Channel {
+    let heading = Signal {
         offset: uniform(rng, -3.0, 3.0),
         slope: uniform(rng, -0.02, 0.02),
         sines: sines(rng, 3, (0.3, 1.5), (0.01, 0.05)),
         ..Default::default()
     };
-    let speed = Channel { offset: 12.0, sines: sines(rng, 3, (1.0, 2.5), (0.01, 0.05)), ..Default::default() };
-    let bumps = |rng: &mut _, a: (f64, f64)| Channel { sines: sines(rng, 3, a, (0.8, 2.5)), ..Default::default() };
+    let speed = Signal { offset: 12.0, sines: sines(rng, 3, (1.0, 2.5), (0.01, 0.05)), ..Default::default() };
+    let bumps = |rng: &mut _, a: (f64, f64)| Signal { sines: sines(rng, 3, a, (0.8, 2.5)), ..Default::default() };
     Trajectory {
         profile: Profile::Car,
         roll: bumps(rng, (0.001, 0.005)),
         pitch: bumps(rng, (0.001, 0.005)),
-        yaw: Channel::default(),
-        translation: Translation::Planar { heading, speed, height: Channel { offset: 0.5, ..bumps(rng, (0.001, 0.006)) } },
+        yaw: Signal::default(),
+        translation: Translation::Planar { heading, speed, height: Signal { offset: 0.5, ..bumps(rng, (0.001, 0.006)) } },
         // ≈4°/g roll out of turns, ≈2°/g nose dive under braking.
         tilt_gains: [0.07, -0.035],
     }
@@ -545,13 +545,13 @@ fn quadruped(rng: &mut impl Rng, seed: u64) -> Trajectory {
         alternate,
         seed: derive_seed(seed, concern, 0),
     };
-    let heading = Channel { offset: uniform(rng, -3.0, 3.0), sines: sines(rng, 2, (0.5, 1.5), (0.01, 0.04)), ..Default::default() };
-    let speed = Channel {
+    let heading = Signal { offset: uniform(rng, -3.0, 3.0), sines: sines(rng, 2, (0.5, 1.5), (0.01, 0.04)), ..Default::default() };
+    let speed = Signal {
         offset: 0.8,
         sines: [sines(rng, 1, (0.1, 0.3), (0.02, 0.05)), vec![Sine::hz(0.05, gait_hz, bob_phase)]].concat(),
         ..Default::default()
     };
-    let height = Channel {
+    let height = Signal {
         offset: 0.35,
         sines: vec![Sine::hz(0.012, gait_hz, bob_phase)],
         pulses: Some(pulses(15.0, false, "footfall_z")),
@@ -560,17 +560,17 @@ fn quadruped(rng: &mut impl Rng, seed: u64) -> Trajectory {
     Trajectory {
         profile: Profile::Quadruped,
         // Rocking from one diagonal pair to the other at half the footfall rate.
-        roll: Channel {
+        roll: Signal {
             sines: vec![Sine::hz(0.03, gait_hz / 2.0, uniform(rng, 0.0, TAU))],
             pulses: Some(pulses(20.0, true, "footfall_roll")),
             ..Default::default()
         },
-        pitch: Channel {
+        pitch: Signal {
             sines: [vec![Sine::hz(0.015, gait_hz, uniform(rng, 0.0, TAU))], sines(rng, 1, (0.01, 0.03), (0.05, 0.2))].concat(),
             pulses: Some(pulses(10.0, false, "footfall_pitch")),
             ..Default::default()
         },
-        yaw: Channel { sines: vec![Sine::hz(0.02, gait_hz / 2.0, uniform(rng, 0.0, TAU))], ..Default::default() },
+        yaw: Signal { sines: vec![Sine::hz(0.02, gait_hz / 2.0, uniform(rng, 0.0, TAU))], ..Default::default() },
         translation: Translation::Planar { heading, speed, height },
         tilt_gains: [0.0, 0.0],
     }
@@ -588,7 +588,7 @@ mod tests {
 
     #[test]
     fn channel_derivatives_match_finite_differences() {
-        let c = Channel {
+        let c = Signal {
             offset: 0.3,
             slope: 0.1,
             sines: vec![Sine::hz(0.5, 0.7, 0.2)],

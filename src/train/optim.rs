@@ -6,6 +6,8 @@ use std::collections::BTreeMap;
 
 use tch::{nn::VarStore, Kind, Tensor};
 
+use super::error::TrainError;
+
 /// Adam over the trainable variables of a VarStore, by name.
 #[derive(Debug)]
 pub struct Adam {
@@ -82,14 +84,15 @@ impl Adam {
         out
     }
 
-    /// Restores moments saved by [`Adam::state`]; every variable must be present.
-    pub fn load_state(&mut self, step: i64, saved: &BTreeMap<String, Tensor>) -> Result<(), String> {
+    /// Restores moments saved by [`Adam::state`]; every variable must be present (else the
+    /// resume is refused, naming the missing or misshapen moment).
+    pub fn load_state(&mut self, step: i64, saved: &BTreeMap<String, Tensor>) -> Result<(), TrainError> {
         for (i, (n, p)) in self.params.iter().enumerate() {
             for (which, dst) in [("m", &mut self.m[i]), ("v", &mut self.v[i])] {
                 let key = format!("adam.{which}.{n}");
-                let src = saved.get(&key).ok_or_else(|| format!("checkpoint lacks {key}"))?;
+                let src = saved.get(&key).ok_or_else(|| TrainError::Refused(format!("--resume: the checkpoint lacks {key}")))?;
                 if src.size() != p.size() {
-                    return Err(format!("{key}: shape {:?}, expected {:?}", src.size(), p.size()));
+                    return Err(TrainError::Refused(format!("--resume: {key}: shape {:?}, expected {:?}", src.size(), p.size())));
                 }
                 tch::no_grad(|| dst.copy_(src));
             }

@@ -628,7 +628,7 @@ fn check_resumed_data(r: &Loaded, fingerprints: &BTreeMap<String, String>) -> Re
 /// The checkpoint's weights, optimiser state and record.
 fn restore(r: &Loaded, vs: &VarStore, adam: &mut Adam, seed: u64, record: &mut RunRecord) -> Result<(), TrainError> {
     checkpoint::restore_vars(vs, &r.tensors, "vs")?;
-    adam.load_state(r.meta.adam_step, &r.tensors).map_err(|e| TrainError::Refused(format!("--resume: {e}")))?;
+    adam.load_state(r.meta.adam_step, &r.tensors)?;
     if r.meta.seed != seed {
         // The rest of the run would draw another seed's windows and be recorded as that seed's
         // run throughout.

@@ -58,7 +58,7 @@ pub fn finished(runs: &Path, run: &str, epochs: usize, cfg: &TrainConfig) -> Res
 
 /// One finished run, as scored.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Candidate {
+pub struct SeedRun {
     pub seed: u64,
     pub name: String,
     pub exported_epoch: usize,
@@ -76,11 +76,11 @@ pub struct SeedSelection {
     pub chosen_seed: u64,
     pub chosen_run: String,
     pub criterion: String,
-    pub candidates: Vec<Candidate>,
+    pub candidates: Vec<SeedRun>,
 }
 
 /// Reads and scores a finished run's summary.
-pub fn candidate(out_dir: &Path, name: &str, seed: u64) -> Result<Candidate, TrainError> {
+pub fn candidate(out_dir: &Path, name: &str, seed: u64) -> Result<SeedRun, TrainError> {
     let run = run_name(name, seed);
     let path = summary_path(&runs_dir(out_dir, name), &run);
     let text = std::fs::read_to_string(&path).with_context(|| format!("run {run}: reading {}", path.display()))?;
@@ -91,7 +91,7 @@ pub fn candidate(out_dir: &Path, name: &str, seed: u64) -> Result<Candidate, Tra
         .filter(|x| x.is_finite())
         .with_context(|| format!("run {run} has no finite validation score at its exported epoch {}", s.exported_epoch))?;
     let test_mean_aoe_deg = (!s.test.is_empty()).then(|| s.test.iter().map(|t| t.model.aoe_deg).sum::<f64>() / s.test.len() as f64);
-    Ok(Candidate {
+    Ok(SeedRun {
         seed,
         name: run,
         exported_epoch: s.exported_epoch,
@@ -102,8 +102,8 @@ pub fn candidate(out_dir: &Path, name: &str, seed: u64) -> Result<Candidate, Tra
 }
 
 /// The candidate with the lowest validation score (the first on a tie).
-pub fn choose(candidates: &[Candidate]) -> Option<&Candidate> {
-    candidates.iter().fold(None, |best: Option<&Candidate>, c| match best {
+pub fn choose(candidates: &[SeedRun]) -> Option<&SeedRun> {
+    candidates.iter().fold(None, |best: Option<&SeedRun>, c| match best {
         Some(b) if b.validation_score_deg <= c.validation_score_deg => Some(b),
         _ => Some(c),
     })
@@ -169,8 +169,8 @@ fn promote(out_dir: &Path, from: &str, to: &str, selection: &SeedSelection) -> R
 mod tests {
     use super::*;
 
-    fn c(seed: u64, score: f64) -> Candidate {
-        Candidate {
+    fn c(seed: u64, score: f64) -> SeedRun {
+        SeedRun {
             seed,
             name: run_name("m", seed),
             exported_epoch: 10,

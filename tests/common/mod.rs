@@ -14,6 +14,7 @@ use serde_json::Value;
 
 pub mod fastdds_peer;
 pub mod python_peer;
+pub mod random_model;
 pub mod replay_reference;
 
 pub fn bin() -> &'static str {
