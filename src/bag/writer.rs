@@ -160,50 +160,79 @@ pub fn partial_path(path: &Path, pid: u32) -> PathBuf {
     PathBuf::from(p)
 }
 
-/// Write a recording as a bag: `/imu/data`, `/ground_truth/pose` and, when present,
-/// `/imu/temperature`, interleaved in stamp order (log time = header stamp).
+/// What a recording's bag states beside its samples ([`write_recording_with`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RecordingBagOptions {
+    /// Each `/imu/data` message's covariance diagonals (gyro, accelerometer), the per-sample
+    /// white-noise variance where known (the simulator's); `None`: zeros (unknown, REP-145).
+    pub imu_variance: Option<(f64, f64)>,
+    /// Each `/imu/temperature` message's variance, °C².
+    pub temperature_variance: f64,
+}
+
+/// Write a recording as a bag: `/imu/data`, `/ground_truth/pose` and `/imu/temperature` where
+/// it has them, in stamp order (log time = header stamp; at equal stamps the IMU sample, then
+/// the pose, then the temperature). Same recording → same bytes.
 pub fn write_recording(path: impl AsRef<Path>, rec: &Recording) -> Result<(), BagError> {
+    write_recording_with(path, rec, &RecordingBagOptions::default(), |_, _| {})
+}
+
+/// [`write_recording`] with what the bag states beside the samples, calling `progress(done,
+/// total)` every 10 000 messages and at the end.
+pub fn write_recording_with(
+    path: impl AsRef<Path>,
+    rec: &Recording,
+    options: &RecordingBagOptions,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<(), BagError> {
     let mut w = BagWriter::create(path)?;
     let imu_ch = w.channel::<Imu>(IMU_TOPIC)?;
     let gt_ch = if rec.ground_truth.is_empty() { None } else { Some(w.channel::<PoseStamped>(GROUND_TRUTH_TOPIC)?) };
     let temp_ch = if rec.temperature.is_empty() { None } else { Some(w.channel::<Temperature>(TEMPERATURE_TOPIC)?) };
-    let (mut i, mut g, mut t) = (0, 0, 0);
     let mut imu_msg = Imu::from_sample(
         &rec.imu.first().copied().unwrap_or(ImuSample { stamp_ns: 0, gyro: Default::default(), accel: Default::default() }),
         IMU_FRAME,
     );
-    loop {
-        let ti = rec.imu.get(i).map(|s| s.stamp_ns).unwrap_or(i64::MAX);
-        let tg = rec.ground_truth.get(g).map(|s| s.stamp_ns).unwrap_or(i64::MAX);
-        let tt = rec.temperature.get(t).map(|s| s.stamp_ns).unwrap_or(i64::MAX);
-        let next = ti.min(tg).min(tt);
-        if next == i64::MAX {
-            break;
+    if let Some((gyro, accel)) = options.imu_variance {
+        for i in [0, 4, 8] {
+            imu_msg.angular_velocity_covariance.0[i] = gyro;
+            imu_msg.linear_acceleration_covariance.0[i] = accel;
         }
-        if tg == next {
-            if let Some(ch) = gt_ch {
-                w.write(ch, tg, &PoseStamped::from_sample(&rec.ground_truth[g], WORLD_FRAME))?;
-            }
-            g += 1;
-        } else if ti == next {
+    }
+    let total = rec.imu.len() + rec.ground_truth.len() + rec.temperature.len();
+    let (mut i, mut g, mut t) = (0, 0, 0);
+    for done in 1..=total {
+        let ti = rec.imu.get(i).map_or(i64::MAX, |s| s.stamp_ns);
+        let tg = rec.ground_truth.get(g).map_or(i64::MAX, |s| s.stamp_ns);
+        let tt = rec.temperature.get(t).map_or(i64::MAX, |s| s.stamp_ns);
+        if ti <= tg && ti <= tt {
             let s = &rec.imu[i];
             imu_msg.header.stamp = crate::msg::Time::from_ns(s.stamp_ns);
             imu_msg.angular_velocity = s.gyro.into();
             imu_msg.linear_acceleration = s.accel.into();
             w.write(imu_ch, ti, &imu_msg)?;
             i += 1;
+        } else if tg <= tt {
+            if let Some(ch) = gt_ch {
+                w.write(ch, tg, &PoseStamped::from_sample(&rec.ground_truth[g], WORLD_FRAME))?;
+            }
+            g += 1;
         } else {
             if let Some(ch) = temp_ch {
                 let s = &rec.temperature[t];
                 let msg = Temperature {
                     header: crate::msg::Header { stamp: crate::msg::Time::from_ns(s.stamp_ns), frame_id: IMU_FRAME.into() },
                     temperature: s.celsius,
-                    variance: 0.0,
+                    variance: options.temperature_variance,
                 };
                 w.write(ch, tt, &msg)?;
             }
             t += 1;
         }
+        if done % 10_000 == 0 {
+            progress(done, total);
+        }
     }
+    progress(total, total);
     w.finish()
 }

@@ -33,9 +33,8 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
-use crate::bag::{BagError, BagWriter, GROUND_TRUTH_TOPIC, IMU_FRAME, IMU_TOPIC, TEMPERATURE_TOPIC, WORLD_FRAME};
+use crate::bag::{write_recording_with, BagError, RecordingBagOptions};
 use crate::core::{PoseSample, Recording, TemperatureSample};
-use crate::msg::{Header, Imu, PoseStamped, Temperature, Time};
 use crate::physics::{apply_terms, derive_seed, ImuSignals, PhysicsError, Term, TermContext, TruthHistory, NOMINAL_GRAVITY};
 
 pub use grade::{Grade, GradeSpec, NoiseModel};
@@ -417,66 +416,18 @@ pub fn simulate(cfg: &SimConfig) -> Result<SimOutput, SimError> {
     })
 }
 
-/// Write a simulation as a ROS 2 bag: `/imu/data` (covariance diagonals = per-sample
-/// white-noise variance), `/ground_truth/pose`, and `/imu/temperature` when simulated;
-/// messages in stamp order, IMU first at equal stamps. Same output → same bytes.
+/// Write a simulation as a ROS 2 bag ([`crate::bag::write_recording_with`]): `/imu/data`
+/// (covariance diagonals = per-sample white-noise variance), `/ground_truth/pose`, and
+/// `/imu/temperature` when simulated; messages in stamp order, IMU first at equal stamps.
+/// Same output → same bytes.
 pub fn write_bag(path: impl AsRef<Path>, out: &SimOutput) -> Result<(), BagError> {
     write_bag_with_progress(path, out, |_, _| {})
 }
 
 /// [`write_bag`], calling `progress(done, total)` every 10 000 messages.
-pub fn write_bag_with_progress(path: impl AsRef<Path>, out: &SimOutput, mut progress: impl FnMut(usize, usize)) -> Result<(), BagError> {
-    let rec = &out.recording;
-    let mut w = BagWriter::create(path)?;
-    let imu_ch = w.channel::<Imu>(IMU_TOPIC)?;
-    let gt_ch = w.channel::<PoseStamped>(GROUND_TRUTH_TOPIC)?;
-    let temp_ch = if rec.temperature.is_empty() { None } else { Some(w.channel::<Temperature>(TEMPERATURE_TOPIC)?) };
-
-    let mut imu_msg = Imu::from_sample(&rec.imu[0], IMU_FRAME);
-    let (vg, va) = out.imu_variance;
-    for i in [0, 4, 8] {
-        imu_msg.angular_velocity_covariance.0[i] = vg;
-        imu_msg.linear_acceleration_covariance.0[i] = va;
-    }
-    let total = rec.imu.len() + rec.ground_truth.len() + rec.temperature.len();
-    let (mut i, mut g, mut t, mut done) = (0, 0, 0, 0usize);
-    loop {
-        let ti = rec.imu.get(i).map_or(i64::MAX, |s| s.stamp_ns);
-        let tg = rec.ground_truth.get(g).map_or(i64::MAX, |s| s.stamp_ns);
-        let tt = rec.temperature.get(t).map_or(i64::MAX, |s| s.stamp_ns);
-        let next = ti.min(tg).min(tt);
-        if next == i64::MAX {
-            break;
-        }
-        if ti == next {
-            let s = &rec.imu[i];
-            imu_msg.header.stamp = Time::from_ns(s.stamp_ns);
-            imu_msg.angular_velocity = s.gyro.into();
-            imu_msg.linear_acceleration = s.accel.into();
-            w.write(imu_ch, ti, &imu_msg)?;
-            i += 1;
-        } else if tg == next {
-            w.write(gt_ch, tg, &PoseStamped::from_sample(&rec.ground_truth[g], WORLD_FRAME))?;
-            g += 1;
-        } else {
-            let s = &rec.temperature[t];
-            let msg = Temperature {
-                header: Header { stamp: Time::from_ns(s.stamp_ns), frame_id: IMU_FRAME.into() },
-                temperature: s.celsius,
-                variance: out.temperature_variance,
-            };
-            if let Some(ch) = temp_ch {
-                w.write(ch, tt, &msg)?;
-            }
-            t += 1;
-        }
-        done += 1;
-        if done % 10_000 == 0 {
-            progress(done, total);
-        }
-    }
-    progress(total, total);
-    w.finish()
+pub fn write_bag_with_progress(path: impl AsRef<Path>, out: &SimOutput, progress: impl FnMut(usize, usize)) -> Result<(), BagError> {
+    let options = RecordingBagOptions { imu_variance: Some(out.imu_variance), temperature_variance: out.temperature_variance };
+    write_recording_with(path, &out.recording, &options, progress)
 }
 
 /// Mean of a channel, for summaries.
@@ -490,7 +441,8 @@ pub fn mean(x: &[Vector3<f64>]) -> Vector3<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bag::{read_recording, RecordingTopics};
+    use crate::bag::{read_recording, RecordingTopics, IMU_TOPIC};
+    use crate::msg::Imu;
     use crate::physics::{GyroBiasTemperature, MountRotation};
 
     fn cfg(profile: Profile) -> SimConfig {
