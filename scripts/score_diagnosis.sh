@@ -9,7 +9,9 @@
 #    against the simulation of its own ground truth, gyro alone (and TUM-VI with both
 #    sensors).
 # Prints per case and a summary per set (recall, spurious-term rate beyond the control and how many of those the mirrored case found alike,
-# parameter error by the effect-based score); writes score.json and cases.csv per set.
+# parameter error by the effect-based score); writes score.json and cases.csv per set. On the
+# gyro-alone sets the plain per-axis least-squares calibration is scored beside it
+# (score.json `plain_calibration`, plain_cases.csv).
 #   scripts/score_diagnosis.sh [CASES=40] [SEED=1] [OUT=target/diagnose-score] [DRAWS=6]
 #   CASES=0 skips the generated set; DRAWS=0 the real one. Needs ../shared/data for set 2.
 set -euo pipefail

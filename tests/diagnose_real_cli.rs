@@ -157,6 +157,28 @@ fn injected_scales_and_biases_are_scored_against_the_control() {
     assert_eq!(s["spurious_terms"], 0, "{s:#}");
     assert_eq!(s["parameters_within_20pct"], 1.0, "{s:#}");
     assert!(csv.lines().any(|l| l.starts_with("room2,control,")), "{csv}");
+    // The plain per-axis regression, scored beside it, expresses these terms too.
+    let plain = &s["plain_calibration"];
+    assert_eq!(plain["recall"], 1.0, "{plain:#}");
+    assert_eq!(plain["parameters_within_20pct"], 1.0, "{plain:#}");
+}
+
+/// A digital low-pass on the gyro (where real parts' filters sit) is found by the diagnosis as
+/// the delay it is at the reference's bandwidth; the plain regression beside it has no term
+/// for a delay: it finds nothing of it and reports a cross-axis term of its own instead.
+#[test]
+fn a_low_pass_is_found_where_the_plain_calibration_cannot_express_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some((s, _)) =
+        score_injected_on_room2(dir.path(), &["--sensors", "gyro", "--score-only", "low_pass", "--score-draws", "1", "--seed", "1"])
+    else {
+        return;
+    };
+    assert_eq!(s["recall"], 1.0, "{s:#}");
+    assert_eq!(s["spurious_terms"], 0, "{s:#}");
+    let plain = &s["plain_calibration"];
+    assert_eq!(plain["recall"], 0.0, "{plain:#}");
+    assert!(std::fs::metadata(dir.path().join("score/plain_cases.csv")).is_ok());
 }
 
 /// `diagnose --score-injected` on room2 with `args` (the noise model is the TUM-VI BMI160's):

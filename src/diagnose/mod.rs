@@ -15,6 +15,9 @@
 //! 6. [`report`]: `report.json`, `report.md`, CSVs, the simulator patch and the corrected bag;
 //!    [`figures`]: the PNGs the report shows (PSD, Allan deviation, residual over time).
 //!
+//! [`plain_calibration`] is the yardstick beside it: the per-axis least-squares calibration
+//! (`ω_imu ≈ A ω_ref + b`) every calibration tool starts from, scored on the same cases.
+//!
 //! ```no_run
 //! use imu_fsda::diagnose::{diagnose_bags, DiagnoseOptions};
 //! let (aligned, d) = diagnose_bags("sim.mcap".as_ref(), "real.mcap".as_ref(), &DiagnoseOptions::default()).unwrap();
@@ -37,6 +40,7 @@ pub mod frame;
 pub mod golden;
 pub mod kinematics;
 pub mod locate;
+pub mod plain_calibration;
 pub mod psd;
 pub mod reference_clock;
 pub mod report;

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
 use imu_fsda::core::Recording;
-use imu_fsda::diagnose::{align, diagnose, kinematics, DiagnoseOptions, Diagnosis};
+use imu_fsda::diagnose::{align, diagnose, kinematics, plain_calibration, DiagnoseOptions, Diagnosis, Sensors};
 use imu_fsda::physics::{self, apply_terms, effect, ImuSignals, Term, TermContext};
 use imu_fsda::sim::NoiseModel;
 use nalgebra::Vector3;
@@ -258,9 +258,10 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
     let names = injectable_names(set)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(set.seed);
     let mut tally = Tally::default();
+    // The plain per-axis regression beside the diagnosis: gyro terms only, so on gyro sets.
+    let mut plain = (opts.sensors == Sensors::Gyro).then(|| (Tally::default(), Vec::new(), String::from(CSV_HEADER)));
     let mut controls = Vec::new();
-    let mut csv =
-        String::from("recording,case,injected,control,found,effect_errors,spurious,spurious_alike_in_mirror,verdict,seconds_taken,margins,injected_terms\n");
+    let mut csv = String::from(CSV_HEADER);
     for bag in set.bags {
         let name = bag.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let p = prepare(bag, set).with_context(|| format!("{}", bag.display()))?;
@@ -272,27 +273,89 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
         controls
             .push(serde_json::json!({"recording": name, "terms": own, "explained": control.verdict.explained, "seconds": control.seconds}));
         let _ = writeln!(csv, "{name},control,,{},,,,,{},{:.2},,", own.join(" "), control.verdict.explained, control.seconds);
-        let recorded = AsRecorded { name: &name, p: &p, control: &control, own, rate, window };
+        let samples_per_window = ((window * rate).round() as usize).max(1);
+        let plain_fit = |gyro: &[Vector3<f64>]| -> anyhow::Result<(Vec<Term>, f64)> {
+            let started = std::time::Instant::now();
+            let c = plain_calibration::fit(gyro, &p.ideal.gyro, &p.judged, samples_per_window)?;
+            Ok((c.terms(), started.elapsed().as_secs_f64()))
+        };
+        let plain_control = match &mut plain {
+            Some((_, plain_controls, _)) => {
+                let (terms, seconds) = plain_fit(&p.measured.gyro)?;
+                let own: Vec<&str> = terms.iter().map(|t| t.name()).collect();
+                out!("{name}: plain calibration of the control: [{}]  {}", own.join(", "), serde_json::to_string(&terms)?)?;
+                plain_controls.push(serde_json::json!({"recording": name, "terms": own, "seconds": seconds}));
+                Some(terms)
+            }
+            None => None,
+        };
+        let recorded = AsRecorded { name: &name, method: "", p: &p, limits: &control, own_terms: &control.terms, rate, window };
+        let plain_recorded = plain_control.as_ref().map(|own| AsRecorded {
+            name: &name,
+            method: "plain calibration: ",
+            p: &p,
+            limits: &control,
+            own_terms: own,
+            rate,
+            window,
+        });
         for draw in 0..set.draws {
             let truth = draw_case(&mut rng, &names, rate);
             let mirror: Vec<Term> = truth.iter().map(|t| mirrored(t).unwrap_or_else(|| t.clone())).collect();
-            let mut cases = Vec::new();
+            let (mut cases, mut plain_cases) = (Vec::new(), Vec::new());
             for terms in [&truth, &mirror] {
                 let mut s = p.measured.clone();
                 apply_terms(terms, &mut s, &mut TermContext::new(set.seed.wrapping_add(draw as u64)))?;
+                if plain_recorded.is_some() {
+                    let (terms, seconds) = plain_fit(&s.gyro)?;
+                    plain_cases.push((terms, seconds));
+                }
                 cases.push(diagnose_case(&p, Recording { imu: s.to_samples(), ..p.real.clone() }, set, opts)?);
             }
-            for (k, (terms, d)) in [&truth, &mirror].into_iter().zip(&cases).enumerate() {
+            for (k, terms) in [&truth, &mirror].into_iter().enumerate() {
                 let case = format!("{draw}{}", if k == 0 { "+" } else { "-" });
-                tally.score_case(&recorded, &case, terms, d, &cases[1 - k], &mut csv)?;
+                tally.score_case(&recorded, &case, terms, Found::from(&cases[k]), Found::from(&cases[1 - k]), &mut csv)?;
+                if let (Some(r), Some((plain_tally, _, plain_csv))) = (&plain_recorded, &mut plain) {
+                    plain_tally.score_case(r, &case, terms, plain_found(&plain_cases[k]), plain_found(&plain_cases[1 - k]), plain_csv)?;
+                }
             }
         }
     }
-    let summary = tally.summary(set, controls);
+    let mut summary = tally.summary(set, controls);
+    if let Some((mut plain_tally, plain_controls, plain_csv)) = plain {
+        let mut beside = plain_tally.summary(set, plain_controls);
+        beside["rule"] = serde_json::json!(
+            "ordinary least squares of the IMU's gyro on the rate differentiated from the reference, per axis (a 3x3 matrix and a bias), over the diagnosis's comparison windows where the reference has no dropout; a term is reported when one of its parameters' 95 % interval (1.96 sigma from the fit's residual) leaves out zero; scored as the diagnosis is"
+        );
+        summary["plain_calibration"] = beside;
+        std::fs::write(out.join("plain_cases.csv"), plain_csv)?;
+    }
     out!("{}", serde_json::to_string_pretty(&summary)?)?;
     std::fs::write(out.join("score.json"), serde_json::to_string_pretty(&summary)?)?;
     std::fs::write(out.join("cases.csv"), csv)?;
     Ok(())
+}
+
+const CSV_HEADER: &str =
+    "recording,case,injected,control,found,effect_errors,spurious,spurious_alike_in_mirror,verdict,seconds_taken,margins,injected_terms\n";
+
+/// What one method reported on one case: the diagnosis, or the plain calibration beside it.
+#[derive(Clone, Copy)]
+struct Found<'a> {
+    terms: &'a [Term],
+    explained: bool,
+    seconds: f64,
+}
+
+/// The plain calibration's terms and its time as what it found (it has no verdict).
+fn plain_found((terms, seconds): &(Vec<Term>, f64)) -> Found<'_> {
+    Found { terms, explained: true, seconds: *seconds }
+}
+
+impl<'a> From<&'a Diagnosis> for Found<'a> {
+    fn from(d: &'a Diagnosis) -> Self {
+        Found { terms: &d.terms, explained: d.verdict.explained, seconds: d.seconds }
+    }
 }
 
 /// The terms to inject: every injectable one, or those `--score-only` names.
@@ -312,12 +375,16 @@ fn injectable_names(set: &InjectedSet) -> anyhow::Result<Vec<&'static str>> {
         .collect()
 }
 
-/// One recording as recorded: its control diagnosis and the terms the control found.
+/// One recording as recorded: what the method scored found on it (its own terms), and the
+/// control diagnosis's stated detection limits (the classes of `recall_by_limit`, the same for
+/// every method).
 struct AsRecorded<'a> {
     name: &'a str,
+    /// Said before each case's line ("" for the diagnosis).
+    method: &'a str,
     p: &'a Prepared,
-    control: &'a Diagnosis,
-    own: Vec<&'a str>,
+    limits: &'a Diagnosis,
+    own_terms: &'a [Term],
     rate: f64,
     /// The comparison window, s (0: sample by sample).
     window: f64,
@@ -339,23 +406,16 @@ impl AsRecorded<'_> {
 impl Tally {
     /// One injected case (`terms` into the recording, diagnosed as `d`; `other` its mirror):
     /// what was found of them, how close, what was reported beyond them; its CSV row.
-    fn score_case(
-        &mut self,
-        r: &AsRecorded,
-        case: &str,
-        terms: &[Term],
-        d: &Diagnosis,
-        other: &Diagnosis,
-        csv: &mut String,
-    ) -> anyhow::Result<()> {
-        let (name, control, own) = (r.name, r.control, &r.own);
+    fn score_case(&mut self, r: &AsRecorded, case: &str, terms: &[Term], d: Found, other: Found, csv: &mut String) -> anyhow::Result<()> {
+        let name = r.name;
+        let own: Vec<&str> = r.own_terms.iter().map(|t| t.name()).collect();
         let mut errs = Vec::new();
         let mut margins = Vec::new();
         for injected in terms.iter() {
             let t = &r.as_compared(injected);
             self.injected += 1;
             self.by_term.entry(injected.name()).or_default().0 += 1;
-            let m = margin(control, t);
+            let m = margin(r.limits, t);
             margins.push(m.map_or_else(|| format!("{} –", t.name()), |m| format!("{} {m:.2}", t.name())));
             let limit_class = match m {
                 Some(m) if m >= 1.0 => 0,
@@ -363,12 +423,12 @@ impl Tally {
                 None => 2,
             };
             self.by_limit[limit_class].0 += 1;
-            let find = |d: &Diagnosis| d.terms.iter().find(|f| f.name() == t.name()).cloned();
+            let find = |d: Found| d.terms.iter().find(|f| f.name() == t.name()).cloned();
             if let Some(f) = find(d) {
                 self.by_limit[limit_class].1 += 1;
                 self.found += 1;
                 self.by_term.entry(injected.name()).or_default().1 += 1;
-                let control_term = control.terms.iter().find(|c| c.name() == t.name());
+                let control_term = r.own_terms.iter().find(|c| c.name() == t.name());
                 let mirror_found = mirrored(injected).and(find(other));
                 let err = effect_error(&f, mirror_found.as_ref(), control_term, t, r.p);
                 self.within += (err <= 0.2) as usize;
@@ -387,7 +447,7 @@ impl Tally {
         let own_of_recording: Vec<&str> =
             spurious.iter().copied().filter(|n| in_both(n).is_some_and(|(a, b)| mirror_invariant(a, b, r.p))).collect();
         self.spurious_own += own_of_recording.len();
-        self.not_explained += !d.verdict.explained as usize;
+        self.not_explained += !d.explained as usize;
         let tn: Vec<&str> = terms.iter().map(|t| t.name()).collect();
         let fnm: Vec<&str> = d.terms.iter().map(|t| t.name()).collect();
         let _ = writeln!(
@@ -399,14 +459,15 @@ impl Tally {
             errs.join(" "),
             spurious.join(" "),
             own_of_recording.join(" "),
-            d.verdict.explained,
+            d.explained,
             d.seconds,
             margins.join(" "),
             serde_json::to_string(terms).unwrap_or_default().replace('"', "'")
         );
         tracing::info!("{name} case {case}: truth {terms:?}; found {:?}", d.terms);
         out!(
-            "{name} case {case:3}  injected [{}]  found [{}]  {}{}{}",
+            "{name} case {case:3}  {}injected [{}]  found [{}]  {}{}{}",
+            r.method,
             tn.join(", "),
             fnm.join(", "),
             errs.join(", "),
