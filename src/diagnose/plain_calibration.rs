@@ -28,6 +28,10 @@ pub struct PlainCalibration {
     pub windows: usize,
     /// RMS of each axis's residual over the windows, rad/s.
     pub residual_rms: Vector3<f64>,
+    /// RMS of the reference's rate per axis over the windows, rad/s: beside `residual_rms`, how
+    /// far errors in the reference could pull A's diagonal toward zero (regression dilution:
+    /// at most ≈ residual² / reference² where the whole residual is the reference's).
+    pub reference_rms: Vector3<f64>,
 }
 
 /// Fit `measured ≈ A reference + b` over means of `window` consecutive samples, every sample
@@ -75,7 +79,8 @@ pub fn fit(measured: &[Vector3<f64>], reference: &[Vector3<f64>], used: &[bool],
         bias_sigma[k] = (s2 * inv[(3, 3)]).sqrt();
         residual_rms[k] = (rss / means.len() as f64).sqrt();
     }
-    Ok(PlainCalibration { matrix, bias, matrix_sigma, bias_sigma, windows: means.len(), residual_rms })
+    let reference_rms = Vector3::from_fn(|k, _| (means.iter().map(|(_, x)| x[k] * x[k]).sum::<f64>() / means.len() as f64).sqrt());
+    Ok(PlainCalibration { matrix, bias, matrix_sigma, bias_sigma, windows: means.len(), residual_rms, reference_rms })
 }
 
 fn window_means(measured: &[Vector3<f64>], reference: &[Vector3<f64>], used: &[bool], window: usize) -> Vec<(Vector3<f64>, Vector3<f64>)> {

@@ -274,17 +274,21 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
             .push(serde_json::json!({"recording": name, "terms": own, "explained": control.verdict.explained, "seconds": control.seconds}));
         let _ = writeln!(csv, "{name},control,,{},,,,,{},{:.2},,", own.join(" "), control.verdict.explained, control.seconds);
         let samples_per_window = ((window * rate).round() as usize).max(1);
-        let plain_fit = |gyro: &[Vector3<f64>]| -> anyhow::Result<(Vec<Term>, f64)> {
+        let plain_fit = |gyro: &[Vector3<f64>]| -> anyhow::Result<(Vec<Term>, f64, plain_calibration::PlainCalibration)> {
             let started = std::time::Instant::now();
             let c = plain_calibration::fit(gyro, &p.ideal.gyro, &p.judged, samples_per_window)?;
-            Ok((c.terms(), started.elapsed().as_secs_f64()))
+            Ok((c.terms(), started.elapsed().as_secs_f64(), c))
         };
         let plain_control = match &mut plain {
             Some((_, plain_controls, _)) => {
-                let (terms, seconds) = plain_fit(&p.measured.gyro)?;
+                let (terms, seconds, fitted) = plain_fit(&p.measured.gyro)?;
                 let own: Vec<&str> = terms.iter().map(|t| t.name()).collect();
                 out!("{name}: plain calibration of the control: [{}]  {}", own.join(", "), serde_json::to_string(&terms)?)?;
-                plain_controls.push(serde_json::json!({"recording": name, "terms": own, "seconds": seconds}));
+                plain_controls.push(serde_json::json!({
+                    "recording": name, "terms": own, "fitted": terms, "seconds": seconds, "windows": fitted.windows,
+                    "residual_rms_rad_s": fitted.residual_rms.as_slice(), "reference_rms_rad_s": fitted.reference_rms.as_slice(),
+                    "scale_sigma": fitted.matrix_sigma.diagonal().as_slice(), "bias_sigma_rad_s": fitted.bias_sigma.as_slice(),
+                }));
                 Some(terms)
             }
             None => None,
@@ -307,7 +311,7 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
                 let mut s = p.measured.clone();
                 apply_terms(terms, &mut s, &mut TermContext::new(set.seed.wrapping_add(draw as u64)))?;
                 if plain_recorded.is_some() {
-                    let (terms, seconds) = plain_fit(&s.gyro)?;
+                    let (terms, seconds, _) = plain_fit(&s.gyro)?;
                     plain_cases.push((terms, seconds));
                 }
                 cases.push(diagnose_case(&p, Recording { imu: s.to_samples(), ..p.real.clone() }, set, opts)?);
