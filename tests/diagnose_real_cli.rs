@@ -137,6 +137,20 @@ fn a_known_calibration_is_found_on_a_real_recording_and_none_on_the_calibrated_s
         if sensors == "both" {
             assert!(terms.iter().any(|f| f["term"] == "accel_bias"), "both: the accelerometer's bias of 1.2 m/s² is found: {terms:#?}");
         }
+        // Beside it in the report, the plain per-axis calibration states the same scale and
+        // bias, each within its own 95 % interval of the calibration.
+        let plain: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join(format!("uncalibrated_{sensors}/plain_calibration.json"))).unwrap(),
+        )
+        .unwrap();
+        for k in 0..3 {
+            let (scale, sd) = (plain["matrix"][k][k].as_f64().unwrap() - 1.0, plain["matrix_sigma"][k][k].as_f64().unwrap());
+            assert!((scale - GYRO_SCALE[k]).abs() < 0.2 * GYRO_SCALE[k].abs() && sd < 0.01, "plain scale {k}: {scale} ± {sd}");
+            let bias = plain["bias_rad_s"][k].as_f64().unwrap();
+            assert!((bias - GYRO_BIAS[k]).abs() < 0.2 * GYRO_BIAS[k].abs(), "plain bias {k}: {bias}");
+        }
+        let md = std::fs::read_to_string(dir.path().join(format!("uncalibrated_{sensors}/report.md"))).unwrap();
+        assert!(md.contains("## Beside it: the plain per-axis calibration"), "{md}");
     }
 }
 

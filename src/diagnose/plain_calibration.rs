@@ -9,8 +9,12 @@
 
 use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 
-use super::DiagnoseError;
+use super::{kinematics, DiagnoseError, Diagnosis};
+use crate::core::Recording;
 use crate::physics::{GyroBias, GyroMisalignment, GyroScale, Term};
+
+/// How a term is reported, said in every report that carries the fit.
+pub const RULE: &str = "ordinary least squares of the IMU's gyro on the rate differentiated from the reference, per axis (a 3x3 matrix A and a bias b), over the comparison's window means where the reference has no dropout; A's diagonal less 1 is gyro_scale, its off-diagonal gyro_misalignment, b gyro_bias; a term is reported when one of its parameters' 95 % interval (1.96 sigma from the fit's residual) leaves out zero";
 
 /// z of a two-sided 95 % interval.
 pub const Z_95: f64 = 1.96;
@@ -83,6 +87,20 @@ pub fn fit(measured: &[Vector3<f64>], reference: &[Vector3<f64>], used: &[bool],
     Ok(PlainCalibration { matrix, bias, matrix_sigma, bias_sigma, windows: means.len(), residual_rms, reference_rms })
 }
 
+/// The plain calibration of a real recording against its own ground truth (cropped to it, its
+/// clock lined up): the reference's rate from its poses (smoothed as the diagnosis smooths
+/// them), window means of `window_s` (one sample where 0), windows touching a dropout out.
+pub fn of_recording(real: &Recording, smoothing: Option<f64>, window_s: f64) -> Result<PlainCalibration, DiagnoseError> {
+    let stamps: Vec<i64> = real.imu.iter().map(|s| s.stamp_ns).collect();
+    let ideal = kinematics::ideal_from_poses_with(&real.ground_truth, &stamps, smoothing)?;
+    let margin = kinematics::dropout_margin_s(&real.ground_truth, smoothing);
+    let used: Vec<bool> =
+        kinematics::near_dropouts(&stamps, &kinematics::reference_dropouts(&real.ground_truth), margin).iter().map(|d| !d).collect();
+    let window = ((window_s / ideal.nominal_dt().max(1e-12)).round() as usize).max(1);
+    let measured: Vec<Vector3<f64>> = real.imu.iter().map(|s| s.gyro).collect();
+    fit(&measured, &ideal.gyro, &used, window)
+}
+
 fn window_means(measured: &[Vector3<f64>], reference: &[Vector3<f64>], used: &[bool], window: usize) -> Vec<(Vector3<f64>, Vector3<f64>)> {
     let n = measured.len() / window;
     (0..n)
@@ -114,6 +132,62 @@ impl PlainCalibration {
             out.push(Term::GyroMisalignment(GyroMisalignment::new(m)));
         }
         out
+    }
+}
+
+impl PlainCalibration {
+    /// `plain_calibration.json`: the fit, its σ, the terms it reports and its rule.
+    pub fn json(&self) -> serde_json::Value {
+        let rows = |m: &Matrix3<f64>| (0..3).map(|r| (0..3).map(|c| m[(r, c)]).collect::<Vec<_>>()).collect::<Vec<_>>();
+        serde_json::json!({
+            "rule": RULE,
+            "matrix": rows(&self.matrix),
+            "matrix_sigma": rows(&self.matrix_sigma),
+            "bias_rad_s": self.bias.as_slice(),
+            "bias_sigma_rad_s": self.bias_sigma.as_slice(),
+            "windows": self.windows,
+            "residual_rms_rad_s": self.residual_rms.as_slice(),
+            "reference_rms_rad_s": self.reference_rms.as_slice(),
+            "terms": self.terms(),
+        })
+    }
+
+    /// A report section: each gyro term as the plain fit states it (value ± 1.96 σ) beside what
+    /// the diagnosis found of it.
+    pub fn markdown(&self, d: &Diagnosis) -> String {
+        let pct = |v: f64| format!("{:+.2}", 100.0 * v);
+        let ci = |v: f64, s: f64, k: f64| format!("{:+.2} ± {:.2}", k * v, k * Z_95 * s);
+        let joined = |v: &mut dyn Iterator<Item = String>| v.collect::<Vec<_>>().join(" / ");
+        let off = [(0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1)];
+        let found = |name: &str| match d.terms.iter().find(|t| t.name() == name) {
+            Some(Term::GyroScale(t)) => joined(&mut t.scale.iter().map(|v| pct(*v))),
+            Some(Term::GyroBias(t)) => joined(&mut t.bias.iter().map(|v| format!("{:+.2}", 1e3 * v))),
+            Some(Term::GyroMisalignment(t)) => joined(&mut off.iter().map(|&(r, c)| pct(t.matrix[r][c]))),
+            _ => "–".to_string(),
+        };
+        let scale = (0..3).map(|k| ci(self.matrix[(k, k)] - 1.0, self.matrix_sigma[(k, k)], 100.0)).collect::<Vec<_>>().join(" / ");
+        let bias = (0..3).map(|k| ci(self.bias[k], self.bias_sigma[k], 1e3)).collect::<Vec<_>>().join(" / ");
+        let misalignment = off.iter().map(|&(r, c)| pct(self.matrix[(r, c)])).collect::<Vec<_>>().join(" / ");
+        let reported: Vec<&str> = self.terms().iter().map(|t| t.name()).collect();
+        format!(
+            "\n## Beside it: the plain per-axis calibration\n\n{RULE}. {} windows; residual RMS {:.4} / {:.4} / {:.4} rad/s against the reference's {:.3} / {:.3} / {:.3} rad/s. \
+             It reports [{}]; it has no term for a delay, a low-pass, g-sensitivity or the reference's own errors (they go into its 12 parameters).\n\n\
+             | term | plain fit (95 %) | the diagnosis |\n|---|---|---|\n\
+             | gyro_scale, % | {scale} | {} |\n\
+             | gyro_bias, mrad/s | {bias} | {} |\n\
+             | gyro_misalignment (xy / xz / yx / yz / zx / zy), % | {misalignment} | {} |\n",
+            self.windows,
+            self.residual_rms.x,
+            self.residual_rms.y,
+            self.residual_rms.z,
+            self.reference_rms.x,
+            self.reference_rms.y,
+            self.reference_rms.z,
+            reported.join(", "),
+            found("gyro_scale"),
+            found("gyro_bias"),
+            found("gyro_misalignment"),
+        )
     }
 }
 

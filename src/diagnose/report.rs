@@ -366,6 +366,7 @@ pub const FILES: &[&str] = &[
     "allan.png",
     "residual.png",
     "corrected_sim.mcap",
+    "plain_calibration.json",
 ];
 
 /// Write everything into `dir` (the files of [`FILES`]).

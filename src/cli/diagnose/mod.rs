@@ -224,6 +224,8 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
         ground_truth: args.sim_ground_truth_topic.clone().or_else(|| topics.ground_truth.clone()),
         temperature: args.sim_temperature_topic.clone().or_else(|| topics.temperature.clone()),
     };
+    // The plain per-axis calibration beside the diagnosis, where the reference is measured.
+    let mut plain = None;
     let mut aligned = match (&args.sim, &args.noise_model) {
         (Some(sim), _) => align::load_each_on(sim, &sim_topics, real_path, &topics)?,
         (None, Some(model)) => {
@@ -235,6 +237,14 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
             // samples fix the bias walk's start, W₀ = 0, which the bias estimate rests on).
             let (cut0, cut1) = imu_fsda::diagnose::kinematics::crop_to_ground_truth(&mut real, smoothing.unwrap_or(0.0));
             let (sim, var) = imu_fsda::diagnose::kinematics::simulate_from_ground_truth(&real, &noise, args.seed, smoothing)?;
+            let window = compare_window(args.compare_window, true, &real.ground_truth);
+            plain = match imu_fsda::diagnose::plain_calibration::of_recording(&real, smoothing, window) {
+                Ok(p) => Some(p),
+                Err(e) => {
+                    tracing::warn!("the plain per-axis calibration beside the diagnosis: {e}");
+                    None
+                }
+            };
             let how = match smoothing {
                 Some(h) => format!("poses smoothed by a local cubic over ±{h} s, then differentiated"),
                 None => "poses differentiated sample to sample".into(),
@@ -259,6 +269,12 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
     }
     let d = diagnose(&aligned, opts)?;
     report::write_all(&args.out, &aligned, &d)?;
+    if let Some(p) = &plain {
+        std::fs::write(args.out.join("plain_calibration.json"), serde_json::to_string_pretty(&p.json())?)?;
+        let md = args.out.join("report.md");
+        let text = std::fs::read_to_string(&md)? + &p.markdown(&d);
+        std::fs::write(&md, text)?;
+    }
     // The verdict first: when the catalogue does not explain the recording, the terms below
     // are its best fit, and must not read as a diagnosis.
     for a in &d.artefacts {
@@ -271,6 +287,17 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
     }
     for f in &d.implausible {
         out!("implausible, not a finding: {}: {} ({})", f.term, f.params, f.implausible.as_deref().unwrap_or_default())?;
+    }
+    if let Some(p) = &plain {
+        let names: Vec<&str> = p.terms().iter().map(|t| t.name()).collect();
+        let scale: Vec<String> = (0..3).map(|k| format!("{:+.2}", 100.0 * (p.matrix[(k, k)] - 1.0))).collect();
+        let bias: Vec<String> = (0..3).map(|k| format!("{:+.1}", 1e3 * p.bias[k])).collect();
+        out!(
+            "beside it, the plain per-axis calibration (plain_calibration.json): [{}]; scale {} %, bias {} mrad/s",
+            names.join(", "),
+            scale.join(" / "),
+            bias.join(" / ")
+        )?;
     }
     out!("report: {} ({:.2} s)", args.out.join("report.md").display(), d.seconds)?;
     Ok(())
