@@ -135,6 +135,30 @@ impl PlainCalibration {
     }
 }
 
+/// A − I of several recordings of one IMU pooled, entry by entry, by inverse variance: the
+/// lasting scale and cross-axis error no single recording may resolve (the biases are each
+/// power-on's own and are not pooled). The value and its 1 σ; `None` for no recording.
+pub fn pooled_lasting_error(fits: &[PlainCalibration]) -> Option<(Matrix3<f64>, Matrix3<f64>)> {
+    if fits.is_empty() {
+        return None;
+    }
+    let (mut mean, mut sigma) = (Matrix3::zeros(), Matrix3::zeros());
+    for r in 0..3 {
+        for c in 0..3 {
+            let truth = if r == c { 1.0 } else { 0.0 };
+            let (mut sw, mut swx) = (0.0, 0.0);
+            for f in fits {
+                let w = 1.0 / f.matrix_sigma[(r, c)].powi(2).max(1e-300);
+                sw += w;
+                swx += w * (f.matrix[(r, c)] - truth);
+            }
+            mean[(r, c)] = swx / sw;
+            sigma[(r, c)] = 1.0 / sw.sqrt();
+        }
+    }
+    Some((mean, sigma))
+}
+
 impl PlainCalibration {
     /// `plain_calibration.json`: the fit, its σ, the terms it reports and its rule.
     pub fn json(&self) -> serde_json::Value {
@@ -224,6 +248,30 @@ mod tests {
         }
         let names: Vec<&str> = c.terms().iter().map(|t| t.name()).collect();
         assert_eq!(names, ["gyro_bias", "gyro_scale", "gyro_misalignment"]);
+    }
+
+    #[test]
+    fn pooling_recordings_of_one_imu_narrows_its_lasting_error() {
+        let reference = motion(8_000);
+        let a = Matrix3::new(0.998, 0.0, 0.0, 0.0, 0.998, 0.0, 0.0, 0.0, 0.998);
+        let fits: Vec<PlainCalibration> = (0..6)
+            .map(|seed| {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                let noise = Normal::new(0.0, 0.02).unwrap();
+                // Each power-on its own bias; the scale lasts.
+                let b = Vector3::new(0.01 * seed as f64, -0.02, 0.005);
+                let measured: Vec<_> = reference.iter().map(|w| a * w + b + Vector3::from_fn(|_, _| noise.sample(&mut rng))).collect();
+                fit(&measured, &reference, &vec![true; reference.len()], 40).unwrap()
+            })
+            .collect();
+        let (mean, sigma) = pooled_lasting_error(&fits).unwrap();
+        for k in 0..3 {
+            assert!((mean[(k, k)] + 0.002).abs() < 4.0 * sigma[(k, k)], "scale {k}: {} ± {}", mean[(k, k)], sigma[(k, k)]);
+            // Six recordings: σ about 1/√6 of one's.
+            let ratio = sigma[(k, k)] / fits[0].matrix_sigma[(k, k)];
+            assert!((0.3..0.55).contains(&ratio), "{ratio}");
+        }
+        assert!(pooled_lasting_error(&[]).is_none());
     }
 
     #[test]

@@ -260,6 +260,7 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
     let mut tally = Tally::default();
     // The plain per-axis regression beside the diagnosis: gyro terms only, so on gyro sets.
     let mut plain = (opts.sensors == Sensors::Gyro).then(|| (Tally::default(), Vec::new(), String::from(CSV_HEADER)));
+    let mut plain_control_fits = Vec::new();
     let mut controls = Vec::new();
     let mut csv = String::from(CSV_HEADER);
     for bag in set.bags {
@@ -289,6 +290,7 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
                     "residual_rms_rad_s": fitted.residual_rms.as_slice(), "reference_rms_rad_s": fitted.reference_rms.as_slice(),
                     "scale_sigma": fitted.matrix_sigma.diagonal().as_slice(), "bias_sigma_rad_s": fitted.bias_sigma.as_slice(),
                 }));
+                plain_control_fits.push(fitted);
                 Some(terms)
             }
             None => None,
@@ -331,6 +333,20 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
         beside["rule"] = serde_json::json!(
             "ordinary least squares of the IMU's gyro on the rate differentiated from the reference, per axis (a 3x3 matrix and a bias), over the diagnosis's comparison windows where the reference has no dropout; a term is reported when one of its parameters' 95 % interval (1.96 sigma from the fit's residual) leaves out zero; scored as the diagnosis is"
         );
+        if let Some((mean, sigma)) = plain_calibration::pooled_lasting_error(&plain_control_fits) {
+            let rows = |m: &nalgebra::Matrix3<f64>| (0..3).map(|r| (0..3).map(|c| m[(r, c)]).collect::<Vec<_>>()).collect::<Vec<_>>();
+            beside["pooled_controls"] = serde_json::json!({
+                "rule": "A - I of the controls (the recordings as recorded) pooled entry by entry by inverse variance: the lasting scale (diagonal) and cross-axis error (off-diagonal) of one IMU over its recordings; meaningful where they are power-ons of one IMU",
+                "recordings": plain_control_fits.len(),
+                "lasting_error": rows(&mean),
+                "sigma": rows(&sigma),
+            });
+            out!(
+                "plain calibration, the {} controls pooled: scale {} %",
+                plain_control_fits.len(),
+                (0..3).map(|k| format!("{:+.3} ± {:.3}", 100.0 * mean[(k, k)], 100.0 * sigma[(k, k)])).collect::<Vec<_>>().join(" / ")
+            )?;
+        }
         summary["plain_calibration"] = beside;
         std::fs::write(out.join("plain_cases.csv"), plain_csv)?;
     }
