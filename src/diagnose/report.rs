@@ -385,3 +385,87 @@ pub fn write_all(dir: &Path, a: &Aligned, d: &Diagnosis) -> Result<(), DiagnoseE
     write_csvs(dir, d)?;
     write_corrected_bag(&dir.join("corrected_sim.mcap"), a, d)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::{align, diagnose, DiagnoseOptions};
+    use crate::physics::{apply_terms, GyroBias, TermContext};
+    use crate::sim::{simulate, Grade, Profile, SimConfig};
+
+    const LEFT_OUT: [f64; 3] = [0.02, -0.012, 0.015];
+
+    /// A simulated hand-held minute against the same motion measured with another noise draw
+    /// and a gyro bias the simulation left out, diagnosed.
+    fn diagnosed() -> (Aligned, Diagnosis) {
+        let cfg =
+            SimConfig { profile: Profile::Handheld, grade: Grade::Mpu9250, rate_hz: 200.0, seconds: 60.0, seed: 11, ..Default::default() };
+        let sim = simulate(&cfg).unwrap();
+        let mut real = sim.ideal.clone();
+        let mut terms = cfg.noise().terms().to_vec();
+        terms.push(Term::GyroBias(GyroBias::new(LEFT_OUT)));
+        apply_terms(&terms, &mut real, &mut TermContext::new(99)).unwrap();
+        let real = crate::core::Recording { imu: real.to_samples(), ..sim.recording.clone() };
+        let a = align::align(sim.recording.clone(), real, Some(sim.imu_variance), vec![]).unwrap();
+        let d = diagnose(&a, &DiagnoseOptions::default()).unwrap();
+        (a, d)
+    }
+
+    fn patched_terms(d: &Diagnosis) -> Vec<Term> {
+        serde_yaml::from_str(&patch_yaml(d)).unwrap()
+    }
+
+    #[test]
+    fn the_report_says_the_verdict_first_and_the_patch_holds_what_was_found() {
+        let (_, d) = diagnosed();
+        let j = json(&d);
+        let found: Vec<&str> = j["findings"].as_array().unwrap().iter().map(|f| f["term"].as_str().unwrap()).collect();
+        assert!(found.contains(&"gyro_bias"), "{j:#}");
+        let md = markdown(&d);
+        let (verdict, findings) =
+            (md.find("## Verdict").unwrap(), md.find("## What was left out").or(md.find("## Best catalogue fit")).unwrap());
+        assert!(verdict < findings, "{md}");
+        let bias = patched_terms(&d).into_iter().find_map(|t| if let Term::GyroBias(b) = t { Some(b.bias) } else { None }).unwrap();
+        for (got, want) in bias.iter().zip(LEFT_OUT) {
+            assert!((got - want).abs() < 0.2 * want.abs(), "patched bias {got} for {want}");
+        }
+    }
+
+    #[test]
+    fn a_fit_that_does_not_explain_and_an_implausible_term_are_said_in_every_output() {
+        let (_, mut d) = diagnosed();
+        d.verdict.explained = false;
+        assert!(json(&d)["findings_are"].as_str().unwrap().contains("not a diagnosis"));
+        assert!(patch_yaml(&d).contains("NOT A DIAGNOSIS"));
+        assert!(markdown(&d).contains("Best catalogue fit (not a diagnosis)"));
+        // A finding judged implausible: listed as such and left out of the simulator patch.
+        let k = d.findings.iter().position(|f| f.term == "gyro_bias").unwrap();
+        let mut f = d.findings.remove(k);
+        f.implausible = Some("beyond every datasheet".into());
+        d.implausible.push(f);
+        let patch = patch_yaml(&d);
+        assert!(patch.contains("# left out, implausible: gyro_bias (beyond every datasheet)"), "{patch}");
+        assert!(!patched_terms(&d).iter().any(|t| t.name() == "gyro_bias"), "{patch}");
+    }
+
+    #[test]
+    fn every_file_is_written_and_the_corrected_bag_reads_back() {
+        let (a, d) = diagnosed();
+        let dir = tempfile::tempdir().unwrap();
+        write_all(dir.path(), &a, &d).unwrap();
+        // The figures need a font and are an extra; plain_calibration.json is the CLI's.
+        for name in FILES.iter().filter(|n| !n.ends_with(".png") && **n != "plain_calibration.json") {
+            assert!(dir.path().join(name).is_file(), "{name} missing");
+        }
+        let (corrected, _) =
+            crate::bag::read_recording(dir.path().join("corrected_sim.mcap"), &crate::bag::RecordingTopics::default()).unwrap();
+        assert_eq!(corrected.imu.len(), a.stamps_ns.len());
+        // The corrected sim carries the bias found: its gyro mean moves toward the real's.
+        let mean = |s: &[crate::core::ImuSample]| s.iter().map(|x| x.gyro).sum::<nalgebra::Vector3<f64>>() / s.len() as f64;
+        let (before, after) = (mean(&a.sim_recording.imu), mean(&corrected.imu));
+        for (k, want) in LEFT_OUT.iter().enumerate() {
+            let moved = (after - before)[k];
+            assert!((moved - want).abs() < 0.2 * want.abs(), "axis {k}: {moved} for {want}");
+        }
+    }
+}
