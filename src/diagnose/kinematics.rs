@@ -13,8 +13,8 @@ use nalgebra::{Matrix4, UnitQuaternion, Vector3, Vector4};
 use super::align::interpolate;
 use super::DiagnoseError;
 use crate::core::{PoseSample, Recording};
+use crate::physics::NoiseModel;
 use crate::physics::{apply_terms, ImuSignals, TermContext, NOMINAL_GRAVITY};
-use crate::sim::NoiseModel;
 
 /// Ground-truth kinematics at the ground-truth stamps.
 struct GtKinematics {

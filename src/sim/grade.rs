@@ -8,7 +8,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::physics::{AccelBias, BiasRandomWalk, GyroBias, Quantization, Saturation, Term, WhiteNoise};
+use crate::physics::{AccelBias, GyroBias, NoiseModel, Quantization, Saturation, Term};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 /// One degree per hour in rad/s.
@@ -253,42 +253,6 @@ impl GradeSpec {
         let gyro = draw(self.gyro_turn_on_bias);
         let accel = draw(self.accel_turn_on_bias);
         [Term::GyroBias(GyroBias::new(gyro)), Term::AccelBias(AccelBias::new(accel))]
-    }
-}
-
-/// The simulator's own noise model (`simulator_noise` of the concealed cases): white noise
-/// and bias random walk, continuous-time densities.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct NoiseModel {
-    /// Gyro white-noise density, rad/s/√Hz.
-    pub gyro_noise_density: f64,
-    /// Accelerometer white-noise density, m/s²/√Hz.
-    pub accel_noise_density: f64,
-    /// Gyro bias random-walk density, rad/s²/√Hz.
-    pub gyro_bias_random_walk: f64,
-    /// Accelerometer bias random-walk density, m/s³/√Hz.
-    pub accel_bias_random_walk: f64,
-}
-
-impl NoiseModel {
-    /// The model as the two noise terms, in that order.
-    pub fn terms(&self) -> [Term; 2] {
-        [
-            Term::WhiteNoise(WhiteNoise { gyro_noise_density: self.gyro_noise_density, accel_noise_density: self.accel_noise_density }),
-            Term::BiasRandomWalk(BiasRandomWalk {
-                gyro_bias_random_walk: self.gyro_bias_random_walk,
-                accel_bias_random_walk: self.accel_bias_random_walk,
-            }),
-        ]
-    }
-
-    /// Per-sample white-noise variances (gyro (rad/s)², accel (m/s²)²) at interval `dt` s:
-    /// what the IMU messages carry on their covariance diagonals.
-    pub fn per_sample_variance(&self, dt: f64) -> (f64, f64) {
-        let white = WhiteNoise { gyro_noise_density: self.gyro_noise_density, accel_noise_density: self.accel_noise_density };
-        let (g, a) = white.per_sample_std(dt);
-        (g * g, a * a)
     }
 }
 

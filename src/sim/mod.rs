@@ -37,7 +37,8 @@ use crate::bag::{write_recording_with, BagError, RecordingBagOptions};
 use crate::core::{PoseSample, Recording, TemperatureSample};
 use crate::physics::{apply_terms, derive_seed, ImuSignals, PhysicsError, Term, TermContext, TruthHistory, NOMINAL_GRAVITY};
 
-pub use grade::{Grade, GradeSpec, NoiseModel};
+pub use crate::physics::NoiseModel;
+pub use grade::{Grade, GradeSpec};
 pub use trajectory::{KinematicState, Profile, Trajectory};
 
 /// Ground truth is written at this rate, or at the IMU rate when that is lower, Hz.

@@ -12,8 +12,8 @@ use anyhow::Context;
 use imu_fsda::bag::{read_recording, RecordingTopics};
 use imu_fsda::core::Recording;
 use imu_fsda::diagnose::{align, diagnose, kinematics, plain_calibration, DiagnoseOptions, Diagnosis, Sensors};
+use imu_fsda::physics::NoiseModel;
 use imu_fsda::physics::{self, apply_terms, effect, ImuSignals, Term, TermContext};
-use imu_fsda::sim::NoiseModel;
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 

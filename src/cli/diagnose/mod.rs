@@ -169,7 +169,7 @@ fn smoothing_for(args: &DiagnoseArgs, gt: &[imu_fsda::core::PoseSample]) -> Opti
     })
 }
 
-fn read_noise_model(path: &std::path::Path) -> anyhow::Result<imu_fsda::sim::NoiseModel> {
+fn read_noise_model(path: &std::path::Path) -> anyhow::Result<imu_fsda::physics::NoiseModel> {
     let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::InvalidData => anyhow::anyhow!(
             "{}: not a text file; --noise-model takes YAML (gyro_noise_density, accel_noise_density, gyro_bias_random_walk, accel_bias_random_walk), a simulated bag goes to --sim",
