@@ -159,10 +159,14 @@ pub fn pooled_lasting_error(fits: &[PlainCalibration]) -> Option<(Matrix3<f64>, 
     Some((mean, sigma))
 }
 
+/// A 3 × 3 matrix as rows, for JSON.
+pub fn rows(m: &Matrix3<f64>) -> Vec<Vec<f64>> {
+    (0..3).map(|r| (0..3).map(|c| m[(r, c)]).collect()).collect()
+}
+
 impl PlainCalibration {
     /// `plain_calibration.json`: the fit, its σ, the terms it reports and its rule.
     pub fn json(&self) -> serde_json::Value {
-        let rows = |m: &Matrix3<f64>| (0..3).map(|r| (0..3).map(|c| m[(r, c)]).collect::<Vec<_>>()).collect::<Vec<_>>();
         serde_json::json!({
             "rule": RULE,
             "matrix": rows(&self.matrix),

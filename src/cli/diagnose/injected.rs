@@ -259,8 +259,7 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(set.seed);
     let mut tally = Tally::default();
     // The plain per-axis regression beside the diagnosis: gyro terms only, so on gyro sets.
-    let mut plain = (opts.sensors == Sensors::Gyro).then(|| (Tally::default(), Vec::new(), String::from(CSV_HEADER)));
-    let mut plain_control_fits = Vec::new();
+    let mut plain = (opts.sensors == Sensors::Gyro).then(PlainBeside::default);
     let mut controls = Vec::new();
     let mut csv = String::from(CSV_HEADER);
     for bag in set.bags {
@@ -275,24 +274,9 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
             .push(serde_json::json!({"recording": name, "terms": own, "explained": control.verdict.explained, "seconds": control.seconds}));
         let _ = writeln!(csv, "{name},control,,{},,,,,{},{:.2},,", own.join(" "), control.verdict.explained, control.seconds);
         let samples_per_window = ((window * rate).round() as usize).max(1);
-        let plain_fit = |gyro: &[Vector3<f64>]| -> anyhow::Result<(Vec<Term>, f64, plain_calibration::PlainCalibration)> {
-            let started = std::time::Instant::now();
-            let c = plain_calibration::fit(gyro, &p.ideal.gyro, &p.judged, samples_per_window)?;
-            Ok((c.terms(), started.elapsed().as_secs_f64(), c))
-        };
+        let plain_fit = |gyro: &[Vector3<f64>]| plain_fit(gyro, &p, samples_per_window);
         let plain_control = match &mut plain {
-            Some((_, plain_controls, _)) => {
-                let (terms, seconds, fitted) = plain_fit(&p.measured.gyro)?;
-                let own: Vec<&str> = terms.iter().map(|t| t.name()).collect();
-                out!("{name}: plain calibration of the control: [{}]  {}", own.join(", "), serde_json::to_string(&terms)?)?;
-                plain_controls.push(serde_json::json!({
-                    "recording": name, "terms": own, "fitted": terms, "seconds": seconds, "windows": fitted.windows,
-                    "residual_rms_rad_s": fitted.residual_rms.as_slice(), "reference_rms_rad_s": fitted.reference_rms.as_slice(),
-                    "scale_sigma": fitted.matrix_sigma.diagonal().as_slice(), "bias_sigma_rad_s": fitted.bias_sigma.as_slice(),
-                }));
-                plain_control_fits.push(fitted);
-                Some(terms)
-            }
+            Some(beside) => Some(beside.control(&name, plain_fit(&p.measured.gyro)?)?),
             None => None,
         };
         let recorded = AsRecorded { name: &name, method: "", p: &p, limits: &control, own_terms: &control.terms, rate, window };
@@ -321,39 +305,85 @@ pub fn run(set: &InjectedSet, out: &Path, opts: &DiagnoseOptions) -> anyhow::Res
             for (k, terms) in [&truth, &mirror].into_iter().enumerate() {
                 let case = format!("{draw}{}", if k == 0 { "+" } else { "-" });
                 tally.score_case(&recorded, &case, terms, Found::from(&cases[k]), Found::from(&cases[1 - k]), &mut csv)?;
-                if let (Some(r), Some((plain_tally, _, plain_csv))) = (&plain_recorded, &mut plain) {
-                    plain_tally.score_case(r, &case, terms, plain_found(&plain_cases[k]), plain_found(&plain_cases[1 - k]), plain_csv)?;
+                if let (Some(r), Some(beside)) = (&plain_recorded, &mut plain) {
+                    beside.tally.score_case(
+                        r,
+                        &case,
+                        terms,
+                        plain_found(&plain_cases[k]),
+                        plain_found(&plain_cases[1 - k]),
+                        &mut beside.csv,
+                    )?;
                 }
             }
         }
     }
     let mut summary = tally.summary(set, controls);
-    if let Some((mut plain_tally, plain_controls, plain_csv)) = plain {
-        let mut beside = plain_tally.summary(set, plain_controls);
-        beside["rule"] = serde_json::json!(
-            "ordinary least squares of the IMU's gyro on the rate differentiated from the reference, per axis (a 3x3 matrix and a bias), over the diagnosis's comparison windows where the reference has no dropout; a term is reported when one of its parameters' 95 % interval (1.96 sigma from the fit's residual) leaves out zero; scored as the diagnosis is"
-        );
-        if let Some((mean, sigma)) = plain_calibration::pooled_lasting_error(&plain_control_fits) {
-            let rows = |m: &nalgebra::Matrix3<f64>| (0..3).map(|r| (0..3).map(|c| m[(r, c)]).collect::<Vec<_>>()).collect::<Vec<_>>();
-            beside["pooled_controls"] = serde_json::json!({
-                "rule": "A - I of the controls (the recordings as recorded) pooled entry by entry by inverse variance: the lasting scale (diagonal) and cross-axis error (off-diagonal) of one IMU over its recordings; meaningful where they are power-ons of one IMU",
-                "recordings": plain_control_fits.len(),
-                "lasting_error": rows(&mean),
-                "sigma": rows(&sigma),
-            });
-            out!(
-                "plain calibration, the {} controls pooled: scale {} %",
-                plain_control_fits.len(),
-                (0..3).map(|k| format!("{:+.3} ± {:.3}", 100.0 * mean[(k, k)], 100.0 * sigma[(k, k)])).collect::<Vec<_>>().join(" / ")
-            )?;
-        }
-        summary["plain_calibration"] = beside;
-        std::fs::write(out.join("plain_cases.csv"), plain_csv)?;
+    if let Some(beside) = plain {
+        summary["plain_calibration"] = beside.finish(set, out)?;
     }
     out!("{}", serde_json::to_string_pretty(&summary)?)?;
     std::fs::write(out.join("score.json"), serde_json::to_string_pretty(&summary)?)?;
     std::fs::write(out.join("cases.csv"), csv)?;
     Ok(())
+}
+
+/// The plain calibration of one stream of the recording against its ground truth: the terms it
+/// reports, its time, the fit.
+fn plain_fit(gyro: &[Vector3<f64>], p: &Prepared, window: usize) -> anyhow::Result<(Vec<Term>, f64, plain_calibration::PlainCalibration)> {
+    let started = std::time::Instant::now();
+    let c = plain_calibration::fit(gyro, &p.ideal.gyro, &p.judged, window)?;
+    Ok((c.terms(), started.elapsed().as_secs_f64(), c))
+}
+
+/// The plain per-axis calibration scored beside the diagnosis: its tally, its controls (and
+/// their fits, pooled at the end), its cases.
+#[derive(Default)]
+struct PlainBeside {
+    tally: Tally,
+    controls: Vec<serde_json::Value>,
+    fits: Vec<plain_calibration::PlainCalibration>,
+    csv: String,
+}
+
+impl PlainBeside {
+    /// A recording as recorded: what the plain fit reports on it (its own terms), said and kept.
+    fn control(
+        &mut self,
+        name: &str,
+        (terms, seconds, fitted): (Vec<Term>, f64, plain_calibration::PlainCalibration),
+    ) -> anyhow::Result<Vec<Term>> {
+        let own: Vec<&str> = terms.iter().map(|t| t.name()).collect();
+        out!("{name}: plain calibration of the control: [{}]  {}", own.join(", "), serde_json::to_string(&terms)?)?;
+        let mut j = fitted.json();
+        if let Some(o) = j.as_object_mut() {
+            o.remove("rule"); // said once, beside the tally
+        }
+        j["recording"] = serde_json::json!(name);
+        j["seconds"] = serde_json::json!(seconds);
+        self.controls.push(j);
+        self.fits.push(fitted);
+        Ok(terms)
+    }
+
+    /// `score.json`'s `plain_calibration`: the tally, the rule, the controls pooled; writes
+    /// plain_cases.csv.
+    fn finish(mut self, set: &InjectedSet, out: &Path) -> anyhow::Result<serde_json::Value> {
+        let mut s = self.tally.summary(set, std::mem::take(&mut self.controls));
+        s["rule"] = serde_json::json!(format!("{}; scored as the diagnosis is", plain_calibration::RULE));
+        if let Some((mean, sigma)) = plain_calibration::pooled_lasting_error(&self.fits) {
+            s["pooled_controls"] = serde_json::json!({
+                "rule": "A - I of the controls (the recordings as recorded) pooled entry by entry by inverse variance: the lasting scale (diagonal) and cross-axis error (off-diagonal) of one IMU over its recordings; meaningful where they are power-ons of one IMU",
+                "recordings": self.fits.len(),
+                "lasting_error": plain_calibration::rows(&mean),
+                "sigma": plain_calibration::rows(&sigma),
+            });
+            let scale: Vec<String> = (0..3).map(|k| format!("{:+.3} ± {:.3}", 100.0 * mean[(k, k)], 100.0 * sigma[(k, k)])).collect();
+            out!("plain calibration, the {} controls pooled: scale {} %", self.fits.len(), scale.join(" / "))?;
+        }
+        std::fs::write(out.join("plain_cases.csv"), CSV_HEADER.to_string() + &self.csv)?;
+        Ok(s)
+    }
 }
 
 const CSV_HEADER: &str =
