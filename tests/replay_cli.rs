@@ -12,8 +12,8 @@ use imu_fsda::msg::{Imu, RosMessage, Vector3Stamped};
 use imu_fsda::so3::integrate_gyro;
 
 mod common;
-use common::bin;
 use common::random_model::{car_recording, euroc_bag, export_random_model, export_random_model_with_gains};
+use common::{bin, ok};
 
 /// How far the node's f32 networks may be from the same weights run in f64: f32's rounding
 /// over ~80 k multiply-adds (measured 3e-9 rad/s), far inside the 1e-5 rad/s bound against
@@ -38,18 +38,14 @@ fn replay_equals_offline_full_sequence_evaluation() {
             _ => export_random_model(dir.path(), mode, seed, imu.is_some()),
         };
         let out_bag = dir.path().join(format!("replayed-{mode:?}-{seed}.mcap"));
-        let out = Command::new(bin())
+        let log = ok(Command::new(bin())
             .args(["-v", "replay", "--model-on-new-imu", "--imu", imu.unwrap_or(""), "--params"])
             .arg(&open_loop)
             .arg("--model")
             .arg(&model)
             .arg(&bag)
             .arg("-o")
-            .arg(&out_bag)
-            .output()
-            .unwrap();
-        let log = String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "{log}");
+            .arg(&out_bag));
         if imu == Some("tumvi") {
             assert!(log.contains("its own Ĉ_ω, IMU \"tumvi\"'s correction gain 0.300"), "{log}");
         }
@@ -323,16 +319,8 @@ fn a_faster_imu_runs_the_model_in_its_periods_online_as_offline() {
     imu_fsda::bag::write_recording(&fast_bag, &fast).unwrap();
     let model = export_random_model(dir.path(), Mode::FsdaF, 13, false);
     let out_bag = dir.path().join("replayed_1khz.mcap");
-    let out = Command::new(bin())
-        .args(["-v", "replay", "--model-on-new-imu", "--model"])
-        .arg(&model)
-        .arg(&fast_bag)
-        .arg("-o")
-        .arg(&out_bag)
-        .output()
-        .unwrap();
-    let log = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{log}");
+    let log =
+        ok(Command::new(bin()).args(["-v", "replay", "--model-on-new-imu", "--model"]).arg(&model).arg(&fast_bag).arg("-o").arg(&out_bag));
     assert!(log.contains("fed to the 200.0 Hz model in its periods"), "{log}");
 
     let mut corrections = Vec::new();
