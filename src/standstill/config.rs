@@ -34,6 +34,9 @@ pub struct StandstillConfig {
     pub max_gyro_spread: f64,
     /// … those of every accelerometer axis less than this, m/s² …
     pub max_accel_spread: f64,
+    /// … or, where more, this many σ of an accelerometer block mean, σ from the scatter inside
+    /// the blocks: a standing robot's or an idling car's vibration (0: the fixed limit alone) …
+    pub vibration_sigmas: f64,
     /// … and ‖mean specific force‖ is within this of standard gravity, m/s².
     pub max_gravity_error: f64,
     /// A window whose mean rate exceeds this on any axis is turning, not biased, rad/s.
@@ -72,6 +75,7 @@ impl Default for StandstillConfig {
             blocks: 5,
             max_gyro_spread: 0.02,
             max_accel_spread: 0.2,
+            vibration_sigmas: 4.5,
             max_gravity_error: 1.0,
             max_bias: 0.15,
             max_tilt_change: 0.02,
@@ -105,6 +109,9 @@ impl StandstillConfig {
             if !(value.is_finite() && value > 0.0) {
                 return Err(format!("standstill.{key} must be finite and > 0, not {value}").into());
             }
+        }
+        if !(self.vibration_sigmas.is_finite() && self.vibration_sigmas >= 0.0) {
+            return Err(format!("standstill.vibration_sigmas must be finite and ≥ 0, not {}", self.vibration_sigmas).into());
         }
         if !(self.bias_random_walk.is_finite() && self.bias_random_walk >= 0.0) {
             return Err(format!("standstill.bias_random_walk must be finite and ≥ 0, not {}", self.bias_random_walk).into());

@@ -23,6 +23,8 @@ pub struct PowerOnBias {
     pub(super) accel_means: [Vector3<f64>; MAX_BLOCKS],
     pub(super) blocks_done: usize,
     pub(super) window: Sums,
+    /// The accelerometer's variance inside each completed block, summed over the window.
+    pub(super) accel_within_var: Vector3<f64>,
     pub(super) window_start_ns: Option<i64>,
     /// ∫ω dt over the window so far, and its duration, s.
     pub(super) window_turn: Vector3<f64>,
@@ -49,6 +51,7 @@ impl PowerOnBias {
             accel_means: [Vector3::zeros(); MAX_BLOCKS],
             blocks_done: 0,
             window: Sums::ZERO,
+            accel_within_var: Vector3::zeros(),
             window_start_ns: None,
             window_turn: Vector3::zeros(),
             window_s: 0.0,

@@ -52,11 +52,14 @@ pub struct StandstillCounters {
 pub(super) struct Sums {
     pub(super) gyro: Vector3<f64>,
     pub(super) accel: Vector3<f64>,
+    /// The accelerometer's sum of squares per axis: the scatter inside a block.
+    pub(super) accel_sq: Vector3<f64>,
     pub(super) n: u32,
 }
 
 impl Sums {
-    pub(super) const ZERO: Sums = Sums { gyro: Vector3::new(0.0, 0.0, 0.0), accel: Vector3::new(0.0, 0.0, 0.0), n: 0 };
+    pub(super) const ZERO: Sums =
+        Sums { gyro: Vector3::new(0.0, 0.0, 0.0), accel: Vector3::new(0.0, 0.0, 0.0), accel_sq: Vector3::new(0.0, 0.0, 0.0), n: 0 };
 }
 
 impl PowerOnBias {
@@ -91,6 +94,7 @@ impl PowerOnBias {
         }
         self.block.gyro += s.gyro;
         self.block.accel += s.accel;
+        self.block.accel_sq += s.accel.component_mul(&s.accel);
         self.block.n += 1;
         self.last = Some((s.stamp_ns, s.gyro));
         verdict
@@ -99,6 +103,7 @@ impl PowerOnBias {
     pub(super) fn clear_window(&mut self) {
         self.block = Sums::ZERO;
         self.window = Sums::ZERO;
+        self.accel_within_var = Vector3::zeros();
         self.blocks_done = 0;
         self.window_start_ns = None;
         self.window_turn = Vector3::zeros();
@@ -111,6 +116,9 @@ impl PowerOnBias {
         let k = self.blocks_done;
         self.gyro_means[k] = self.block.gyro / n;
         self.accel_means[k] = self.block.accel / n;
+        // The scatter about the block's own mean: a vibration shows in it, a trend barely does.
+        let mean_sq = self.accel_means[k].component_mul(&self.accel_means[k]);
+        self.accel_within_var += (self.block.accel_sq / n - mean_sq).map(|v| v.max(0.0));
         self.window.gyro += self.block.gyro;
         self.window.accel += self.block.accel;
         self.window.n += self.block.n;
@@ -158,7 +166,7 @@ impl PowerOnBias {
         let gyro = self.window.gyro / n;
         let accel = self.window.accel / n;
         if span(&self.gyro_means[..k]) >= self.cfg.max_gyro_spread
-            || span(&self.accel_means[..k]) >= self.cfg.max_accel_spread
+            || span(&self.accel_means[..k]) >= self.allowed_accel_spread()
             || (accel.norm() - STANDARD_GRAVITY).abs() >= self.cfg.max_gravity_error
         {
             return Err(NotStill::Moving);
@@ -180,5 +188,15 @@ impl PowerOnBias {
             }
         }
         Ok(())
+    }
+
+    /// How far the window's accelerometer block means may spread: the fixed limit, or
+    /// `vibration_sigmas` σ of a block mean where the scatter inside the blocks is larger (a
+    /// vibration leaves a residue in each block's mean that grows with its amplitude).
+    fn allowed_accel_spread(&self) -> f64 {
+        let k = self.blocks_done.max(1) as f64;
+        let per_block = self.window.n.max(1) as f64 / k;
+        let block_mean_sigma = (self.accel_within_var.max() / k / per_block).sqrt();
+        self.cfg.max_accel_spread.max(self.cfg.vibration_sigmas * block_mean_sigma)
     }
 }
