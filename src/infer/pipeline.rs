@@ -201,6 +201,11 @@ impl Pipeline {
         self.gravity_aided.as_ref().and_then(GravityAided::forward_speed)
     }
 
+    /// A still body read at a steady rate above `standstill.max_bias`: said, not removed.
+    pub fn rate_above_max_bias(&self) -> Option<crate::standstill::RateAboveMaxBias> {
+        self.standstill.rate_above_max_bias()
+    }
+
     /// True while the platform is standing still (the last window judged was still).
     pub fn standing(&self) -> bool {
         self.standstill.standing()

@@ -94,6 +94,11 @@ impl NodeStats {
         self.power_on_bias_from = pipeline.bias_source();
         self.standstills = *pipeline.standstill_counters();
         self.standing = pipeline.standing();
+        let above = pipeline.rate_above_max_bias();
+        if let (None, Some(r)) = (&self.rate_above_max_bias, &above) {
+            tracing::warn!("no standstill taken: {}", r.says());
+        }
+        self.rate_above_max_bias = above;
     }
 }
 

@@ -42,6 +42,8 @@ pub struct NodeStats {
     pub standstill_bias: Option<crate::standstill::BiasEstimate>,
     pub standstills: crate::standstill::StandstillCounters,
     pub standing: bool,
+    /// A still body read at a steady rate above `standstill.max_bias` (said only when one was).
+    pub rate_above_max_bias: Option<crate::standstill::RateAboveMaxBias>,
     /// Times `~/retake_power_on_bias` made the node forget the power-on bias (the calls
     /// between two samples are one).
     pub power_on_bias_retakes: u64,
@@ -313,6 +315,9 @@ fn key_values(stats: &NodeStats, live: &Liveness) -> Vec<KeyValue> {
         kv("incompatible_peers", stats.incompatible_peers.present.to_string()),
         kv("incompatible_peers_said", stats.incompatible_peers.said.to_string()),
     ];
+    if let Some(r) = &stats.rate_above_max_bias {
+        values.push(kv("rate_above_max_bias", r.says()));
+    }
     if !stats.incompatible_peers.described.is_empty() {
         values.push(kv("incompatible_peer_list", stats.incompatible_peers.described.join("; ")));
     }

@@ -24,18 +24,21 @@
 //! Files: `config.rs` (the settings), `window.rs` (a window and its judgement),
 //! `run.rs` (the standstill in progress), `estimate.rs` (the estimate, the prediction from
 //! earlier power-ons, their fusion), `power_on.rs` (the streaming detector, [`PowerOnBias`]),
+//! `steady_rate.rs` (a still body read at a steady rate above `max_bias`: said, not removed),
 //! `track.rs` (over a whole recording, [`BiasTrack`]).
 
 mod config;
 mod estimate;
 mod power_on;
 mod run;
+mod steady_rate;
 mod track;
 mod window;
 
 pub use config::{InMotion, StandstillConfig, MAX_BLOCKS};
 pub use estimate::{BiasEstimate, BiasPrediction};
 pub use power_on::PowerOnBias;
+pub use steady_rate::RateAboveMaxBias;
 pub use track::BiasTrack;
 pub use window::{NotStill, StandstillCounters, WindowVerdict};
 
@@ -153,6 +156,43 @@ mod tests {
         assert!(p.counters().tilting_windows > 0, "{:?}", p.counters());
         let kept = p.estimate().map_or(0.0, |e| e.still_s);
         assert!(kept <= 1.0, "{kept} s kept of a slow turn");
+    }
+
+    #[test]
+    fn a_bias_beyond_max_bias_is_said_and_gravity_tells_it_from_a_turn() {
+        // A part whose zero-rate offset on x is 0.25 rad/s (above max_bias 0.15), at rest: no
+        // standstill, but gravity did not turn where a turn across it would have turned it.
+        let bias = Vector3::new(0.25, 0.01, -0.02);
+        let imu = stream(5.0, bias, 0.01, |_| Vector3::zeros(), level);
+        let p = run(&imu);
+        assert!(p.estimate().is_none());
+        let r = p.rate_above_max_bias().expect("a steady rate above max_bias is said");
+        assert!((r.rate - bias).amax() < 5e-3 && r.seconds >= 4.0, "{r:?}");
+        assert!(r.across_is_bias(), "{}", r.says());
+        assert!(r.says().contains("is this IMU's bias"), "{}", r.says());
+        // Raised as it says, the rest measures it.
+        let raised = run_with(&imu, StandstillConfig { max_bias: 0.3, ..Default::default() });
+        assert!((raised.estimate().expect("a rest").bias - bias).amax() < 2e-3);
+        assert!(raised.rate_above_max_bias().is_none());
+
+        // A turn in place about gravity at 0.3 rad/s: said, and not called a bias.
+        let turn = stream(5.0, Vector3::zeros(), 0.01, |_| Vector3::new(0.0, 0.0, 0.3), level);
+        let r = run(&turn).rate_above_max_bias().expect("said");
+        assert!(!r.across_is_bias() && (r.about_gravity - 0.3).abs() < 5e-3, "{r:?}");
+        assert!(r.says().contains("one IMU cannot tell"), "{}", r.says());
+
+        // A turn across gravity at 0.2 rad/s turns gravity: never said to be a bias.
+        let w = 0.2;
+        let tumble = stream(
+            5.0,
+            Vector3::zeros(),
+            0.01,
+            |_| Vector3::new(w, 0.0, 0.0),
+            |t| Vector3::new(0.0, (w * t).sin(), (w * t).cos()) * STANDARD_GRAVITY,
+        );
+        let p = run(&tumble);
+        assert!(p.rate_above_max_bias().is_none_or(|r| !r.across_is_bias()), "{:?}", p.rate_above_max_bias());
+        assert!(p.estimate().is_none());
     }
 
     #[test]

@@ -6,6 +6,7 @@
 use nalgebra::Vector3;
 
 use super::run::Run;
+use super::steady_rate::{RateAboveMaxBias, SteadyRate};
 use super::window::Sums;
 use super::{BiasEstimate, InMotion, StandstillConfig, StandstillCounters, MAX_BLOCKS};
 use crate::motion_bias::MotionBias;
@@ -34,6 +35,9 @@ pub struct PowerOnBias {
     pub(super) prior: Option<BiasEstimate>,
     pub(super) estimate: Option<BiasEstimate>,
     pub(super) counters: StandstillCounters,
+    /// Windows refused only as turning, at one rate: the run in progress and the last said.
+    pub(super) steady: Option<SteadyRate>,
+    pub(super) above_max_bias: Option<RateAboveMaxBias>,
     /// The bias seen in motion (unless `in_motion: off`).
     pub(super) motion: Option<MotionBias>,
 }
@@ -59,6 +63,8 @@ impl PowerOnBias {
             prior: None,
             estimate: None,
             counters: StandstillCounters::default(),
+            steady: None,
+            above_max_bias: None,
             motion: (cfg.in_motion != InMotion::Off).then(|| MotionBias::new(cfg.motion)),
         }
     }
@@ -131,6 +137,12 @@ impl PowerOnBias {
         &self.counters
     }
 
+    /// A still body read at a steady rate above `max_bias` (the run in progress, else the last
+    /// one of at least 2 s): said, not removed ([`RateAboveMaxBias`]).
+    pub fn rate_above_max_bias(&self) -> Option<RateAboveMaxBias> {
+        self.steady.and_then(|s| s.said(self.cfg.max_bias, self.cfg.max_tilt_change)).or(self.above_max_bias)
+    }
+
     /// True while the last window judged was still (the platform is standing).
     pub fn standing(&self) -> bool {
         self.run.is_some()
@@ -147,6 +159,7 @@ impl PowerOnBias {
         self.interrupt();
         self.prior = None;
         self.estimate = None;
+        self.above_max_bias = None;
         if let Some(m) = self.motion.as_mut() {
             m.restart();
         }
@@ -159,6 +172,7 @@ impl PowerOnBias {
             self.counters.interrupted_windows += 1;
         }
         self.end_run();
+        self.end_steady();
         self.clear_window();
         self.last = None;
     }

@@ -24,6 +24,8 @@ pub struct BiasTrack {
     pub standing_at_end: bool,
     /// What earlier power-ons predicted (removed before the first standstill where it applies).
     pub remembered: Option<BiasPrediction>,
+    /// A still body read at a steady rate above `max_bias`, said ([`super::RateAboveMaxBias`]).
+    pub rate_above_max_bias: Option<String>,
 }
 
 impl BiasTrack {
@@ -47,6 +49,7 @@ impl BiasTrack {
         track.counters = *p.counters();
         track.standing_at_end = p.standing();
         track.remembered = cfg.remembered;
+        track.rate_above_max_bias = p.rate_above_max_bias().map(|r| r.says());
         track
     }
 
@@ -109,6 +112,10 @@ impl BiasTrack {
                 self.source
             ),
             None => format!("{standstills}: the turn-on bias is uncorrected"),
+        };
+        let note = match &self.rate_above_max_bias {
+            Some(said) => format!("{note}; {said}"),
+            None => note,
         };
         match self.remembered {
             Some(r) if r.applies_any() => format!(

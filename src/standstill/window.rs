@@ -3,6 +3,7 @@
 
 use nalgebra::Vector3;
 
+use super::steady_rate::SteadyRate;
 use super::{InMotion, PowerOnBias};
 use crate::core::{ImuSample, STANDARD_GRAVITY};
 
@@ -129,7 +130,13 @@ impl PowerOnBias {
         }
         let start_ns = self.window_start_ns.unwrap_or(now_ns);
         let hold_rate = self.window_turn / self.window_s.max(1e-12);
-        let verdict = match self.judge() {
+        let judged = self.judge();
+        if judged == Err(NotStill::Turning) {
+            self.note_steady_rate(start_ns, hold_rate);
+        } else {
+            self.end_steady();
+        }
+        let verdict = match judged {
             Ok(()) => {
                 self.accept_window(start_ns, now_ns);
                 WindowVerdict::Still { start_ns, end_ns: now_ns, hold_rate }
@@ -188,6 +195,23 @@ impl PowerOnBias {
             }
         }
         Ok(())
+    }
+
+    /// A window refused only as turning: extends the run at its rate, or starts one.
+    fn note_steady_rate(&mut self, start_ns: i64, rate: Vector3<f64>) {
+        let gravity = self.window.accel / self.window.n.max(1) as f64;
+        let extended = self.steady.as_mut().is_some_and(|s| s.extend(self.window_s, rate, gravity, self.cfg.max_gyro_spread));
+        if !extended {
+            self.end_steady();
+            self.steady = Some(SteadyRate::start(start_ns, self.window_s, rate, gravity));
+        }
+    }
+
+    /// Ends the run of windows at a steady rate above `max_bias`, keeping it if long enough.
+    pub(super) fn end_steady(&mut self) {
+        if let Some(said) = self.steady.take().and_then(|s| s.said(self.cfg.max_bias, self.cfg.max_tilt_change)) {
+            self.above_max_bias = Some(said);
+        }
     }
 
     /// How far the window's accelerometer block means may spread: the fixed limit, or
