@@ -158,7 +158,7 @@ pub fn run(args: NodeArgs) -> anyhow::Result<()> {
                 "model": stats.model, "adaptation": stats.adapt_status, "adapt_requested_by": stats.adapt_requested_by, "adapt_calls_refused": stats.adapt_calls_refused, "adaptations": stats.adaptations, "adapt_seconds": stats.adapt_seconds,
                 "latency_by_adaptation_state": stats.split_latency.summary_json(),
                 "latency_by_stage": stats.stage_latency.summary_json(),
-                "correction": stats.correction, "power_on_bias": stats.power_on_bias, "power_on_bias_from": stats.power_on_bias_from, "power_on_bias_retakes": stats.power_on_bias_retakes, "power_on_bias_retake_calls": stats.power_on_bias_retake_calls, "retake_requested_by": stats.retake_requested_by, "service_request_errors": stats.service_request_errors, "parameters_set": stats.parameters_set, "power_on_bias_memory": stats.power_on_bias_memory, "security": stats.security,
+                "correction": stats.correction, "power_on_bias": stats.power_on_bias, "power_on_bias_from": stats.power_on_bias_from, "power_on_bias_retakes": stats.power_on_bias_retakes, "power_on_bias_retake_calls": stats.power_on_bias_retake_calls, "power_on_bias_new_power_ons": stats.standstills.new_power_ons, "retake_requested_by": stats.retake_requested_by, "service_request_errors": stats.service_request_errors, "parameters_set": stats.parameters_set, "power_on_bias_memory": stats.power_on_bias_memory, "security": stats.security,
                 "incompatible_peers": stats.incompatible_peers, "subscription_counts": stats.subscription_counts, "denoised_published_before_a_reader": stats.denoised_before_a_reader,
             })
         )?;

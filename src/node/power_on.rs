@@ -135,7 +135,8 @@ impl BiasMemoryWriter {
     /// saved whatever it changed.
     pub(super) fn tick(&mut self, stats: &Mutex<NodeStats>, at_exit: bool) {
         let (estimate, retakes) = match stats.lock() {
-            Ok(s) => (s.standstill_bias, s.power_on_bias_retakes),
+            // A re-take on demand, or one the detector made after a hole in the input.
+            Ok(s) => (s.standstill_bias, s.power_on_bias_retakes + s.standstills.new_power_ons),
             Err(_) => return,
         };
         let due = |e: &crate::standstill::BiasEstimate| match &self.saved {

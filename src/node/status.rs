@@ -284,6 +284,7 @@ fn key_values(stats: &NodeStats, live: &Liveness) -> Vec<KeyValue> {
         kv("standstill_windows", stats.standstills.still_windows.to_string()),
         kv("power_on_bias_retakes", stats.power_on_bias_retakes.to_string()),
         kv("power_on_bias_retake_calls", stats.power_on_bias_retake_calls.to_string()),
+        kv("power_on_bias_new_power_ons", stats.standstills.new_power_ons.to_string()),
         kv("retake_requested_by", stats.retake_requested_by.clone()),
         kv("service_request_errors", stats.service_request_errors.to_string()),
         kv("parameters_set", stats.parameters_set.to_string()),

@@ -50,6 +50,10 @@ pub struct StandstillConfig {
     pub bias_random_walk: f64,
     /// An interval longer than this (or a stamp not after the last) breaks a window, s.
     pub max_sample_gap_s: f64,
+    /// A hole in the input at least this long, or a clock that went back, may be the IMU
+    /// power-cycled under the node: the next standstill that contradicts the estimate is then
+    /// taken as a new power-on's, not refused (0: never), s.
+    pub new_power_on_gap_s: f64,
     /// Where the bias seen in motion through gravity is used.
     pub in_motion: InMotion,
     /// That filter's noise model.
@@ -82,6 +86,8 @@ impl Default for StandstillConfig {
             max_bias_change: 0.01,
             bias_random_walk: 1e-5,
             max_sample_gap_s: 0.1,
+            // A USB IMU re-enumerated and its driver restarted: seconds; a DDS hiccup: less.
+            new_power_on_gap_s: 2.0,
             in_motion: InMotion::UntilStandstill,
             motion: MotionBiasConfig::default(),
             // Of the order of an industrial MEMS part's turn-on repeatability (EuRoC's
@@ -109,6 +115,9 @@ impl StandstillConfig {
             if !(value.is_finite() && value > 0.0) {
                 return Err(format!("standstill.{key} must be finite and > 0, not {value}").into());
             }
+        }
+        if !(self.new_power_on_gap_s.is_finite() && self.new_power_on_gap_s >= 0.0) {
+            return Err(format!("standstill.new_power_on_gap_s must be finite and ≥ 0, not {}", self.new_power_on_gap_s).into());
         }
         if !(self.vibration_sigmas.is_finite() && self.vibration_sigmas >= 0.0) {
             return Err(format!("standstill.vibration_sigmas must be finite and ≥ 0, not {}", self.vibration_sigmas).into());

@@ -364,6 +364,36 @@ mod tests {
         assert_eq!(p.bias(), Vector3::zeros());
     }
 
+    /// The IMU power-cycled under the node: a rest, a hole in the input, a rest at another
+    /// turn-on bias. After a hole of `new_power_on_gap_s` the second rest is a new power-on's;
+    /// after a shorter one it is refused as inconsistent; the same bias after a long hole is
+    /// the same power-on's, fused.
+    #[test]
+    fn a_standstill_after_a_hole_that_contradicts_the_bias_is_a_new_power_on() {
+        let first = Vector3::new(0.05, -0.02, 0.01);
+        let second = Vector3::new(-0.03, 0.04, 0.02);
+        let after = |hole_s: f64, bias: Vector3<f64>| {
+            let a = stream(3.0, first, 0.005, |_| Vector3::zeros(), level);
+            let shift = a.last().unwrap().stamp_ns + (hole_s * 1e9) as i64;
+            let b = stream(3.0, bias, 0.005, |_| Vector3::zeros(), level);
+            let b = b.iter().map(|s| ImuSample { stamp_ns: s.stamp_ns - b[0].stamp_ns + shift, ..*s });
+            run(&a.iter().copied().chain(b).collect::<Vec<_>>())
+        };
+        let p = after(3.0, second);
+        let e = p.estimate().expect("the new power-on's rest");
+        assert!((e.bias - second).amax() < 2e-3 && e.still_s < 3.5, "{e:?}");
+        assert_eq!(p.counters().new_power_ons, 1);
+
+        let p = after(0.5, second);
+        assert!((p.estimate().unwrap().bias - first).amax() < 2e-3);
+        assert!(p.counters().inconsistent_windows > 0 && p.counters().new_power_ons == 0, "{:?}", p.counters());
+
+        let p = after(3.0, first);
+        let e = p.estimate().unwrap();
+        assert!((e.bias - first).amax() < 2e-3 && e.still_s > 4.0, "{e:?}");
+        assert_eq!(p.counters().new_power_ons, 0);
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(24))]
         /// Whatever the bias (within the limit) and noise, a rest's stated σ covers its error.

@@ -38,6 +38,8 @@ pub struct PowerOnBias {
     /// Windows refused only as turning, at one rate: the run in progress and the last said.
     pub(super) steady: Option<SteadyRate>,
     pub(super) above_max_bias: Option<RateAboveMaxBias>,
+    /// A hole of `new_power_on_gap_s` (or a clock that went back) since the last still window.
+    pub(super) after_hole: bool,
     /// The bias seen in motion (unless `in_motion: off`).
     pub(super) motion: Option<MotionBias>,
 }
@@ -65,6 +67,7 @@ impl PowerOnBias {
             counters: StandstillCounters::default(),
             steady: None,
             above_max_bias: None,
+            after_hole: false,
             motion: (cfg.in_motion != InMotion::Off).then(|| MotionBias::new(cfg.motion)),
         }
     }
@@ -157,6 +160,20 @@ impl PowerOnBias {
     /// demand, or a new power-on).
     pub fn retake(&mut self) {
         self.interrupt();
+        self.forget();
+    }
+
+    /// The window being judged, after a hole in the input, contradicts the estimate: the IMU
+    /// was power-cycled under the node. What was measured is forgotten and the window judged
+    /// as a power-on's first (a re-take the detector makes itself).
+    pub(super) fn new_power_on(&mut self) {
+        self.end_run();
+        self.forget();
+        self.counters.new_power_ons += 1;
+        tracing::warn!("a standstill after a hole in the input contradicts the power-on bias measured before it: taken as a new power-on's (the IMU was power-cycled)");
+    }
+
+    fn forget(&mut self) {
         self.prior = None;
         self.estimate = None;
         self.above_max_bias = None;

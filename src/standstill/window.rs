@@ -46,6 +46,9 @@ pub struct StandstillCounters {
     pub inconsistent_windows: u64,
     /// Windows broken by a gap or a stamp that went back.
     pub interrupted_windows: u64,
+    /// Standstills after a hole of `new_power_on_gap_s` (or a clock that went back) that
+    /// contradicted the estimate, taken as a new power-on's (the IMU power-cycled).
+    pub new_power_ons: u64,
 }
 
 /// Sums over one block or window.
@@ -76,6 +79,10 @@ impl PowerOnBias {
             let dt = s.stamp_ns - t;
             if dt <= 0 || dt as f64 * 1e-9 > self.cfg.max_sample_gap_s {
                 self.interrupt();
+                let hole = self.cfg.new_power_on_gap_s;
+                if dt < 0 || (hole > 0.0 && dt as f64 * 1e-9 >= hole) {
+                    self.after_hole = true;
+                }
             }
         }
         let mut verdict = None;
@@ -130,7 +137,16 @@ impl PowerOnBias {
         }
         let start_ns = self.window_start_ns.unwrap_or(now_ns);
         let hold_rate = self.window_turn / self.window_s.max(1e-12);
-        let judged = self.judge();
+        let judged = match self.judge() {
+            Err(NotStill::Inconsistent) if self.after_hole => {
+                self.new_power_on();
+                self.judge()
+            }
+            judged => judged,
+        };
+        if judged.is_ok() {
+            self.after_hole = false;
+        }
         if judged == Err(NotStill::Turning) {
             self.note_steady_rate(start_ns, hold_rate);
         } else {
