@@ -240,5 +240,9 @@ mod tests {
         stats.lock().unwrap().power_on_bias_retakes = 1;
         w.tick(&stats, false);
         assert_eq!(crate::bias_memory::BiasMemory::load(&path).unwrap().power_ons.len(), 2);
+        // So is one the detector took after a hole in the input (the IMU power-cycled).
+        stats.lock().unwrap().standstills.new_power_ons = 1;
+        w.tick(&stats, false);
+        assert_eq!(crate::bias_memory::BiasMemory::load(&path).unwrap().power_ons.len(), 3);
     }
 }
