@@ -384,6 +384,16 @@ mod tests {
         assert!((e.bias - second).amax() < 2e-3 && e.still_s < 3.5, "{e:?}");
         assert_eq!(p.counters().new_power_ons, 1);
 
+        // Between the hole and the next standstill the old bias stays, stated with a new
+        // turn-on bias's σ; a standstill that agrees takes that back.
+        let a = stream(3.0, first, 0.005, |_| Vector3::zeros(), level);
+        let mut p = run(&a);
+        let calm = p.in_force(0).unwrap().variance.max();
+        let t = a.last().unwrap().stamp_ns + 3_000_000_000;
+        p.push(&ImuSample { stamp_ns: t, ..a[0] });
+        let e = p.in_force(t).unwrap();
+        assert!(e.bias == p.estimate().unwrap().bias && e.variance.min() >= 0.1f64.powi(2) && calm < 1e-6, "{e:?}");
+
         let p = after(0.5, second);
         assert!((p.estimate().unwrap().bias - first).amax() < 2e-3);
         assert!(p.counters().inconsistent_windows > 0 && p.counters().new_power_ons == 0, "{:?}", p.counters());
@@ -392,6 +402,7 @@ mod tests {
         let e = p.estimate().unwrap();
         assert!((e.bias - first).amax() < 2e-3 && e.still_s > 4.0, "{e:?}");
         assert_eq!(p.counters().new_power_ons, 0);
+        assert!(p.in_force(0).unwrap().variance.max() < 1e-6, "the agreeing standstill takes the widening back");
     }
 
     proptest! {

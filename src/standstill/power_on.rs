@@ -88,8 +88,18 @@ impl PowerOnBias {
     }
 
     /// The bias in force and its variance: a standstill's, or the one seen in motion where
-    /// `in_motion` uses it (stamped `now_ns`, its variance the filter's own).
+    /// `in_motion` uses it (stamped `now_ns`, its variance the filter's own). After a hole in
+    /// the input, until a standstill agrees with it or replaces it, its variance is at least a
+    /// new turn-on bias's (`motion.prior_stddev`²): the IMU may have been power-cycled.
     pub fn in_force(&self, now_ns: i64) -> Option<BiasEstimate> {
+        let mut e = self.measured_in_force(now_ns)?;
+        if self.after_hole {
+            e.variance = e.variance.sup(&Vector3::repeat(self.cfg.motion.prior_stddev.powi(2)));
+        }
+        Some(e)
+    }
+
+    fn measured_in_force(&self, now_ns: i64) -> Option<BiasEstimate> {
         let from_motion = |m: &MotionBias| BiasEstimate {
             bias: m.applied().0,
             variance: m.applied().1,
