@@ -41,6 +41,7 @@ pub mod golden;
 pub mod kinematics;
 pub mod locate;
 pub mod plain_calibration;
+pub mod pooled;
 pub mod psd;
 pub mod reference_clock;
 pub mod report;

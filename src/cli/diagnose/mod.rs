@@ -16,9 +16,11 @@ pub struct DiagnoseArgs {
     /// covariance diagonals, /ground_truth/pose, optional /imu/temperature).
     #[arg(long, required_unless_present_any = ["noise_model", "score_generated", "score_injected"])]
     pub sim: Option<PathBuf>,
-    /// The real bag of the same motion.
+    /// The real bag of the same motion. Repeated (with --noise-model): recordings of one IMU,
+    /// each diagnosed into OUT/<its file name>, then pooled (OUT/pooled.json, pooled.md): the
+    /// scale and cross-axis error they share, the bias each power-on brings.
     #[arg(long, required_unless_present_any = ["score_generated", "score_injected"])]
-    pub real: Option<PathBuf>,
+    pub real: Vec<PathBuf>,
     /// Instead of --sim: simulate the real bag's ground truth with this noise model (YAML:
     /// gyro_noise_density, accel_noise_density, gyro_bias_random_walk, accel_bias_random_walk).
     #[arg(long, conflicts_with = "sim")]
@@ -123,23 +125,42 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
     if !args.score_injected.is_empty() {
         return score_injected(&args, &opts);
     }
-    let real_path = args.real.clone().context("--real is required")?;
+    anyhow::ensure!(!args.real.is_empty(), "--real is required");
+    if args.real.len() > 1 {
+        return pooled::run(&args, &opts);
+    }
+    diagnose_reporting_failure(&args, &args.real[0], &args.out, &opts).map(|_| ())
+}
+
+/// [`diagnose_to`] into `out`, refusing to overwrite an input; on failure a report.json that
+/// says what failed, where the report would be.
+pub(super) fn diagnose_reporting_failure(
+    args: &DiagnoseArgs,
+    real_path: &std::path::Path,
+    out: &std::path::Path,
+    opts: &DiagnoseOptions,
+) -> anyhow::Result<Diagnosed> {
     // A report directory rewritten over one of its inputs (the last run's corrected_sim.mcap
     // given back as --sim) would destroy it: refused before anything is written.
-    let inputs: Vec<&std::path::Path> = [&args.sim, &args.real, &args.noise_model].into_iter().flatten().map(|p| p.as_path()).collect();
+    let inputs: Vec<&std::path::Path> =
+        [&args.sim, &args.noise_model].into_iter().flatten().map(|p| p.as_path()).chain(args.real.iter().map(|p| p.as_path())).collect();
     for name in report::FILES {
-        super::refuse_overwriting_input(&args.out.join(name), &inputs)?;
+        super::refuse_overwriting_input(&out.join(name), &inputs)?;
     }
-    match diagnose_to(&args, &real_path, &opts) {
-        Ok(()) => Ok(()),
-        Err(e) => {
-            // Partial results: say what failed where the report would be.
-            std::fs::create_dir_all(&args.out).ok();
-            let j = serde_json::json!({"error": super::error_text(&e), "findings": [], "located": [], "residual_before": null, "residual_after": null});
-            std::fs::write(args.out.join("report.json"), serde_json::to_string_pretty(&j)?).ok();
-            Err(e)
+    diagnose_to(args, real_path, out, opts).inspect_err(|e| {
+        std::fs::create_dir_all(out).ok();
+        let j = serde_json::json!({"error": super::error_text(e), "findings": [], "located": [], "residual_before": null, "residual_after": null});
+        if let Ok(text) = serde_json::to_string_pretty(&j) {
+            std::fs::write(out.join("report.json"), text).ok();
         }
-    }
+    })
+}
+
+/// What one recording's diagnosis gives the pooling: its plain calibration (against a measured
+/// reference) and the terms it found.
+pub(super) struct Diagnosed {
+    pub plain: Option<imu_fsda::diagnose::plain_calibration::PlainCalibration>,
+    pub terms: Vec<String>,
 }
 
 /// The ground-truth smoother's half-width: the option's, else the default for a measured
@@ -211,7 +232,12 @@ pub(super) fn compare_window(option: Option<f64>, measured_reference: bool, gt: 
     }
 }
 
-fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &DiagnoseOptions) -> anyhow::Result<()> {
+fn diagnose_to(
+    args: &DiagnoseArgs,
+    real_path: &std::path::Path,
+    out: &std::path::Path,
+    opts: &DiagnoseOptions,
+) -> anyhow::Result<Diagnosed> {
     let mut opts = *opts;
     let mut smoothing = gt_smoothing(args);
     let topics = RecordingTopics {
@@ -268,10 +294,10 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
         aligned.estimate_real_white_noise();
     }
     let d = diagnose(&aligned, opts)?;
-    report::write_all(&args.out, &aligned, &d)?;
+    report::write_all(out, &aligned, &d)?;
     if let Some(p) = &plain {
-        std::fs::write(args.out.join("plain_calibration.json"), serde_json::to_string_pretty(&p.json())?)?;
-        let md = args.out.join("report.md");
+        std::fs::write(out.join("plain_calibration.json"), serde_json::to_string_pretty(&p.json())?)?;
+        let md = out.join("report.md");
         let text = std::fs::read_to_string(&md)? + &p.markdown(&d);
         std::fs::write(&md, text)?;
     }
@@ -299,8 +325,10 @@ fn diagnose_to(args: &DiagnoseArgs, real_path: &std::path::Path, opts: &Diagnose
             bias.join(" / ")
         )?;
     }
-    out!("report: {} ({:.2} s)", args.out.join("report.md").display(), d.seconds)?;
-    Ok(())
+    out!("report: {} ({:.2} s)", out.join("report.md").display(), d.seconds)?;
+    let fit = if d.verdict.explained { "" } else { " (best catalogue fit, not a diagnosis)" };
+    let terms = d.findings.iter().map(|f| format!("{}{fit}", f.term)).collect();
+    Ok(Diagnosed { plain, terms })
 }
 
 /// The recordings as window means of `window` s (none: as they are).
@@ -371,3 +399,4 @@ pub(super) fn leave_out_reference_dropouts(a: &mut align::Aligned, smoothing: Op
 
 mod generated;
 mod injected;
+mod pooled;
