@@ -84,6 +84,8 @@ fn an_imu_power_cycled_under_the_node_gets_its_new_bias() {
     imu_fsda::bag::write_recording(&both, &rec).unwrap();
 
     let alone = eval_power_on_bias(&second, &[], d.path());
+    let joined = eval_power_on_bias(&both, &[], d.path());
+    assert!(joined["note"].as_str().unwrap().contains("1 standstill(s) after a hole"), "{joined}");
     let out = d.path().join("out.mcap");
     ok(Command::new(bin()).arg("replay").arg(&both).arg("-o").arg(&out).args(["--model", ""]));
     assert_eq!(last_said(&out, "power_on_bias_new_power_ons").as_deref(), Some("1"));

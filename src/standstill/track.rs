@@ -117,6 +117,10 @@ impl BiasTrack {
             Some(said) => format!("{note}; {said}"),
             None => note,
         };
+        let note = match self.counters.new_power_ons {
+            0 => note,
+            n => format!("{note}; {n} standstill(s) after a hole in the input contradicted the bias before it: taken as a new power-on (the IMU power-cycled)"),
+        };
         match self.remembered {
             Some(r) if r.applies_any() => format!(
                 "{note}; before the first standstill [{:.5}, {:.5}, {:.5}] rad/s from {} earlier power-ons{}",
