@@ -4,8 +4,9 @@
 //! more than a learned model can tell from motion; at rest the gyro reads that bias alone. The
 //! stream is cut into windows of short blocks; a window is still when
 //! - the block means of every gyro axis span less than `max_gyro_spread` and those of every
-//!   accelerometer axis less than `max_accel_spread` (block means, not samples: a standing
-//!   robot's motors or engine vibrate, their block means stay put);
+//!   accelerometer axis less than `max_accel_spread` or, where larger, `vibration_sigmas` σ of
+//!   a block mean from the scatter inside the blocks (block means, not samples: a standing
+//!   robot's motors or engine vibrate; what a vibration leaves in a block mean grows with it);
 //! - its mean specific force is gravity (within `max_gravity_error`);
 //! - its mean rate is a plausible bias (≤ `max_bias`): faster is a turn;
 //! - gravity has not turned in the body since the standstill began (≤ `max_tilt_change`): a
@@ -17,7 +18,9 @@
 //!   mixed into a bias already measured.
 //!
 //! Consecutive still windows are one standstill; its mean is fused with what earlier
-//! standstills measured (their variance grown by the bias's random walk since). A steady turn
+//! standstills measured (their variance grown by the bias's random walk since). After a hole in
+//! the input of `new_power_on_gap_s` (or a clock that went back), a standstill that contradicts
+//! the estimate is a new power-on's (the IMU power-cycled under the node). A steady turn
 //! about gravity slower than `max_bias` at the *first* standstill cannot be told from a bias by
 //! an IMU alone: that is the stated limit (docs/poweron.md). Per sample: no allocation.
 //!
