@@ -73,3 +73,26 @@ fn several_recordings_are_pooled_only_against_their_own_references() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("give --noise-model, not --sim"), "{err}");
 }
+
+/// A recording too short for its own calibration (2 s of room6) is diagnosed as far as it
+/// goes, said, and left out of the pooling; the others are pooled without it.
+#[test]
+fn a_recording_too_short_to_calibrate_is_left_out_and_said() {
+    let Some(data) = shared_data() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let (r2, r4) = (import(&data, 2, d), import(&data, 4, d));
+    let (mut rec, _) = imu_fsda::bag::read_recording(import(&data, 6, d), &imu_fsda::bag::RecordingTopics::default()).unwrap();
+    let end = rec.imu[0].stamp_ns + 2_000_000_000;
+    rec.imu.retain(|s| s.stamp_ns < end);
+    rec.ground_truth.retain(|p| p.stamp_ns < end);
+    let short = d.join("room6short.mcap");
+    imu_fsda::bag::write_recording(&short, &rec).unwrap();
+    let (said, p) = pooled(&[&r2, &r4, &short], &d.join("out"));
+    assert_eq!(p["recordings"], serde_json::json!(["room2", "room4"]), "{p}");
+    assert!(p["left_out"][0].as_str().is_some_and(|s| s.starts_with("room6short:")), "{p}");
+    assert!(said.contains("pooled over 2 recordings") && said.contains("left out of the pooling: room6short"), "{said}");
+    // Its own diagnosis ran to a report (2 s once made the locator's segment bounds cross).
+    let own: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.join("out/room6short/report.json")).unwrap()).unwrap();
+    assert!(own["error"].is_null() && own["verdict"].is_object(), "{own}");
+}

@@ -118,7 +118,9 @@ pub fn locate(w: &[Vec<f64>; 6], dt: f64) -> Vec<Located> {
             out.push(l);
         }
     }
-    let seg = ((SEGMENT_S / dt).round() as usize).clamp(16, n);
+    // At least 16 samples a segment; a recording shorter than that has none (n < 16 would
+    // make the bounds cross).
+    let seg = ((SEGMENT_S / dt).round() as usize).max(16).min(n.max(16));
     let nseg = n / seg;
     for (s, sensor) in ["gyro", "accel"].iter().enumerate() {
         for k in 0..nseg {
