@@ -146,17 +146,21 @@ pub fn pooled_lasting_error(fits: &[PlainCalibration]) -> Option<(Matrix3<f64>, 
     for r in 0..3 {
         for c in 0..3 {
             let truth = if r == c { 1.0 } else { 0.0 };
-            let (mut sw, mut swx) = (0.0, 0.0);
-            for f in fits {
-                let w = 1.0 / f.matrix_sigma[(r, c)].powi(2).max(1e-300);
-                sw += w;
-                swx += w * (f.matrix[(r, c)] - truth);
-            }
-            mean[(r, c)] = swx / sw;
-            sigma[(r, c)] = 1.0 / sw.sqrt();
+            let values: Vec<(f64, f64)> = fits.iter().map(|f| (f.matrix[(r, c)] - truth, f.matrix_sigma[(r, c)])).collect();
+            (mean[(r, c)], sigma[(r, c)]) = inverse_variance_mean(&values);
         }
     }
     Some((mean, sigma))
+}
+
+/// Values with their 1 σ, pooled by inverse variance: the mean and its 1 σ (a σ of zero is
+/// taken as the smallest positive variance, not a division by zero).
+pub fn inverse_variance_mean(values: &[(f64, f64)]) -> (f64, f64) {
+    let (sw, swx) = values.iter().fold((0.0, 0.0), |(sw, swx), (v, s)| {
+        let w = 1.0 / s.powi(2).max(1e-300);
+        (sw + w, swx + w * v)
+    });
+    (swx / sw, 1.0 / sw.sqrt())
 }
 
 /// A 3 × 3 matrix as rows, for JSON.

@@ -13,7 +13,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::plain_calibration::{pooled_lasting_error, rows, PlainCalibration, Z_95};
+use super::plain_calibration::{inverse_variance_mean, rows, PlainCalibration, Z_95};
 
 /// z of the one-sided 99 % point of a normal: the agreement test's level.
 const Z_99: f64 = 2.326;
@@ -41,18 +41,11 @@ pub struct PooledEntry {
 }
 
 impl PooledEntry {
-    fn of(values: &[(f64, f64)], value: f64, sigma: f64) -> Self {
+    /// Values with their 1 σ pooled by inverse variance, and tested for agreeing.
+    fn pool(values: &[(f64, f64)]) -> Self {
+        let (value, sigma) = inverse_variance_mean(values);
         let chi2: f64 = values.iter().map(|(v, s)| ((v - value) / s.max(1e-300)).powi(2)).sum();
         PooledEntry { value, sigma, chi2, agree: chi2 <= chi2_99((values.len() - 1) as f64) }
-    }
-
-    /// Pooled by inverse variance.
-    fn pool(values: &[(f64, f64)]) -> Self {
-        let (sw, swx) = values.iter().fold((0.0, 0.0), |(sw, swx), (v, s)| {
-            let w = 1.0 / s.powi(2).max(1e-300);
-            (sw + w, swx + w * v)
-        });
-        Self::of(values, swx / sw, 1.0 / sw.sqrt())
     }
 
     /// Agreed on and beyond zero by more than `floor` plus [`Z_FAMILY`] σ.
@@ -87,12 +80,10 @@ impl Pooled {
         if fits.len() < 2 || recordings.len() != fits.len() {
             return None;
         }
-        let (mean, sigma) = pooled_lasting_error(fits)?;
         let lasting = std::array::from_fn(|r| {
             std::array::from_fn(|c| {
                 let truth = if r == c { 1.0 } else { 0.0 };
-                let values: Vec<(f64, f64)> = fits.iter().map(|f| (f.matrix[(r, c)] - truth, f.matrix_sigma[(r, c)])).collect();
-                PooledEntry::of(&values, mean[(r, c)], sigma[(r, c)])
+                PooledEntry::pool(&fits.iter().map(|f| (f.matrix[(r, c)] - truth, f.matrix_sigma[(r, c)])).collect::<Vec<_>>())
             })
         });
         let dilution =

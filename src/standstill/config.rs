@@ -116,14 +116,14 @@ impl StandstillConfig {
                 return Err(format!("standstill.{key} must be finite and > 0, not {value}").into());
             }
         }
-        if !(self.new_power_on_gap_s.is_finite() && self.new_power_on_gap_s >= 0.0) {
-            return Err(format!("standstill.new_power_on_gap_s must be finite and ≥ 0, not {}", self.new_power_on_gap_s).into());
-        }
-        if !(self.vibration_sigmas.is_finite() && self.vibration_sigmas >= 0.0) {
-            return Err(format!("standstill.vibration_sigmas must be finite and ≥ 0, not {}", self.vibration_sigmas).into());
-        }
-        if !(self.bias_random_walk.is_finite() && self.bias_random_walk >= 0.0) {
-            return Err(format!("standstill.bias_random_walk must be finite and ≥ 0, not {}", self.bias_random_walk).into());
+        for (key, value) in [
+            ("new_power_on_gap_s", self.new_power_on_gap_s),
+            ("vibration_sigmas", self.vibration_sigmas),
+            ("bias_random_walk", self.bias_random_walk),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("standstill.{key} must be finite and ≥ 0, not {value}").into());
+            }
         }
         if !(2..=MAX_BLOCKS).contains(&self.blocks) {
             return Err(format!("standstill.blocks must be 2 … {MAX_BLOCKS}, not {}", self.blocks).into());

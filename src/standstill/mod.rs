@@ -85,6 +85,17 @@ mod tests {
         Vector3::new(0.0, 0.0, STANDARD_GRAVITY)
     }
 
+    /// A body turning about x at `w` rad/s from level, gravity turning in it, no bias.
+    fn turning_about_x(seconds: f64, w: f64, sigma: f64) -> Vec<ImuSample> {
+        stream(
+            seconds,
+            Vector3::zeros(),
+            sigma,
+            |_| Vector3::new(w, 0.0, 0.0),
+            |t| Vector3::new(0.0, (w * t).sin(), (w * t).cos()) * STANDARD_GRAVITY,
+        )
+    }
+
     /// An accelerometer's white noise of `sigma` per axis, a function of the stamp alone.
     fn accel_noise(t: f64, sigma: f64) -> Vector3<f64> {
         let u = |k: f64| ((t * 7919.0 + k) * 12.9898).sin() * 43758.5453 % 1.0;
@@ -185,15 +196,7 @@ mod tests {
         assert!(r.says().contains("one IMU cannot tell"), "{}", r.says());
 
         // A turn across gravity at 0.2 rad/s turns gravity: never said to be a bias.
-        let w = 0.2;
-        let tumble = stream(
-            5.0,
-            Vector3::zeros(),
-            0.01,
-            |_| Vector3::new(w, 0.0, 0.0),
-            |t| Vector3::new(0.0, (w * t).sin(), (w * t).cos()) * STANDARD_GRAVITY,
-        );
-        let p = run(&tumble);
+        let p = run(&turning_about_x(5.0, 0.2, 0.01));
         assert!(p.rate_above_max_bias().is_none_or(|r| !r.across_is_bias()), "{:?}", p.rate_above_max_bias());
         assert!(p.estimate().is_none());
     }
@@ -201,15 +204,7 @@ mod tests {
     #[test]
     fn a_slow_turn_about_a_horizontal_axis_is_not_a_rest() {
         // 0.03 rad/s about x: gravity turns in the body, 0.15 rad in 5 s.
-        let w = 0.03;
-        let imu = stream(
-            5.0,
-            Vector3::zeros(),
-            0.001,
-            |_| Vector3::new(w, 0.0, 0.0),
-            |t| Vector3::new(0.0, (w * t).sin(), (w * t).cos()) * STANDARD_GRAVITY,
-        );
-        let p = run(&imu);
+        let p = run(&turning_about_x(5.0, 0.03, 0.001));
         assert!(p.counters().tilting_windows > 0, "{:?}", p.counters());
         // At most the first windows, before gravity had turned by max_tilt_change.
         let e = p.estimate().map_or(0.0, |e| e.still_s);

@@ -24,8 +24,8 @@ pub struct BiasTrack {
     pub standing_at_end: bool,
     /// What earlier power-ons predicted (removed before the first standstill where it applies).
     pub remembered: Option<BiasPrediction>,
-    /// A still body read at a steady rate above `max_bias`, said ([`super::RateAboveMaxBias`]).
-    pub rate_above_max_bias: Option<String>,
+    /// A still body read at a steady rate above `max_bias` (said in the note).
+    pub rate_above_max_bias: Option<super::RateAboveMaxBias>,
 }
 
 impl BiasTrack {
@@ -49,7 +49,7 @@ impl BiasTrack {
         track.counters = *p.counters();
         track.standing_at_end = p.standing();
         track.remembered = cfg.remembered;
-        track.rate_above_max_bias = p.rate_above_max_bias().map(|r| r.says());
+        track.rate_above_max_bias = p.rate_above_max_bias();
         track
     }
 
@@ -114,7 +114,7 @@ impl BiasTrack {
             None => format!("{standstills}: the turn-on bias is uncorrected"),
         };
         let note = match &self.rate_above_max_bias {
-            Some(said) => format!("{note}; {said}"),
+            Some(r) => format!("{note}; {}", r.says()),
             None => note,
         };
         let note = match self.counters.new_power_ons {
