@@ -50,7 +50,7 @@ from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
-from dds_peer import (DiagnosticArray, outputs_matched, Header, Imu, InvalidSample, Quaternion, Time, fbits, header_json,
+from dds_peer import (DiagnosticArray, wait_for_writers, outputs_matched, Header, Imu, InvalidSample, Quaternion, Time, fbits, header_json,
                       make_imu, read_euroc_csv, vec_json)
 
 
@@ -194,7 +194,11 @@ def main() -> int:
     cyclone = args.service_mapping == "cyclone"
     req_type, rep_type = (CycloneTriggerRequest, CycloneTriggerResponse) if cyclone else (TriggerRequest, TriggerResponse)
     w_req = DataWriter(pub, Topic(dp, f"rq/{args.node_name}/{args.service}Request", req_type), qos=reliable_qos)
-    r_rep = DataReader(sub, Topic(dp, f"rr/{args.node_name}/{args.service}Reply", rep_type), qos=reliable_qos)
+    # The node's writers known before our readers exist (wait_for_writers says why); a node
+    # without the service has no reply writer, so that one is waited for only with calls to make.
+    reply_topic = f"rr/{args.node_name}/{args.service}Reply"
+    no_writer = wait_for_writers(dp, ["rt/imu/denoised"] + ([reply_topic] if groups else []), args.match_timeout_s)
+    r_rep = DataReader(sub, Topic(dp, reply_topic, rep_type), qos=reliable_qos)
     cyclone_seq = {"next": 1, "open": set()}
     r_den = DataReader(sub, Topic(dp, "rt/imu/denoised", Imu), qos=reliable_qos)
     r_diag = DataReader(sub, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=reliable_qos)
@@ -242,7 +246,7 @@ def main() -> int:
         }
 
     result = {"rate_fast_hz": args.rate_fast, "rate_busy_hz": args.rate_busy, "start": args.start,
-              "gt_from_s": args.gt_from_s, "requests_spec": args.requests}
+              "gt_from_s": args.gt_from_s, "requests_spec": args.requests, "writers_not_seen": sorted(no_writer)}
 
     def write_out() -> None:
         drain()

@@ -32,6 +32,7 @@ import sys
 import time
 from dataclasses import dataclass
 
+from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
 from cyclonedds.core import Qos, Policy
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
@@ -121,6 +122,29 @@ class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::Diagnosti
 
 
 # ---- helpers ------------------------------------------------------------------------------
+
+def wait_for_writers(dp: DomainParticipant, topics: list[str], timeout_s: float) -> set[str]:
+    """Wait until a writer on each of `topics` is known to `dp`; returns the topics still
+    without one at the deadline. Create the readers of the node's outputs only after this.
+
+    Why: a reliable volatile Cyclone reader takes no data from a writer before that writer's
+    first HEARTBEAT, and starts after the last sequence number that heartbeat announces.
+    RustDDS sends one unprompted heartbeat when it matches a reader (then only while a reader
+    has not acknowledged); Cyclone's pre-emptive ACKNACK acknowledges an empty history. So
+    when the node matched our reader before we knew its writer, that heartbeat was dropped and
+    the next one came with the node's first sample: that sample was lost (the first of 18,808
+    /imu/denoised once in CI). A reader created after the writer is known is matched by
+    Cyclone at once, before the node hears of it, so the node's heartbeat on matching is taken.
+    """
+    publications = BuiltinDataReader(dp, BuiltinTopicDcpsPublication)
+    missing = set(topics)
+    deadline = time.monotonic() + timeout_s
+    while missing and time.monotonic() < deadline:
+        for p in publications.take(N=256):
+            missing.discard(getattr(p, "topic_name", None))
+        time.sleep(0.002)
+    return missing
+
 
 def outputs_matched(diagnostics: list[dict], keys: list[str]) -> bool:
     """A /diagnostics received says the node's output writers have each matched a reader
@@ -258,6 +282,8 @@ def main() -> int:
     in_qos = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(100))
     out_qos = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.Durability.Volatile, Policy.History.KeepAll)
     writer = DataWriter(pub, Topic(dp, "rt/imu/data_raw", Imu), qos=in_qos)
+    outputs = ["rt/imu/denoised", "rt/imu/gyro_correction"]
+    no_writer = wait_for_writers(dp, outputs, args.match_timeout_s)
     r_denoised = DataReader(sub, Topic(dp, "rt/imu/denoised", Imu), qos=out_qos)
     r_corr = DataReader(sub, Topic(dp, "rt/imu/gyro_correction", Vector3Stamped), qos=out_qos)
     r_diag = DataReader(sub, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=out_qos)
@@ -297,7 +323,7 @@ def main() -> int:
         }
 
     result = {"rate_hz": args.rate, "count": args.count, "start": args.start, "frame_id": args.frame_id,
-              "n_valid": n_valid, "inject_bad": args.inject_bad}
+              "n_valid": n_valid, "inject_bad": args.inject_bad, "writers_not_seen": sorted(no_writer)}
 
     def write_out() -> None:
         drain()

@@ -32,7 +32,8 @@ from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
-from dds_peer import DiagnosticArray, Imu, InvalidSample, fbits, make_imu, outputs_matched, read_euroc_csv, vec_json
+from dds_peer import (DiagnosticArray, Imu, InvalidSample, fbits, make_imu, outputs_matched, read_euroc_csv, vec_json,
+                      wait_for_writers)
 
 
 @annotate.final
@@ -145,6 +146,10 @@ def main() -> int:
     sensor_qos = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(100))
     reliable = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.Durability.Volatile, Policy.History.KeepAll)
     w_imu = DataWriter(pub, Topic(dp, "rt/imu/data_raw", Imu), qos=sensor_qos)
+    services_called = ["list_parameters", "get_parameters", "set_parameters"]
+    # The node's writers known before our readers exist: wait_for_writers says why.
+    no_writer = wait_for_writers(dp, ["rt/imu/denoised"] + [f"rr/{args.node_name}/{n}Reply" for n in services_called],
+                                 args.match_timeout_s)
     r_den = DataReader(sub, Topic(dp, "rt/imu/denoised", Imu), qos=reliable)
     r_diag = DataReader(sub, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=reliable)
     services = {}
@@ -156,7 +161,7 @@ def main() -> int:
 
     denoised: list[dict] = []
     diagnostics: list[dict] = []
-    result: dict = {}
+    result: dict = {"writers_not_seen": sorted(no_writer)}
 
     def now() -> float:
         return time.monotonic() - t_start
