@@ -9,6 +9,8 @@
 # on and judged on the JUDGE_POWER_ONS (3) before it, as the node's adapt_support_archive
 # judges, and what it kept scored on the ones after it, which neither fitted nor judged it.
 # Writes docs/poweron-euroc.json and the tables in docs/poweron.md between their markers.
+# RATE_HZ=100: the same on each recording's samples averaged in pairs (scripts/rate_variants.py,
+# real data at a wheeled robot's 100 Hz); writes docs/poweron-euroc-100.json and the `-100` tables.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$here/scripts/env.sh"
@@ -17,13 +19,21 @@ bin="${IMU_FSDA_BIN:-$here/target/release/imu-fsda}"
 model="${MODEL:-$here/models/fsda-f.pt}"
 require_models "$model"
 data="${DATA:-$here/../shared/data}"
-work="$IMU_FSDA_CACHE/poweron-euroc"
+rate="${RATE_HZ:-}"
+case "$rate" in "" | 100) ;; *) echo "RATE_HZ: 100 or unset (as recorded, 200 Hz)" >&2; exit 2 ;; esac
+suffix="${rate:+-$rate}"
+work="$IMU_FSDA_CACHE/poweron-euroc$suffix"
 judge_power_ons="${JUDGE_POWER_ONS:-3}"
-rm -rf "$work"; mkdir -p "$work/recorded" "$work/injected" "$IMU_FSDA_CACHE/bags"
+rm -rf "$work"; mkdir -p "$work/recorded" "$work/injected" "$work/rate" "$IMU_FSDA_CACHE/bags"
 for dir in "$data"/euroc/*/; do
   s="$(basename "$dir")"
   [ -f "$IMU_FSDA_CACHE/bags/$s.mcap" ] || "$bin" import "$dir" -o "$IMU_FSDA_CACHE/bags/$s.mcap" >&2
-  cp "$IMU_FSDA_CACHE/bags/$s.mcap" "$work/recorded/$s.mcap"
+  if [ -n "$rate" ]; then
+    "$PYTHON" "$here/scripts/rate_variants.py" --only "$rate" -o "$work/rate" "$IMU_FSDA_CACHE/bags/$s.mcap" >/dev/null
+    mv "$work/rate/${s}_$rate.mcap" "$work/recorded/$s.mcap"
+  else
+    cp "$IMU_FSDA_CACHE/bags/$s.mcap" "$work/recorded/$s.mcap"
+  fi
   "$bin" inject "$work/recorded/$s.mcap" \
     --term "{term: gyro_scale, scale: [0.021, -0.027, 0.014]}" \
     --term "{term: gyro_misalignment, matrix: [[0, 0.012, -0.008], [-0.015, 0, 0.010], [0.006, -0.011, 0]]}" \
@@ -58,4 +68,5 @@ for set in recorded injected; do
     echo "[poweron-euroc] $set $s judged on the $(( ${#past[@]} / 2 )) before it: $(tail -1 "$work/$set/$s.past.adapt.log")" >&2
   done
 done
-JUDGE_POWER_ONS="$judge_power_ons" "$PYTHON" "$here/scripts/poweron_euroc_table.py" "$work" "$here/docs/poweron-euroc.json" "$here/docs/poweron.md"
+JUDGE_POWER_ONS="$judge_power_ons" MARKER_SUFFIX="$suffix" "$PYTHON" "$here/scripts/poweron_euroc_table.py" "$work" \
+  "$here/docs/poweron-euroc$suffix.json" "$here/docs/poweron.md"

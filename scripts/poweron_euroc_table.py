@@ -7,7 +7,8 @@ and the mean AOE over the ones after it (held out: neither fitted nor judged).
 
 usage: poweron_euroc_table.py WORK_DIR OUT.json OUT.md  (OUT.md: each set's tables replace the
 text between `<!-- euroc-adapt-SET:begin -->` and `<!-- euroc-adapt-SET:end -->`, and between
-`<!-- euroc-adapt-SET-past:begin -->` and `<!-- euroc-adapt-SET-past:end -->`)."""
+`<!-- euroc-adapt-SET-past:begin -->` and `<!-- euroc-adapt-SET-past:end -->`; with MARKER_SUFFIX,
+that suffix after SET and after SET-past)."""
 import json
 import os
 import re
@@ -17,6 +18,8 @@ import sys
 
 # As scripts/poweron_euroc.sh's JUDGE_POWER_ONS (the node's adapt_judge_power_ons).
 JUDGE_POWER_ONS = int(os.environ.get('JUDGE_POWER_ONS', '3'))
+# `-100` for the run at 100 Hz (scripts/poweron_euroc.sh's RATE_HZ): its own markers.
+MARKER_SUFFIX = os.environ.get('MARKER_SUFFIX', '')
 
 
 def load_report(path):
@@ -178,7 +181,8 @@ def main():
     md = open(out_md).read()
     for key, tables, render in (('', result, table), ('-past', past, past_table)):
         for name, rows in tables.items():
-            begin, end = f'<!-- euroc-adapt-{name}{key}:begin -->', f'<!-- euroc-adapt-{name}{key}:end -->'
+            tag = f'euroc-adapt-{name}{key}{MARKER_SUFFIX}'
+            begin, end = f'<!-- {tag}:begin -->', f'<!-- {tag}:end -->'
             md = re.sub(re.escape(begin) + '.*?' + re.escape(end), lambda _: f'{begin}\n{render(rows)}\n{end}', md, flags=re.S)
     open(out_md, 'w').write(md)
 

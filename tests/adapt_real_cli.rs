@@ -139,8 +139,11 @@ fn deployed_and_power_on_bias(model: &Path, bag: &Path, dir: &Path) -> (f64, f64
 
 /// The user's protocol with nothing to judge on but the support's own power-on (`adapt`
 /// without `--judge`, as the node's `~/adapt`): the adapted networks are never what is kept,
-/// as recorded nothing is kept unless its gain held piece by piece, and with the injected
-/// errors the calibration is kept and carries to the other power-on.
+/// the calibration is fitted with the rotation between the reference's frame and the IMU's
+/// left to the reference, and with the injected errors it is kept and carries to the other
+/// power-on. V1_01's ground truth is turned 1.1° from its IMU (the other recordings' ≤ 0.2°):
+/// fitted with that rotation, Ĉ_ω held it and was kept, 16 % worse than the power-on bias on
+/// the other power-ons (docs/poweron.md); left to the reference, nothing is kept.
 #[test]
 fn without_another_power_on_only_what_lasts_is_kept() {
     let Some(data) = shared_data() else { return };
@@ -151,11 +154,11 @@ fn without_another_power_on_only_what_lasts_is_kept() {
 
     let out = d.join("recorded.pt");
     let (recorded, err) = adapt(&v101, &[], &out);
-    assert_ne!(recorded["kind"], "network", "{err}");
-    if recorded["kind"] == "calibration" {
-        assert!(recorded["query_calibrated_pieces"]["upper_95"].as_f64().unwrap() < 1.0, "{recorded}");
-    }
-    assert_eq!(out.exists(), !recorded["kind"].is_null(), "{err}");
+    let left_out = recorded["calibration_rotation_left_out_deg"].as_f64().unwrap_or_else(|| panic!("no rotation left out: {recorded}"));
+    assert!(left_out > 0.8, "V1_01's ground truth is turned {left_out}° from the IMU\n{err}");
+    assert!(recorded["kind"].is_null(), "V1_01 as recorded keeps nothing of its own power-on: {}\n{err}", recorded["kind"]);
+    assert!(err.contains("left to the reference"), "the refusal says the rotation was left to the reference:\n{err}");
+    assert!(!out.exists(), "{err}");
 
     let out = d.join("injected.pt");
     let (injected, err) = adapt(&i101, &[], &out);

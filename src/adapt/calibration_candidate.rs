@@ -6,7 +6,9 @@ use std::collections::BTreeMap;
 
 use tch::Tensor;
 
-use super::{calibration, copy_net, dataset_cfg, networks::calibration_head_names, pieces, AdaptConfig, AdaptError, PieceConfidence};
+use super::{
+    calibration, copy_net, dataset_cfg, networks::calibration_head_names, pieces, AdaptConfig, AdaptError, FrameCheck, PieceConfidence,
+};
 use crate::eval::{EvalOptions, OrientationErrors};
 use crate::model::export::{LoadedNet, ModelMetadata};
 use crate::model::ModelError;
@@ -71,6 +73,34 @@ pub(super) fn calibration_candidates(
     };
     let with_offset = if fit.determines_leftover_bias() { scored(loaded, &fit, true, query, eopts)? } else { None };
     Ok(CalibrationCandidates { alone, with_offset })
+}
+
+/// Ĉ_ω fitted on the support's ground truth turned into the IMU's frame (the frame check's
+/// rotation taken out): what is kept in place of the calibration where no other power-on
+/// judges it ([`super::keep_without_judge`]). Against one reference, a rotation of the gyro
+/// and the reference's own mounting (its body frame a degree off the IMU's) fit the same
+/// Ĉ_ω; only power-ons with other references tell them apart, so without them the rotation
+/// is left to the reference. Scored on the query as recorded, as the power-on bias is.
+pub(super) struct WithoutRotation {
+    /// The rotation taken out, °.
+    pub(super) rotation_deg: f64,
+    pub(super) calibration: Result<Calibrated, String>,
+}
+
+pub(super) fn calibration_without_rotation(
+    loaded: &LoadedNet,
+    support: &Task,
+    query: &Task,
+    eopts: &EvalOptions,
+    cfg: &AdaptConfig,
+    frame: &FrameCheck,
+) -> Result<WithoutRotation, AdaptError> {
+    let mut rec = support.rec.clone();
+    super::apply_frame(&mut rec, &frame.rotation());
+    let turned = super::to_task(&rec, "support", cfg)?;
+    tracing::info!("gyro calibration on the ground truth turned {:.2}° into the IMU's frame:", frame.angle_deg);
+    let calibration = calibration_candidates(loaded, &turned, query, eopts, cfg)?.alone;
+    Ok(WithoutRotation { rotation_deg: frame.angle_deg, calibration })
 }
 
 const NO_HEAD: &str = "the model has no Ĉ_ω or Generator output layer to hold a calibration";

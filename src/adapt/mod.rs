@@ -40,7 +40,7 @@ use crate::train::config::{DatasetConfig, SourceConfig};
 use crate::train::data::{self, DataError, Task};
 use crate::train::fit::{evaluate_net, evaluate_net_with_gain, evaluate_raw};
 
-use calibration_candidate::{calibration_candidates, Calibrated, CalibrationCandidates};
+use calibration_candidate::{calibration_candidates, calibration_without_rotation, Calibrated, CalibrationCandidates};
 use networks::{adapt_networks, AdaptedNetworks};
 
 pub use config::{AdaptConfig, CancelFlag, FramePolicy, Keep, Optimizer};
@@ -199,6 +199,13 @@ pub fn adapt_knowing(
     // The other candidates: the lasting linear gyro error alone, the networks off; and with
     // the support's bias offset in motion.
     let (calibrated, with_offset, calibration_refused) = calibration_candidates_kept(loaded, &s_task, &q_task, &eopts, cfg)?;
+    // Where no other power-on will judge: the same without the reference's rotation.
+    let without_rotation = match frame.as_ref().filter(|_| !frame_applied) {
+        Some(f) if cfg.power_on_bias && cfg.keep == Keep::Auto => {
+            Some(calibration_without_rotation(loaded, &s_task, &q_task, &eopts, cfg, f)?)
+        }
+        _ => None,
+    };
     if cfg.cancel.is_cancelled() {
         return Err(AdaptError::Cancelled);
     }
@@ -246,6 +253,7 @@ pub fn adapt_knowing(
         query_calibrated_pieces: calibrated.as_ref().and_then(|c| c.pieces),
         query_calibrated_with_offset: with_offset.as_ref().map(|c| c.query.clone()),
         calibration_refused,
+        calibration_rotation_left_out_deg: None,
         kind: None,
         requested_by: None,
         config: cfg.clone(),
@@ -265,7 +273,7 @@ pub fn adapt_knowing(
     let adapted = candidates.next();
     let others: Vec<_> = candidates.collect();
     report.kind = adapted.as_ref().map(|(k, _)| *k);
-    Ok(AdaptOutcome { report, adapted: adapted.map(|(_, m)| m), others })
+    Ok(AdaptOutcome { report, adapted: adapted.map(|(_, m)| m), others, without_rotation })
 }
 
 /// The query's AOE as recorded (its power-on bias added back, in the frame the sets were put

@@ -75,6 +75,11 @@ pub struct AdaptReport {
     /// the support determines).
     #[serde(default)]
     pub calibration_refused: Option<String>,
+    /// Without `--judge`: the rotation between the ground truth's frame and the IMU's (°)
+    /// left out of the calibration kept or refused: one power-on cannot tell it from the
+    /// reference's mounting ([`super::keep_without_judge`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_rotation_left_out_deg: Option<f64>,
     /// Which candidate was kept (`None`: rejected).
     #[serde(default)]
     pub kind: Option<AdaptedKind>,
@@ -151,4 +156,6 @@ pub struct AdaptOutcome {
     pub adapted: Option<LoadedNet>,
     /// The other candidates that passed the query too, with their kinds, in the order tried.
     pub others: Vec<(AdaptedKind, LoadedNet)>,
+    /// The calibration with the reference's rotation left out, for [`super::keep_without_judge`].
+    pub(super) without_rotation: Option<super::calibration_candidate::WithoutRotation>,
 }
