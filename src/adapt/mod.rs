@@ -80,14 +80,13 @@ pub enum AdaptError {
     Cancelled,
     #[error("{0}")]
     Setting(#[from] crate::setting::InvalidSetting),
-    #[error("{0}")]
-    Other(String),
-}
-
-impl From<crate::train::error::TrainError> for AdaptError {
-    fn from(e: crate::train::error::TrainError) -> Self {
-        AdaptError::Other(e.to_string())
-    }
+    /// The trainer's code the inner loop and the judges run (its data, its evaluations).
+    #[error(transparent)]
+    Train(#[from] crate::train::error::TrainError),
+    #[error("step {step}: the support loss is {loss}: lower the inner learning rate")]
+    Diverged { step: usize, loss: f64 },
+    #[error("the adaptation report: {0}")]
+    Report(#[from] serde_json::Error),
 }
 
 fn dataset_cfg(cfg: &AdaptConfig) -> DatasetConfig {
@@ -459,7 +458,7 @@ pub fn save_adapted(adapted: &LoadedNet, report: &AdaptReport, dir: &Path, name:
     metrics.insert("adapt.query_seconds".into(), report.query_seconds);
     metrics.insert("adapt.steps".into(), report.steps as f64);
     metrics.insert("adapt.step_seconds".into(), report.step_seconds);
-    let json = serde_json::to_string_pretty(report).map_err(|e| AdaptError::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(report)?;
     let paths = export_model(
         dir,
         name,

@@ -142,7 +142,7 @@ pub(super) fn adapt_networks(loaded: &LoadedNet, s_task: &Task, cfg: &AdaptConfi
             }
         };
         if !l.is_finite() {
-            return Err(AdaptError::Other(format!("step {step}: the support loss is {l}: lower the inner learning rate")));
+            return Err(AdaptError::Diverged { step, loss: l });
         }
         losses.push(l);
         fast = next.iter().map(|t| t.detach().set_requires_grad(true)).collect();
