@@ -312,11 +312,14 @@ fn print_report(r: &AdaptReport, cfg: &AdaptConfig) {
     if let (Some(c), Some(q)) = (&r.calibration, &r.query_calibrated) {
         let d = |k: usize| (c.matrix[k][k] - 1.0) * 100.0;
         eprintln!(
-            "gyro calibration alone (Ĉ_ω on {} increments, diagonal {:+.2} / {:+.2} / {:+.2} %, the networks off): query AOE {:.3}°{}",
+            "gyro calibration alone (Ĉ_ω on {} increments, diagonal {:+.2} / {:+.2} / {:+.2} %, the networks off{}): query AOE {:.3}°{}",
             c.increments,
             d(0),
             d(1),
             d(2),
+            r.calibration_rotation_left_out_deg.map_or(String::new(), |deg| format!(
+                ", the {deg:.2}° rotation between the ground truth and the IMU left to the reference"
+            )),
             q.aoe_deg,
             r.query_calibrated_pieces.map_or(String::new(), |p| format!(
                 "; piece by piece against the power-on bias {:.3} over {} pieces of {:.0} s (95 % upper bound {:.3})",

@@ -509,8 +509,14 @@ fn figures_of(r: &crate::adapt::AdaptReport) -> String {
         r.steps,
         r.step_seconds
     );
+    let rotation = match (r.kind, r.calibration_rotation_left_out_deg) {
+        (Some(crate::adapt::AdaptedKind::Calibration), Some(deg)) => {
+            format!(" (the {deg:.2}° rotation between the ground truth and the IMU left to the reference)")
+        }
+        _ => String::new(),
+    };
     match r.kind {
-        Some(k) => format!("{}: {figures}", k.name()),
+        Some(k) => format!("{}{rotation}: {figures}", k.name()),
         None => figures,
     }
 }
