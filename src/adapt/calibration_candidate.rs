@@ -42,13 +42,21 @@ pub(super) fn calibration_candidates(
     eopts: &EvalOptions,
     cfg: &AdaptConfig,
 ) -> Result<CalibrationCandidates, AdaptError> {
+    let fit = match fitted(support, cfg) {
+        Ok(fit) => fit,
+        Err(why) => return Ok(CalibrationCandidates { alone: Err(why), with_offset: None }),
+    };
+    let alone = alone(loaded, &fit, query, eopts)?;
+    let with_offset = if fit.determines_leftover_bias() { scored(loaded, &fit, true, query, eopts)? } else { None };
+    Ok(CalibrationCandidates { alone, with_offset })
+}
+
+/// Ĉ_ω and the leftover constant fitted on the support, or why not.
+fn fitted(support: &Task, cfg: &AdaptConfig) -> Result<calibration::GyroCalibrationFit, String> {
     let rec = &support.rec;
     let (gt, valid) = data::ground_truth_at_imu(rec, &dataset_cfg(cfg));
     let span = (CALIBRATION_INCREMENT_S * rec.nominal_imu_rate_hz()).round().max(1.0) as usize;
-    let fit = match calibration::fit_gyro_calibration(&rec.imu, &gt, &valid, span, CALIBRATION_PRIOR_STDDEV) {
-        Ok(fit) => fit,
-        Err(e) => return Ok(CalibrationCandidates { alone: Err(e.to_string()), with_offset: None }),
-    };
+    let fit = calibration::fit_gyro_calibration(&rec.imu, &gt, &valid, span, CALIBRATION_PRIOR_STDDEV).map_err(|e| e.to_string())?;
     tracing::info!(
         "gyro calibration on {} increments: Ĉ_ω {:?}, leftover bias {:?} rad/s (σ {:?}), residual {:.3} → {:.3} °/s",
         fit.increments,
@@ -58,21 +66,25 @@ pub(super) fn calibration_candidates(
         fit.residual_before_deg_s,
         fit.residual_after_deg_s
     );
-    let alone = if fit.determines_matrix() {
-        match scored(loaded, &fit, false, query, eopts)? {
-            Some(c) => Ok(c),
-            None => Err(NO_HEAD.to_string()),
-        }
-    } else {
+    Ok(fit)
+}
+
+/// The calibration alone, scored on the query, where the fit determines some entry of Ĉ_ω.
+fn alone(
+    loaded: &LoadedNet,
+    fit: &calibration::GyroCalibrationFit,
+    query: &Task,
+    eopts: &EvalOptions,
+) -> Result<Result<Calibrated, String>, AdaptError> {
+    if !fit.determines_matrix() {
         // Only the offset is determined (the fit refuses a support that determines neither).
         let max_stddev = calibration::MAX_KEPT_STDDEV_OF_PRIOR * CALIBRATION_PRIOR_STDDEV;
-        Err(format!(
+        return Ok(Err(format!(
             "no scale or cross-axis error is determined by the support (each within 3 σ of none, or σ above {:.2} %); only its bias offset in motion is",
             100.0 * max_stddev
-        ))
-    };
-    let with_offset = if fit.determines_leftover_bias() { scored(loaded, &fit, true, query, eopts)? } else { None };
-    Ok(CalibrationCandidates { alone, with_offset })
+        )));
+    }
+    Ok(scored(loaded, fit, false, query, eopts)?.ok_or_else(|| NO_HEAD.to_string()))
 }
 
 /// Ĉ_ω fitted on the support's ground truth turned into the IMU's frame (the frame check's
@@ -99,7 +111,11 @@ pub(super) fn calibration_without_rotation(
     super::apply_frame(&mut rec, &frame.rotation());
     let turned = super::to_task(&rec, "support", cfg)?;
     tracing::info!("gyro calibration on the ground truth turned {:.2}° into the IMU's frame:", frame.angle_deg);
-    let calibration = calibration_candidates(loaded, &turned, query, eopts, cfg)?.alone;
+    // The calibration alone: the offset is never kept without a judge.
+    let calibration = match fitted(&turned, cfg) {
+        Ok(fit) => alone(loaded, &fit, query, eopts)?,
+        Err(why) => Err(why),
+    };
     Ok(WithoutRotation { rotation_deg: frame.angle_deg, calibration })
 }
 

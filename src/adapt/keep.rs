@@ -119,7 +119,8 @@ fn calibration_without_rotation(
 
 fn rotation_left_out(deg: f64) -> String {
     format!(
-        "with the {deg:.2}° rotation between the ground truth's frame and the IMU's left to the reference (one power-on cannot tell its mounting from a rotation of the gyro; --judge OTHER.mcap can)"
+        "with {} (one power-on cannot tell its mounting from a rotation of the gyro; --judge OTHER.mcap can)",
+        super::report::rotation_left_out_said(deg)
     )
 }
 

@@ -114,6 +114,11 @@ pub struct JudgedCandidate {
 }
 
 impl AdaptReport {
+    /// "the … rotation … left to the reference", where the calibration was fitted so.
+    pub fn rotation_left_out_said(&self) -> Option<String> {
+        self.calibration_rotation_left_out_deg.map(rotation_left_out_said)
+    }
+
     /// The query figures of the candidate kept (`None`: rejected).
     pub fn kept_query(&self) -> Option<&OrientationErrors> {
         match self.kind? {
@@ -158,4 +163,10 @@ pub struct AdaptOutcome {
     pub others: Vec<(AdaptedKind, LoadedNet)>,
     /// The calibration with the reference's rotation left out, for [`super::keep_without_judge`].
     pub(super) without_rotation: Option<super::calibration_candidate::WithoutRotation>,
+}
+
+/// The rotation between the ground truth's frame and the IMU's that a calibration fitted
+/// without a judge leaves to the reference, as said.
+pub(super) fn rotation_left_out_said(deg: f64) -> String {
+    format!("the {deg:.2}° rotation between the ground truth's frame and the IMU's left to the reference")
 }

@@ -317,9 +317,7 @@ fn print_report(r: &AdaptReport, cfg: &AdaptConfig) {
             d(0),
             d(1),
             d(2),
-            r.calibration_rotation_left_out_deg.map_or(String::new(), |deg| format!(
-                ", the {deg:.2}° rotation between the ground truth and the IMU left to the reference"
-            )),
+            r.rotation_left_out_said().map_or(String::new(), |said| format!(", {said}")),
             q.aoe_deg,
             r.query_calibrated_pieces.map_or(String::new(), |p| format!(
                 "; piece by piece against the power-on bias {:.3} over {} pieces of {:.0} s (95 % upper bound {:.3})",

@@ -509,10 +509,8 @@ fn figures_of(r: &crate::adapt::AdaptReport) -> String {
         r.steps,
         r.step_seconds
     );
-    let rotation = match (r.kind, r.calibration_rotation_left_out_deg) {
-        (Some(crate::adapt::AdaptedKind::Calibration), Some(deg)) => {
-            format!(" (the {deg:.2}° rotation between the ground truth and the IMU left to the reference)")
-        }
+    let rotation = match (r.kind, r.rotation_left_out_said()) {
+        (Some(crate::adapt::AdaptedKind::Calibration), Some(said)) => format!(" ({said})"),
         _ => String::new(),
     };
     match r.kind {
