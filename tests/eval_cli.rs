@@ -127,6 +127,39 @@ fn eval_says_when_the_imu_rate_is_not_the_models() {
     assert!(row["note"].as_str().unwrap().contains("the 100.0 Hz input run in the model's 200 Hz periods"), "{row}");
 }
 
+/// A model with one Ĉ_ω for every IMU (the DIGDL baseline, trained on EuRoC alone) runs where
+/// the bag is named as the IMU it was trained on (`--imu`, a `?` in the pattern matching one
+/// character as in the shell); unnamed, or named as another IMU, it is a new IMU to the model:
+/// the guard scores it alone and beside it what the node runs instead.
+#[test]
+fn a_model_runs_on_the_imu_it_was_trained_on_when_named() {
+    let d = tempfile::tempdir().unwrap();
+    let bag = d.path().join("V1_01_copy.mcap");
+    std::fs::copy(Path::new(env!("CARGO_MANIFEST_DIR")).join("test_bags/sim_car.mcap"), &bag).unwrap();
+    let digdl = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/digdl-euroc.pt");
+    let rows = |imu: &[&str]| {
+        let json = d.path().join("rows.json");
+        let out = Command::new(bin()).arg("eval").arg("--model").arg(&digdl).args(imu).arg("--json").arg(&json).arg(&bag).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        v["rows"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| (r["method"].as_str().unwrap().to_string(), r["note"].as_str().unwrap().to_string()))
+            .collect::<Vec<_>>()
+    };
+    let named = rows(&["--imu", "V?_*=euroc"]);
+    assert_eq!(named.len(), 1, "the model runs, nothing in its place: {named:?}");
+    assert!(named[0].1.contains("as on IMU euroc (trained on it)"), "{named:?}");
+    for other in [&[][..], &["--imu", "tumvi"][..], &["--imu", "V?=euroc"][..]] {
+        let guarded = rows(other);
+        assert_eq!(guarded.len(), 2, "{other:?}: {guarded:?}");
+        assert!(guarded[0].1.contains("the model alone") && guarded[1].0 == "digdl-euroc as deployed", "{other:?}: {guarded:?}");
+        assert!(guarded[1].1.contains("neither trained nor adapted on this IMU"), "{other:?}: {guarded:?}");
+    }
+}
+
 /// Recordings that cannot be scored as they are (a gyro in °/s, an accelerometer in g,
 /// ground truth 3 s off the IMU's clock) are scored as recorded and say why on the row (they
 /// were silent before); stamps that are not set are refused; a bag that cannot be read among

@@ -309,6 +309,30 @@ fn per_imu_calibrations_survive_export() {
     let shared = export::export_model(dir.path(), "shared", &vs1, &net1, &ExportInfo::default()).unwrap();
     let mut ts = export::load_torchscript(&shared.metadata).unwrap();
     assert!(matches!(ts.select_imu(Some("euroc")), Err(ModelError::UnknownImu { .. })));
+    // … but the IMU it was trained on: the model as it is (gain 1, its own Ĉ_ω), and the guard
+    // takes it for that IMU's model; unnamed or another name, a new IMU.
+    let info = ExportInfo { trained_imus: vec!["robot".into()], ..Default::default() };
+    let trained = export::export_model(dir.path(), "robot-model", &vs1, &net1, &info).unwrap();
+    let mut ts = export::load_torchscript(&trained.metadata).unwrap();
+    let own = ts.forward(&u).unwrap();
+    ts.select_imu(Some("robot")).unwrap();
+    assert_eq!(max_abs_diff(&ts.forward(&u).unwrap(), &own), 0.0);
+    let (_, meta) = export::load_streaming(&trained.metadata, Some("robot")).unwrap();
+    let domain = |imu| imu_fsda::infer::ModelDomain::of(&meta, imu);
+    assert_eq!(domain(Some("robot")), imu_fsda::infer::ModelDomain::Trained);
+    assert_eq!((domain(None), domain(Some("euroc"))), (imu_fsda::infer::ModelDomain::NewImu, imu_fsda::infer::ModelDomain::NewImu));
+    match ts.select_imu(Some("euroc")) {
+        Err(ModelError::UnknownImu { detail, .. }) => assert!(detail.contains("trained on [\"robot\"]"), "{detail}"),
+        other => panic!("{other:?}"),
+    }
+    // A file written before `trained_imus`: its training recordings' dataset folders.
+    let mut old = meta.clone();
+    old.trained_imus.clear();
+    old.training_data = vec!["euroc/MH_01_easy (support 60.0 s + query 121.9 s)".into(), "euroc/V1_02_medium".into(), "robot.mcap".into()];
+    assert_eq!(old.trained_imus(), ["euroc"]);
+    assert!(old.knows_imu("euroc") && !old.knows_imu("robot.mcap"));
+    old.adapted_from = Some("m".into());
+    assert!(old.trained_imus().is_empty(), "an adapted model knows its IMU by adapted_from");
 }
 
 /// Per-IMU correction gains on a model with one shared Ĉ_ω: naming an IMU gives

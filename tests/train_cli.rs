@@ -74,6 +74,7 @@ fn ci_small_learns_exports_and_resumes() {
     assert!((with - meta.metrics["val.V1_01_easy@0-40s.aoe_with_gain_deg"]).abs() < 1e-12, "{:?}", meta.metrics);
     assert!(with <= without + 1e-9, "gained score {with} above the ungained {without}");
     assert!(meta.training_data.iter().any(|s| s.contains("MH_01_easy")), "{:?}", meta.training_data);
+    assert_eq!(meta.trained_imus, ["euroc"], "the IMU of its training recordings, once");
     assert!(meta.metrics.contains_key("test.MH_04_difficult@0-40s.aoe_deg"), "{:?}", meta.metrics.keys());
     // The monitor (the test crop itself) is evaluated with the validation set, at the same epochs.
     let epochs_of = |v: &serde_json::Value| -> Vec<u64> { v["evals"].as_array().unwrap().iter().map(|e| e[0].as_u64().unwrap()).collect() };

@@ -33,11 +33,14 @@ pub fn load_corrector(model: &str, imu: &str) -> anyhow::Result<(Box<dyn GyroCor
         }
     };
     tracing::info!("model {} loaded: window N = {}, {} Hz, {calib}", corrector.name, corrector.window(), corrector.rate_hz);
-    let known = meta.imu_names();
+    let mut known = meta.imu_names();
+    known.extend(meta.trained_imus());
+    known.sort_unstable();
+    known.dedup();
     if imu.is_none() && !known.is_empty() && meta.adapted_from.is_none() {
-        // A model fitted per IMU runs unnamed with all of its correction: say which names exist.
+        // Unnamed, the IMU is a new one to the model: say which names it knows.
         tracing::info!(
-            "model {} has a Ĉ_ω or correction gain for IMUs {known:?}: set imu_calibration to one of them to run as on that IMU; unnamed, it applies its whole correction (gain 1)",
+            "model {} was trained on IMUs {known:?}: set imu_calibration to one of them to run as on that IMU; unnamed, the IMU is a new one to it (the power-on bias runs instead; model_on_new_imu runs it with its whole correction)",
             corrector.name
         );
     }

@@ -29,9 +29,10 @@ pub struct EvalArgs {
     pub models: Vec<PathBuf>,
     /// Which IMU recorded the bags, for models with a Ĉ_ω or correction gain per IMU: `NAME`
     /// for every bag, or `PATTERN=NAME` for the bags whose file name matches PATTERN (`*` any
-    /// characters); repeatable, the first match wins (`--imu 'room*=tumvi' --imu euroc`).
-    /// Without a match a model runs as on a new IMU (gain 1; Ĉ_ω = I if it has one per IMU,
-    /// else its own); models that know no IMU by name ignore it.
+    /// characters, `?` one); repeatable, the first match wins (`--imu 'room*=tumvi' --imu
+    /// euroc`). Without a match a model runs as on a new IMU (the guard: the power-on bias in
+    /// its place, its figures beside it); a model with one Ĉ_ω for every IMU is run as the
+    /// IMU named where it was trained on it, else as on a new IMU.
     #[arg(long = "imu", value_name = "[PATTERN=]NAME")]
     pub imus: Vec<String>,
     /// IMU topic (sensor_msgs/Imu).
@@ -216,8 +217,7 @@ impl<'a> Evaluation<'a> {
             args.imus.iter().map(|rule| rule.split_once('=').map_or(rule.as_str(), |(_, name)| name)).filter(|n| !n.is_empty()).collect();
         for (m, meta) in args.models.iter().zip(&metas) {
             super::corrector::check_model_files(m, None)?;
-            let known = meta.imu_names();
-            for name in imu_names.iter().filter(|n| known.iter().any(|k| k == *n)) {
+            for name in imu_names.iter().filter(|n| meta.knows_imu(n)) {
                 super::corrector::check_model_files(m, Some(name)).with_context(|| format!("run as IMU {name}"))?;
             }
         }
@@ -412,7 +412,9 @@ impl<'a> Evaluation<'a> {
     ) -> anyhow::Result<()> {
         let imu = imu_for_bag(&self.args.imus, bag);
         for (model_index, (model, &per_imu)) in self.args.models.iter().zip(&self.per_imu).enumerate() {
-            let imu = imu.filter(|_| per_imu);
+            // A model with per-IMU tables is run as the IMU named (a name it lacks is an
+            // error); one with a single Ĉ_ω as an IMU it was trained on, else as a new one.
+            let imu = imu.filter(|n| per_imu || self.metas[model_index].knows_imu(n));
             let (correction, why) = choose(ModelDomain::of(&self.metas[model_index], imu), true, self.args.model_on_new_imu);
             let track = correction.removes_power_on_bias().then(|| BiasTrack::over(&source.imu, standstill));
             let input = match (&track, correction.runs_model()) {
@@ -427,7 +429,8 @@ impl<'a> Evaluation<'a> {
             let (gyro, meta) = (corrected[span.clone()].to_vec(), run.metadata);
             let calib = imu.map_or(String::new(), |n| match meta.imu_correction_gains.get(n).filter(|_| meta.adapted_from.is_none()) {
                 Some(g) => format!(", as on IMU {n} (correction gain {g:.3})"),
-                None => format!(", Ĉ_ω of {n}"),
+                None if meta.imu_gyro_calibrations.contains_key(n) => format!(", Ĉ_ω of {n}"),
+                None => format!(", as on IMU {n} (trained on it)"),
             });
             let mut note = format!("{:?}, N = {}{calib}", meta.mode, meta.window_n);
             // As the node runs it: in the model's periods (the mean rate over each).
@@ -571,24 +574,33 @@ fn imu_for_bag<'a>(rules: &'a [String], bag: &std::path::Path) -> Option<&'a str
     })
 }
 
-/// `*`-only wildcard match of the whole of `text`.
+/// Shell-style match of the whole of `text`: `*` any characters, `?` one character.
 fn glob_match(pattern: &str, text: &str) -> bool {
-    let parts: Vec<&str> = pattern.split('*').collect();
-    let (first, last) = (parts[0], parts[parts.len() - 1]);
-    if parts.len() == 1 {
-        return pattern == text;
-    }
-    if !(text.starts_with(first) && text[first.len()..].ends_with(last)) || first.len() + last.len() > text.len() {
-        return false;
-    }
-    let mut rest = &text[first.len()..text.len() - last.len()];
-    for mid in &parts[1..parts.len() - 1] {
-        match rest.find(mid) {
-            Some(i) => rest = &rest[i + mid.len()..],
-            None => return false,
+    let (p, t): (Vec<char>, Vec<char>) = (pattern.chars().collect(), text.chars().collect());
+    // The last `*` seen and where in `text` it was tried to end: on a mismatch it takes one
+    // more character (linear backtracking; no `*` before means no match).
+    let (mut i, mut j, mut star) = (0, 0, None);
+    while j < t.len() {
+        match p.get(i) {
+            Some('*') => {
+                star = Some((i, j));
+                i += 1;
+            }
+            Some(&c) if c == '?' || c == t[j] => {
+                i += 1;
+                j += 1;
+            }
+            _ => match star {
+                Some((si, sj)) => {
+                    star = Some((si, sj + 1));
+                    i = si + 1;
+                    j = sj + 1;
+                }
+                None => return false,
+            },
         }
     }
-    true
+    p[i..].iter().all(|&c| c == '*')
 }
 
 /// Each model's row label: its name, else (two of one name: a renamed copy, two adaptations)
@@ -629,5 +641,10 @@ mod tests {
         assert_eq!(at("V1_01_easy.mcap"), Some("default"));
         assert_eq!(imu_for_bag(&rules[..1], std::path::Path::new("V1_01_easy.mcap")), None);
         assert!(glob_match("*", "") && glob_match("a*a", "aa") && !glob_match("a*a", "a") && glob_match("*b*", "abc"));
+        // `?` is one character, as in the shell (scripts/env.sh names EuRoC's V1_*, V2_* so).
+        let paper = ["room*=tumvi", "MH_*=euroc", "V?_*=euroc"].map(String::from);
+        assert_eq!(imu_for_bag(&paper, std::path::Path::new("V2_02_medium.mcap")), Some("euroc"));
+        assert!(glob_match("V?_*", "V1_01_easy.mcap") && !glob_match("V?_*", "V12_x") && !glob_match("?", ""));
+        assert!(glob_match("a*b*c", "aXbYbc") && !glob_match("a*b*c", "aXbYb") && glob_match("**?", "x") && glob_match("ü?", "üß"));
     }
 }

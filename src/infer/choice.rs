@@ -41,7 +41,7 @@ impl ModelDomain {
             }
             (Some(_), _) if meta.power_on_bias_removed => ModelDomain::AdaptedAfterPowerOnBias,
             (Some(_), _) => ModelDomain::AdaptedWithBias,
-            (None, Some(name)) if meta.imu_names().contains(&name) => ModelDomain::Trained,
+            (None, Some(name)) if meta.knows_imu(name) => ModelDomain::Trained,
             _ => ModelDomain::NewImu,
         }
     }

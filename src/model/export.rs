@@ -94,6 +94,12 @@ pub struct ModelMetadata {
     pub correction_constant_rad_s: Option<[f64; 3]>,
     /// Sequences / bags the model was trained on (filled by the trainer).
     pub training_data: Vec<String>,
+    /// The IMUs those recordings were made with (each source's `imu`, else its dataset folder:
+    /// `euroc/MH_01_easy` → `euroc`; the trainer's rule). Naming one of them runs the model as
+    /// trained on it. Files written before this field: read from `training_data`
+    /// ([`ModelMetadata::trained_imus`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub trained_imus: Vec<String>,
     /// Evaluation figures (filled by the trainer), e.g. `"MH_04_difficult/aoe_deg"`. A figure
     /// that could not be measured (NaN, written by JSON as `null`) is left out on reading.
     #[serde(deserialize_with = "finite_metrics")]
@@ -115,8 +121,33 @@ impl ModelMetadata {
         names
     }
 
-    /// The correction gain for IMU `imu` (1 for none, or an adapted model), or `UnknownImu`
-    /// when the model knows neither a Ĉ_ω nor a gain by that name.
+    /// The IMUs the model was trained on: [`ModelMetadata::trained_imus`], or for a file
+    /// written before that field, the dataset folder of each `training_data` entry that has
+    /// one (`euroc/MH_01_easy (support …)` → `euroc`). None for an adapted model, which knows
+    /// its IMU by `adapted_from`.
+    pub fn trained_imus(&self) -> Vec<&str> {
+        if self.adapted_from.is_some() {
+            return Vec::new();
+        }
+        let mut names: Vec<&str> = if self.trained_imus.is_empty() {
+            self.training_data.iter().filter_map(|d| d.split_once('/').map(|(dataset, _)| dataset)).filter(|d| !d.is_empty()).collect()
+        } else {
+            self.trained_imus.iter().map(String::as_str).collect()
+        };
+        names.sort_unstable();
+        names.dedup();
+        names
+    }
+
+    /// The model was trained on IMU `name`, or fitted a Ĉ_ω or gain for it: naming it runs the
+    /// model as on an IMU it knows.
+    pub fn knows_imu(&self, name: &str) -> bool {
+        self.imu_names().contains(&name) || self.trained_imus().contains(&name)
+    }
+
+    /// The correction gain for IMU `imu` (1 for none, or an adapted model, or an IMU it was
+    /// trained on with no gain of its own), or `UnknownImu` when the model knows the name
+    /// neither from a Ĉ_ω, a gain nor its training recordings.
     pub fn correction_gain(&self, imu: Option<&str>) -> Result<f64, ModelError> {
         let Some(name) = self.imu_to_apply(imu) else {
             return Ok(1.0);
@@ -131,13 +162,13 @@ impl ModelMetadata {
             }
             return Ok(g);
         }
-        if self.imu_gyro_calibrations.contains_key(name) {
+        if self.imu_gyro_calibrations.contains_key(name) || self.trained_imus().contains(&name) {
             return Ok(1.0);
         }
-        let detail = if self.imu_names().is_empty() {
-            "this model has one Ĉ_ω shared by every IMU and no per-IMU correction gain".to_string()
-        } else {
-            format!("the model knows {:?}", self.imu_names())
+        let detail = match (self.imu_names().is_empty(), self.trained_imus().is_empty()) {
+            (true, true) => "this model has one Ĉ_ω shared by every IMU and no per-IMU correction gain".to_string(),
+            (true, false) => format!("the model was trained on {:?} (one Ĉ_ω, no per-IMU gain)", self.trained_imus()),
+            (false, _) => format!("the model knows {:?}", self.imu_names()),
         };
         Err(ModelError::UnknownImu { name: name.into(), detail })
     }
@@ -170,6 +201,8 @@ fn finite_metrics<'de, D: serde::Deserializer<'de>>(d: D) -> Result<BTreeMap<Str
 #[derive(Debug, Clone, Default)]
 pub struct ExportInfo {
     pub training_data: Vec<String>,
+    /// [`ModelMetadata::trained_imus`].
+    pub trained_imus: Vec<String>,
     pub metrics: BTreeMap<String, f64>,
     /// Overrides the revision found at build time (`IMU_FSDA_GIT_REV`) or from `git`.
     pub code_revision: Option<String>,
@@ -284,6 +317,7 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         correction_networks_off: net.correction_networks_off(),
         correction_constant_rad_s: net.correction_constant(),
         training_data: info.training_data.clone(),
+        trained_imus: info.trained_imus.clone(),
         metrics: info.metrics.iter().filter(|(_, v)| v.is_finite()).map(|(k, v)| (k.clone(), *v)).collect(),
         code_revision: info.code_revision.clone().or_else(code_revision),
         crate_version: env!("CARGO_PKG_VERSION").into(),

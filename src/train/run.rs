@@ -511,6 +511,12 @@ impl<'o> TrainRun<'o> {
             .collect()
     }
 
+    /// The IMUs of the training recordings, each once (`ModelMetadata::trained_imus`).
+    fn trained_imus(&self) -> Vec<String> {
+        let names: std::collections::BTreeSet<&str> = self.data.train.iter().map(|t| t.imu_name.as_str()).collect();
+        names.into_iter().map(String::from).collect()
+    }
+
     /// The model and its summary written as one set, then the curves.
     fn export(
         &self,
@@ -529,6 +535,7 @@ impl<'o> TrainRun<'o> {
             &self.net,
             &ExportInfo {
                 training_data,
+                trained_imus: self.trained_imus(),
                 metrics,
                 code_revision: self.code_revision.clone(),
                 adapted_from: None,
