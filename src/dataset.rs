@@ -220,7 +220,7 @@ pub fn load_sequence(dir: &Path) -> Result<(Sequence, Recording, LoadReport), Da
     let imu = read_imu_csv(&seq.imu_csv, &mut report)?;
     let ground_truth = read_ground_truth_csv(&seq.ground_truth_csv, &mut report)?;
     let mut rec = Recording { name: seq.name.clone(), imu, ground_truth, temperature: Vec::new() };
-    report.ground_truth_frozen = rec.drop_frozen_ground_truth() as u64;
+    report.ground_truth_frozen = crate::frozen_ground_truth::drop_frozen_ground_truth(&mut rec) as u64;
     if report.ground_truth_frozen > 0 {
         tracing::warn!("{}: {report}", dir.display());
     }

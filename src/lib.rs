@@ -12,6 +12,7 @@ pub mod diagnose;
 pub mod embed;
 pub mod eval;
 pub mod figures;
+pub mod frozen_ground_truth;
 pub mod ground_truth_frame;
 pub mod infer;
 pub mod model;

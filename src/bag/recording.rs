@@ -23,7 +23,7 @@ pub struct LoadReport {
     pub ground_truth_read: u64,
     pub ground_truth_invalid: u64,
     pub ground_truth_out_of_order: u64,
-    /// Poses of a frozen ground truth ([`Recording::drop_frozen_ground_truth`]).
+    /// Poses of a frozen ground truth ([`crate::frozen_ground_truth::drop_frozen_ground_truth`]).
     pub ground_truth_frozen: u64,
     pub temperature_read: u64,
     /// Messages written after one with a later log time: read in log-time order, not skipped.
@@ -325,7 +325,7 @@ fn take_ground_truth(poses: Vec<(u64, Option<PoseSample>)>, rec: &mut Recording,
             },
         }
     }
-    report.ground_truth_frozen = rec.drop_frozen_ground_truth() as u64;
+    report.ground_truth_frozen = crate::frozen_ground_truth::drop_frozen_ground_truth(rec) as u64;
 }
 
 /// The frame_id changes this many times or more in a topic's messages: two sensors
