@@ -33,10 +33,7 @@ pub fn load_corrector(model: &str, imu: &str) -> anyhow::Result<(Box<dyn GyroCor
         }
     };
     tracing::info!("model {} loaded: window N = {}, {} Hz, {calib}", corrector.name, corrector.window(), corrector.rate_hz);
-    let mut known = meta.imu_names();
-    known.extend(meta.trained_imus());
-    known.sort_unstable();
-    known.dedup();
+    let known = meta.known_imus();
     if imu.is_none() && !known.is_empty() && meta.adapted_from.is_none() {
         // Unnamed, the IMU is a new one to the model: say which names it knows.
         tracing::info!(

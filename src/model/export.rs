@@ -113,7 +113,7 @@ pub struct ModelMetadata {
 }
 
 impl ModelMetadata {
-    /// The IMU names this model knows (its per-IMU Ĉ_ω and correction gains).
+    /// The IMUs this model has a Ĉ_ω or correction gain of their own for (per-IMU tables).
     pub fn imu_names(&self) -> Vec<&str> {
         let mut names: Vec<&str> = self.imu_gyro_calibrations.keys().chain(self.imu_correction_gains.keys()).map(String::as_str).collect();
         names.sort_unstable();
@@ -139,10 +139,20 @@ impl ModelMetadata {
         names
     }
 
+    /// Every IMU the model knows by name: those with a Ĉ_ω or gain of their own, and those it
+    /// was trained on.
+    pub fn known_imus(&self) -> Vec<&str> {
+        let mut names = self.imu_names();
+        names.extend(self.trained_imus());
+        names.sort_unstable();
+        names.dedup();
+        names
+    }
+
     /// The model was trained on IMU `name`, or fitted a Ĉ_ω or gain for it: naming it runs the
     /// model as on an IMU it knows.
     pub fn knows_imu(&self, name: &str) -> bool {
-        self.imu_names().contains(&name) || self.trained_imus().contains(&name)
+        self.known_imus().contains(&name)
     }
 
     /// The correction gain for IMU `imu` (1 for none, or an adapted model, or an IMU it was
