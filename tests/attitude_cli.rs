@@ -45,7 +45,10 @@ fn published_attitude_matches_an_independent_reader_and_its_covariance_covers_it
         run(Command::new(bin()).arg("replay").arg(&input).arg("-o").arg(&out).arg("--params").arg(&params).args(["--model", ""]));
         let json = dir.path().join(format!("{name}.json"));
         let table = run(Command::new(bin()).arg("attitude").arg(&out).arg("--json").arg(&json));
-        assert!(table.contains("| tilt NEES (2: consistent) |"), "{table}");
+        assert!(table.contains("| AOE° |") && table.contains("| tilt NEES (2: consistent) |"), "{table}");
+        let cells = |line: &str| line.matches('|').count();
+        let lines: Vec<&str> = table.lines().collect();
+        assert!(lines.iter().all(|l| cells(l) == cells(lines[0])), "every row has the header's cells:\n{table}");
         let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
         let ours = &doc["rows"][0]["errors"];
         let theirs: serde_json::Value =
@@ -58,6 +61,7 @@ fn published_attitude_matches_an_independent_reader_and_its_covariance_covers_it
             "tilt_max_deg",
             "heading_rmse_deg",
             "heading_final_deg",
+            "aoe_deg",
             "tilt_nees_mean",
             "tilt_within_95",
         ] {
@@ -147,33 +151,45 @@ fn gravity_aided_orientation_holds_the_tilt_and_states_its_error() {
     }
 }
 
-/// `pipeline.platform: car`: a simulated car (a consumer IMU, 5 minutes, a rest of 5 s, bends
-/// of up to 5 m/s² and brakings) whose published tilt, gravity aided, takes its bends for
-/// tilts when its accelerations are noise, and follows the truth when its forward speed
-/// predicts them; the stated σ covering it either way.
+/// `pipeline.platform: car`: simulated cars (a consumer IMU, 5 minutes, a rest of 5 s, bends
+/// of up to 5 m/s² and brakings; three seeds) whose published tilt, gravity aided, takes their
+/// bends for tilts when their accelerations are noise, and follows the truth when the forward
+/// speed predicts them; the stated σ covering it either way. (Over seeds 7 and 11–15 declared
+/// is 0.41–0.64 × any platform's tilt; until 2026-12-07 this test took seed 7 alone, at 0.48.)
 #[test]
 fn a_car_declared_as_one_holds_its_tilt_through_its_bends() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let bag = d.join("car.mcap");
-    run(Command::new(bin())
-        .args(["simulate", "--profile", "car", "--grade", "mpu-9250", "--datasheet-errors", "--seconds", "300", "--seed", "7"])
-        .args(["--rest-s", "5", "-o"])
-        .arg(&bag));
     let car = d.join("car.yaml");
     std::fs::write(&car, "imu_fsda:\n  ros__parameters:\n    pipeline:\n      platform: car\n").unwrap();
     let no_model = ["--model".to_string(), String::new()];
-    let tilt = |params: Option<&Path>, name: &str| {
-        let e = replay_and_score(&bag, &no_model, params, d, name);
-        (e["tilt_rmse_deg"].as_f64().unwrap(), e["tilt_within_95"].as_f64().unwrap())
-    };
-    let (any, any_within) = tilt(None, "any");
-    let (declared, declared_within) = tilt(Some(&car), "declared");
-    // /diagnostics says which attitude runs, and the speed it carries.
-    let said = run(Command::new(bin()).arg("bag").arg("echo").arg(d.join("declared.mcap")).args(["--topic", "/diagnostics"]));
-    let last = said.lines().last().expect("/diagnostics was written");
-    assert!(last.contains("gravity aided: ") && last.contains("a car, forward speed"), "{last}");
-    eprintln!("car, 5 min: tilt RMS {any:.2}° as any platform, {declared:.2}° declared a car");
-    assert!(declared < 0.5 * any, "{declared}° declared a car against {any}° as any platform");
-    assert!(any_within >= 0.95 && declared_within >= 0.95, "within the stated 95 %: {any_within}, {declared_within}");
+    let (mut any_sum, mut declared_sum) = (0.0, 0.0);
+    for seed in ["7", "11", "12"] {
+        let bag = d.join(format!("car{seed}.mcap"));
+        run(Command::new(bin())
+            .args(["simulate", "--profile", "car", "--grade", "mpu-9250", "--datasheet-errors", "--seconds", "300", "--seed", seed])
+            .args(["--rest-s", "5", "-o"])
+            .arg(&bag));
+        let tilt = |params: Option<&Path>, name: &str| {
+            let e = replay_and_score(&bag, &no_model, params, d, name);
+            (e["tilt_rmse_deg"].as_f64().unwrap(), e["tilt_within_95"].as_f64().unwrap())
+        };
+        let (any, any_within) = tilt(None, &format!("any{seed}"));
+        let (declared, declared_within) = tilt(Some(&car), &format!("declared{seed}"));
+        // /diagnostics says which attitude runs, and the speed it carries.
+        let said =
+            run(Command::new(bin()).arg("bag").arg("echo").arg(d.join(format!("declared{seed}.mcap"))).args(["--topic", "/diagnostics"]));
+        let last = said.lines().last().expect("/diagnostics was written");
+        assert!(last.contains("gravity aided: ") && last.contains("a car, forward speed"), "{last}");
+        eprintln!("car seed {seed}, 5 min: tilt RMS {any:.2}° as any platform, {declared:.2}° declared a car");
+        assert!(declared < any, "seed {seed}: {declared}° declared a car against {any}° as any platform");
+        assert!(any_within >= 0.95 && declared_within >= 0.95, "seed {seed}, within the stated 95 %: {any_within}, {declared_within}");
+        (any_sum, declared_sum) = (any_sum + any, declared_sum + declared);
+    }
+    assert!(
+        declared_sum < 0.7 * any_sum,
+        "mean tilt {:.2}° declared a car against {:.2}° as any platform",
+        declared_sum / 3.0,
+        any_sum / 3.0
+    );
 }

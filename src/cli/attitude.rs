@@ -108,17 +108,18 @@ pub fn run(args: AttitudeArgs) -> anyhow::Result<()> {
 
 pub fn markdown_table(rows: &[Row]) -> String {
     let mut s = String::from(
-        "| bag | first attitude s | scored s | tilt at start° | tilt RMS° | tilt max° | tilt last° | heading drift RMS° | heading drift last° \
-         | stated tilt σ° (median) | tilt NEES (2: consistent) | within 95 % | note |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| bag | first attitude s | scored s | AOE° | tilt at start° | tilt RMS° | tilt max° | tilt last° | heading drift RMS° | heading drift last° \
+         | stated tilt σ° (median) | tilt NEES (2: consistent) | within 95 % | note |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         match &r.errors {
             Some(e) => {
                 s += &format!(
-                    "| {} | {:.2} | {:.0} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} % | {} |\n",
+                    "| {} | {:.2} | {:.0} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} % | {} |\n",
                     r.bag,
                     e.first_attitude_s,
                     e.seconds,
+                    e.aoe_deg,
                     e.tilt_initial_deg,
                     e.tilt_rmse_deg,
                     e.tilt_max_deg,
@@ -131,7 +132,7 @@ pub fn markdown_table(rows: &[Row]) -> String {
                     r.note
                 )
             }
-            None => s += &format!("| {} | – | – | – | – | – | – | – | – | – | – | – | {} |\n", r.bag, r.note),
+            None => s += &format!("| {} | – | – | – | – | – | – | – | – | – | – | – | – | {} |\n", r.bag, r.note),
         }
     }
     s

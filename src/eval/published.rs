@@ -32,6 +32,9 @@ pub struct PublishedAttitudeErrors {
     /// no yaw, so the node starts it at 0 and what it owes is the drift from there.
     pub heading_rmse_deg: f64,
     pub heading_final_deg: f64,
+    /// AOE: RMS of the whole error rotation's angle (tilt and heading together), heading
+    /// aligned at the first scored attitude, as the attitude is compared with another filter's.
+    pub aoe_deg: f64,
     /// Median of the stated tilt σ (the root of the mean of its x and y variances).
     pub tilt_sigma_median_deg: f64,
     /// Mean NEES of the tilt error against its stated 2×2 covariance: 2 when the covariance is
@@ -75,7 +78,7 @@ pub fn evaluate_published(
     let a = align.to_rotation_matrix().into_inner();
     let mut out =
         PublishedAttitudeErrors { first_attitude_s: (published[0].stamp_ns - first_message_ns) as f64 * 1e-9, ..Default::default() };
-    let (mut sq_tilt, mut sq_heading, mut nees_sum, mut nees_n, mut within) = (0.0, 0.0, 0.0, 0usize, 0usize);
+    let (mut sq_tilt, mut sq_heading, mut sq_angle, mut nees_sum, mut nees_n, mut within) = (0.0, 0.0, 0.0, 0.0, 0usize, 0usize);
     let mut sigmas = Vec::with_capacity(published.len() - k0);
     let mut last = k0;
     let mut gaps_since_last = 0;
@@ -86,8 +89,10 @@ pub fn evaluate_published(
         };
         // Attitudes after the ground truth's end are not in one of its gaps.
         out.in_gaps += std::mem::take(&mut gaps_since_last);
-        let (swing, heading) = swing_twist(&(align * p.world_from_body * g.inverse()));
+        let error = align * p.world_from_body * g.inverse();
+        let (swing, heading) = swing_twist(&error);
         let tilt = swing.norm();
+        sq_angle += error.angle().powi(2);
         if out.evaluated == 0 {
             out.tilt_initial_deg = tilt.to_degrees();
         }
@@ -115,6 +120,7 @@ pub fn evaluate_published(
     let n = out.evaluated as f64;
     out.tilt_rmse_deg = (sq_tilt / n).sqrt().to_degrees();
     out.heading_rmse_deg = (sq_heading / n).sqrt().to_degrees();
+    out.aoe_deg = (sq_angle / n).sqrt().to_degrees();
     out.seconds = (published[last].stamp_ns - published[k0].stamp_ns) as f64 * 1e-9;
     if nees_n > 0 {
         out.tilt_nees_mean = nees_sum / nees_n as f64;

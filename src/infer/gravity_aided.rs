@@ -355,6 +355,46 @@ mod tests {
         assert!(last.to_degrees() < 1.0, "{:.2}° 34 s after the braking", last.to_degrees());
     }
 
+    /// A noisy gyro at rest for 10 s, then three minutes of turns about up on a level body:
+    /// the bias about up is the rest's alone (gravity never sees it), so the gravity-aided
+    /// heading must drift no faster than the open loop's. Until 2026-12-07 the filter kept the
+    /// first still window's error (the later windows of the rest moved its residual by their
+    /// change instead of resetting it) and drifted faster.
+    #[test]
+    fn the_whole_first_rest_sets_the_bias_about_up() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let (gyro_noise, accel_noise) = (Normal::new(0.0, 0.02).unwrap(), Normal::new(0.0, 0.05).unwrap());
+        let bias = Vector3::new(0.004, -0.003, 0.02);
+        let dt = 0.005;
+        let mut noise3 = |d: &Normal<f64>| Vector3::from_fn(|_, _| d.sample(&mut rng));
+        let (mut yaw, mut truth_yaw) = (0.0, Vec::new());
+        let imu: Vec<ImuSample> = (0..(190.0 / dt) as usize)
+            .map(|k| {
+                let t = k as f64 * dt;
+                let rate = if t < 10.0 { 0.0 } else { 0.5 * (0.17 * (t - 10.0)).sin() };
+                truth_yaw.push(yaw);
+                yaw += rate * dt;
+                let gyro = Vector3::new(0.0, 0.0, rate) + bias + noise3(&gyro_noise);
+                let accel = Vector3::z() * STANDARD_GRAVITY + noise3(&accel_noise);
+                ImuSample { stamp_ns: 1_000_000_000 + k as i64 * 5_000_000, gyro, accel }
+            })
+            .collect();
+        let heading_error = |mode| {
+            let cfg = PipelineConfig { orientation: mode, gravity_init_seconds: 0.2, ..Default::default() };
+            let mut p = Pipeline::new(Box::new(PassThrough), cfg);
+            let out: Vec<_> = imu.iter().map(|s| p.push(s).unwrap().orientation).collect();
+            let last = imu.len() - 1;
+            let (q, _) = out[last].unwrap();
+            let e = q * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), truth_yaw[last]).inverse();
+            crate::eval::tilt_heading(&e).1.to_degrees()
+        };
+        let (open, aided) = (heading_error(OrientationMode::OpenLoop), heading_error(OrientationMode::GravityAided));
+        eprintln!("heading after 3 min of turns about up: open loop {open:.2}°, gravity aided {aided:.2}°");
+        assert!(aided <= open + 0.3, "gravity aided {aided:.2}° against the open loop's {open:.2}°");
+    }
+
     /// Over a hole in the input the attitude is held and its variance grows.
     #[test]
     fn a_gap_holds_the_gravity_aided_attitude() {

@@ -63,9 +63,9 @@ pub struct Pipeline {
     /// The gravity-aided attitude (`orientation: gravity_aided`), from the first sample on.
     gravity_aided: Option<GravityAided>,
     /// The power-on bias removed from the gyro the gravity-aided filter last saw, rad/s, and
-    /// whether it came from a standstill ([`Self::keep_gravity_aided_bias_in_step`]).
+    /// the still windows counted then ([`Self::keep_gravity_aided_bias_in_step`]).
     aided_removed: Vector3<f64>,
-    aided_from_standstill: bool,
+    aided_still_windows: u64,
 }
 
 /// What a sample's stamp did to the stream: a gap before it, or the body's turn since the
@@ -100,7 +100,7 @@ impl Pipeline {
             hold_from: None,
             gravity_aided: None,
             aided_removed: Vector3::zeros(),
-            aided_from_standstill: false,
+            aided_still_windows: 0,
         }
     }
 
@@ -439,22 +439,29 @@ impl Pipeline {
 
     /// The gravity-aided filter sees the gyro after the power-on bias: where that bias changes,
     /// its residual-bias state moves by as much (else a bias removed upstream would be taken
-    /// off twice). The first standstill measured the bias itself: the residual is then 0
-    /// within its σ, at least `bias_stddev` (a rest's bias is not quite the one in motion:
-    /// EuRoC's rotors-off rest is 1.8 mrad/s off its flight's, docs/training.md).
+    /// off twice). While the first standstill lasts, each still window measured the bias
+    /// itself: the residual is then 0 within its σ, at least `bias_stddev` (a rest's bias is not
+    /// quite the one in motion: EuRoC's rotors-off rest is 1.8 mrad/s off its flight's,
+    /// docs/training.md). A later standstill moves it by its change: what the filter learnt in
+    /// motion is a rest-to-motion offset a rest does not see. Until 2026-12-07 only the first
+    /// still window reset the residual; the rest of that standstill moved it, which kept the
+    /// first window's error (V1_01 without a model: 1 mrad/s about up, its heading drifting
+    /// twice as fast as the open loop's).
     fn keep_gravity_aided_bias_in_step(&mut self, correction: Correction) {
         if self.gravity_aided.as_ref().is_some_and(|g| !g.follows_upstream_bias()) {
             return;
         }
         let removed = if self.cfg.power_on_bias && correction.removes_power_on_bias() { self.standstill.bias() } else { Vector3::zeros() };
-        let from_standstill = self.bias_source() == "standstill";
-        let first_standstill = from_standstill && !self.aided_from_standstill;
-        self.aided_from_standstill = from_standstill;
+        let counters = self.standstill.counters();
+        let still_windows = counters.still_windows;
+        let from_standstill =
+            counters.standstills == 0 && still_windows != self.aided_still_windows && self.bias_source().starts_with("standstill");
+        self.aided_still_windows = still_windows;
         if removed == self.aided_removed {
             return;
         }
         let floor = self.cfg.bias_stddev.powi(2);
-        let measured = first_standstill.then(|| self.bias_in_force()).flatten().map(|e| e.variance.map(|v| v.max(floor)));
+        let measured = from_standstill.then(|| self.bias_in_force()).flatten().map(|e| e.variance.map(|v| v.max(floor)));
         if let Some(g) = self.gravity_aided.as_mut() {
             g.rebase_bias(removed - self.aided_removed, measured);
         }

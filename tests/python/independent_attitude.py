@@ -100,9 +100,11 @@ def main():
     t0, R0, _, G0 = covered[0]
     _, h0 = tilt_heading(R0 @ G0.T)
     A = rot_z(-h0)
-    tilts, headings, nees = [], [], []
+    tilts, headings, angles, nees = [], [], [], []
     for t, R, P, G in covered:
-        swing, heading = tilt_heading(A @ R @ G.T)
+        E = A @ R @ G.T
+        swing, heading = tilt_heading(E)
+        angles.append(np.arccos(np.clip((np.trace(E) - 1.0) / 2.0, -1.0, 1.0)))
         tilts.append(np.linalg.norm(swing))
         headings.append(heading)
         Pa = (A @ P @ A.T)[:2, :2]
@@ -118,6 +120,7 @@ def main():
         "tilt_max_deg": float(tilts.max()),
         "heading_rmse_deg": float(np.sqrt(np.mean(headings**2))),
         "heading_final_deg": float(headings[-1]),
+        "aoe_deg": float(np.degrees(np.sqrt(np.mean(np.square(angles))))),
         "tilt_nees_mean": float(nees.mean()),
         "tilt_within_95": float(np.mean(nees <= CHI2_2DOF_95)),
     }
