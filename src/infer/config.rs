@@ -51,6 +51,10 @@ pub struct PipelineConfig {
     pub orientation: super::OrientationMode,
     /// The gravity-aided filter's settings.
     pub gravity_aided: super::GravityAidedConfig,
+    /// Up to this many seconds of samples before the first standstill are kept and the
+    /// gravity-aided attitude run again over them once that standstill has measured the
+    /// power-on bias ([`super::hindsight`]); 0: off.
+    pub attitude_hindsight_s: f64,
     /// What carries the IMU: `any`, or `car` (a wheeled vehicle moving along the IMU's x axis),
     /// whose settings [`Platform::preset`] fills in where the parameter file leaves them unset.
     pub platform: Platform,
@@ -119,6 +123,7 @@ impl Default for PipelineConfig {
             model_on_new_imu: false,
             orientation: super::OrientationMode::GravityAided,
             gravity_aided: super::GravityAidedConfig::default(),
+            attitude_hindsight_s: 60.0,
             platform: Platform::Any,
         }
     }
@@ -138,6 +143,7 @@ impl PipelineConfig {
             ("gap_variance_per_second", self.gap_variance_per_second),
             ("bias_stddev", self.bias_stddev),
             ("uncorrected_bias_stddev", self.uncorrected_bias_stddev),
+            ("attitude_hindsight_s", self.attitude_hindsight_s),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(format!("pipeline.{key} must be finite and ≥ 0, not {value}").into());

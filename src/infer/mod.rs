@@ -9,6 +9,7 @@ mod config;
 mod corrector;
 mod counters;
 mod gravity_aided;
+mod hindsight;
 mod pipeline;
 mod stamps;
 

@@ -4,6 +4,7 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use super::attitude::Attitude;
 use super::gravity_aided::GravityAided;
+use super::hindsight::Hindsight;
 use super::stamps::{BackwardsRun, StreamRate};
 use super::{choose, Correction, Counters, Dropped, GyroCorrector, OrientationMode, PipelineConfig};
 use crate::core::{ClipDetector, ImuSample};
@@ -62,6 +63,8 @@ pub struct Pipeline {
     hold_from: Option<(i64, UnitQuaternion<f64>)>,
     /// The gravity-aided attitude (`orientation: gravity_aided`), from the first sample on.
     gravity_aided: Option<GravityAided>,
+    /// The samples since the gravity-aided filter started, run again at the first standstill.
+    hindsight: Hindsight,
     /// The power-on bias removed from the gyro the gravity-aided filter last saw, rad/s, and
     /// the still windows counted then ([`Self::keep_gravity_aided_bias_in_step`]).
     aided_removed: Vector3<f64>,
@@ -83,6 +86,8 @@ impl Pipeline {
         let standstill = PowerOnBias::new(cfg.standstill);
         let periods = corrector.rate_hz().filter(|r| *r > 0.0 && !corrector.passes_through()).map(PeriodMeans::new);
         let rate = StreamRate::new(nominal_period_ns, cfg.gap_periods, cfg.rate_tolerance);
+        // Sized for the nominal rate, or 1 kHz where none is known (a faster stream outgrows it).
+        let hindsight = Hindsight::new(cfg.attitude_hindsight_s, if cfg.nominal_rate_hz > 0.0 { cfg.nominal_rate_hz } else { 1000.0 });
         Pipeline {
             corrector,
             cfg,
@@ -99,6 +104,7 @@ impl Pipeline {
             standstill,
             hold_from: None,
             gravity_aided: None,
+            hindsight,
             aided_removed: Vector3::zeros(),
             aided_still_windows: 0,
         }
@@ -193,6 +199,12 @@ impl Pipeline {
     /// The gravity-aided attitude's blocks used and left out (`orientation: gravity_aided`).
     pub fn gravity_aided_blocks(&self) -> Option<(u64, u64)> {
         (self.cfg.orientation == OrientationMode::GravityAided).then(|| self.gravity_aided.as_ref().map_or((0, 0), GravityAided::blocks))
+    }
+
+    /// Seconds of samples the gravity-aided attitude was run again over at the first
+    /// standstill ([`super::hindsight`]), once it has been.
+    pub fn attitude_hindsight_s(&self) -> Option<f64> {
+        self.hindsight.last_span_s
     }
 
     /// The gravity-aided filter's forward speed and its σ, m/s, where it carries one
@@ -376,6 +388,7 @@ impl Pipeline {
         if let Some(g) = self.gravity_aided.as_mut() {
             g.hold(stamp_ns, self.cfg.gap_variance_per_second * held_s);
         }
+        self.hindsight.close();
     }
 
     /// Steps the model on the (debiased) sample, sample by sample or in its periods: the gyro
@@ -422,12 +435,14 @@ impl Pipeline {
                 match (self.gravity_aided.as_mut(), self.attitude.world_from_body) {
                     (Some(g), _) => {
                         g.push(s.stamp_ns, gyro, &s.accel);
+                        self.hindsight.record(s.stamp_ns, gyro, &s.accel, self.aided_removed, correction.runs_model());
                         g.orientation()
                     }
                     (None, Some(q)) => {
                         let mut g = GravityAided::new(&self.cfg.gravity_aided, self.bias_stddev(), correction.runs_model());
                         g.start_at(q, self.attitude.covariance, s.stamp_ns, gyro);
                         let o = g.orientation();
+                        self.hindsight.start(&g, self.aided_removed);
                         self.gravity_aided = Some(g);
                         o
                     }
@@ -453,6 +468,9 @@ impl Pipeline {
         }
         let removed = if self.cfg.power_on_bias && correction.removes_power_on_bias() { self.standstill.bias() } else { Vector3::zeros() };
         let counters = self.standstill.counters();
+        if counters.standstills > 0 {
+            self.hindsight.close();
+        }
         let still_windows = counters.still_windows;
         let from_standstill =
             counters.standstills == 0 && still_windows != self.aided_still_windows && self.bias_source().starts_with("standstill");
@@ -462,6 +480,11 @@ impl Pipeline {
         }
         let floor = self.cfg.bias_stddev.powi(2);
         let measured = from_standstill.then(|| self.bias_in_force()).flatten().map(|e| e.variance.map(|v| v.max(floor)));
+        if let Some(rerun) = measured.and_then(|v| self.hindsight.rerun(removed, v)) {
+            self.gravity_aided = Some(rerun);
+            self.aided_removed = removed;
+            return;
+        }
         if let Some(g) = self.gravity_aided.as_mut() {
             g.rebase_bias(removed - self.aided_removed, measured);
         }

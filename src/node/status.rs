@@ -17,6 +17,8 @@ pub struct NodeStats {
     pub gravity_aided_blocks: Option<(u64, u64)>,
     /// The gravity-aided filter's forward speed and its σ, m/s (`platform: car`).
     pub forward_speed: Option<(f64, f64)>,
+    /// Seconds the gravity-aided attitude was run again over at the first standstill.
+    pub attitude_hindsight_s: Option<f64>,
     pub latency: LatencyHistogram,
     pub frame_changes: u64,
     pub decode_errors: u64,
@@ -99,6 +101,7 @@ impl NodeStats {
     pub fn take_orientation(&mut self, pipeline: &crate::infer::Pipeline) {
         self.gravity_aided_blocks = pipeline.gravity_aided_blocks();
         self.forward_speed = pipeline.gravity_aided_forward_speed();
+        self.attitude_hindsight_s = pipeline.attitude_hindsight_s();
     }
 }
 
@@ -269,7 +272,10 @@ fn key_values(stats: &NodeStats, live: &Liveness) -> Vec<KeyValue> {
                 None => "open loop".to_string(),
                 Some((used, left_out)) => {
                     let car = stats.forward_speed.map_or(String::new(), |(u, s)| format!("; a car, forward speed {u:.1} ± {s:.1} m/s"));
-                    format!("gravity aided: {used} blocks of gravity used, {left_out} left out{car}")
+                    let hindsight = stats
+                        .attitude_hindsight_s
+                        .map_or(String::new(), |s| format!("; its first {s:.1} s run again with the first standstill's bias"));
+                    format!("gravity aided: {used} blocks of gravity used, {left_out} left out{car}{hindsight}")
                 }
             },
         ),
