@@ -356,6 +356,36 @@ mod tests {
         assert!(last.to_degrees() < 1.0, "{:.2}° 34 s after the braking", last.to_degrees());
     }
 
+    /// A level body turning about up at `rate(t)` rad/s for `seconds` at 200 Hz, its gyro with
+    /// `bias` and `noise(sample)` added to both sensors (gyro, then accelerometer); with the
+    /// true heading at each sample.
+    fn level_turns(
+        bias: Vector3<f64>,
+        seconds: f64,
+        rate: impl Fn(f64) -> f64,
+        mut noise: impl FnMut() -> (Vector3<f64>, Vector3<f64>),
+    ) -> (Vec<ImuSample>, Vec<f64>) {
+        let dt = 0.005;
+        let (mut yaw, mut truth_yaw) = (0.0, Vec::new());
+        let imu = (0..(seconds / dt) as usize)
+            .map(|k| {
+                let w = rate(k as f64 * dt);
+                truth_yaw.push(yaw);
+                yaw += w * dt;
+                let (gyro_noise, accel_noise) = noise();
+                let gyro = Vector3::new(0.0, 0.0, w) + bias + gyro_noise;
+                let accel = Vector3::z() * STANDARD_GRAVITY + accel_noise;
+                ImuSample { stamp_ns: 1_000_000_000 + k as i64 * 5_000_000, gyro, accel }
+            })
+            .collect();
+        (imu, truth_yaw)
+    }
+
+    /// The heading error of `q` against a level body at heading `yaw`, degrees.
+    fn heading_error_deg(q: &UnitQuaternion<f64>, yaw: f64) -> f64 {
+        crate::eval::tilt_heading(&(q * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw).inverse())).1.to_degrees()
+    }
+
     /// A noisy gyro at rest for 10 s, then three minutes of turns about up on a level body:
     /// the bias about up is the rest's alone (gravity never sees it), so the gravity-aided
     /// heading must drift no faster than the open loop's. Until 2026-12-07 the filter kept the
@@ -367,29 +397,18 @@ mod tests {
         use rand_distr::{Distribution, Normal};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let (gyro_noise, accel_noise) = (Normal::new(0.0, 0.02).unwrap(), Normal::new(0.0, 0.05).unwrap());
-        let bias = Vector3::new(0.004, -0.003, 0.02);
-        let dt = 0.005;
-        let mut noise3 = |d: &Normal<f64>| Vector3::from_fn(|_, _| d.sample(&mut rng));
-        let (mut yaw, mut truth_yaw) = (0.0, Vec::new());
-        let imu: Vec<ImuSample> = (0..(190.0 / dt) as usize)
-            .map(|k| {
-                let t = k as f64 * dt;
-                let rate = if t < 10.0 { 0.0 } else { 0.5 * (0.17 * (t - 10.0)).sin() };
-                truth_yaw.push(yaw);
-                yaw += rate * dt;
-                let gyro = Vector3::new(0.0, 0.0, rate) + bias + noise3(&gyro_noise);
-                let accel = Vector3::z() * STANDARD_GRAVITY + noise3(&accel_noise);
-                ImuSample { stamp_ns: 1_000_000_000 + k as i64 * 5_000_000, gyro, accel }
-            })
-            .collect();
+        let rate = |t: f64| if t < 10.0 { 0.0 } else { 0.5 * (0.17 * (t - 10.0)).sin() };
+        let noise = || {
+            let gyro = Vector3::from_fn(|_, _| gyro_noise.sample(&mut rng));
+            (gyro, Vector3::from_fn(|_, _| accel_noise.sample(&mut rng)))
+        };
+        let (imu, truth_yaw) = level_turns(Vector3::new(0.004, -0.003, 0.02), 190.0, rate, noise);
         let heading_error = |mode| {
             let cfg = PipelineConfig { orientation: mode, gravity_init_seconds: 0.2, ..Default::default() };
             let mut p = Pipeline::new(Box::new(PassThrough), cfg);
             let out: Vec<_> = imu.iter().map(|s| p.push(s).unwrap().orientation).collect();
             let last = imu.len() - 1;
-            let (q, _) = out[last].unwrap();
-            let e = q * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), truth_yaw[last]).inverse();
-            crate::eval::tilt_heading(&e).1.to_degrees()
+            heading_error_deg(&out[last].unwrap().0, truth_yaw[last])
         };
         let (open, aided) = (heading_error(OrientationMode::OpenLoop), heading_error(OrientationMode::GravityAided));
         eprintln!("heading after 3 min of turns about up: open loop {open:.2}°, gravity aided {aided:.2}°");
@@ -402,33 +421,19 @@ mod tests {
     /// bias turned it by before; what was published before the standstill is unchanged.
     #[test]
     fn the_first_standstill_runs_the_attitude_again_in_hindsight() {
-        let bias = Vector3::new(0.002, -0.003, 0.03);
-        let dt = 0.005;
-        let moving = |t: f64| !(20.0..30.0).contains(&t);
-        let (mut yaw, mut truth_yaw) = (0.0, Vec::new());
-        let imu: Vec<ImuSample> = (0..(150.0 / dt) as usize)
-            .map(|k| {
-                let t = k as f64 * dt;
-                let rate = if moving(t) { 0.4 * (0.5 * t).sin() } else { 0.0 };
-                truth_yaw.push(yaw);
-                yaw += rate * dt;
-                let accel = Vector3::z() * STANDARD_GRAVITY;
-                ImuSample { stamp_ns: 1_000_000_000 + k as i64 * 5_000_000, gyro: Vector3::new(0.0, 0.0, rate) + bias, accel }
-            })
-            .collect();
+        let rate = |t: f64| if (20.0..30.0).contains(&t) { 0.0 } else { 0.4 * (0.5 * t).sin() };
+        let (imu, truth_yaw) = level_turns(Vector3::new(0.002, -0.003, 0.03), 150.0, rate, || (Vector3::zeros(), Vector3::zeros()));
         let run = |hindsight_s: f64| {
             let cfg = PipelineConfig { gravity_init_seconds: 0.2, attitude_hindsight_s: hindsight_s, ..Default::default() };
             let mut p = Pipeline::new(Box::new(PassThrough), cfg);
             imu.iter().map(|s| p.push(s).unwrap().orientation.map(|o| o.0)).collect::<Vec<_>>()
         };
-        let heading = |q: &UnitQuaternion<f64>, k: usize| {
-            crate::eval::tilt_heading(&(q * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), truth_yaw[k]).inverse())).1.to_degrees()
-        };
         let (off, on) = (run(0.0), run(60.0));
-        let before = (20.0 / dt) as usize;
+        let before = 20 * 200;
         assert!(off[..before].iter().zip(&on[..before]).all(|(a, b)| a == b), "published before the standstill: unchanged");
         let last = imu.len() - 1;
-        let (h_off, h_on) = (heading(&off[last].unwrap(), last), heading(&on[last].unwrap(), last));
+        let (h_off, h_on) =
+            (heading_error_deg(&off[last].unwrap(), truth_yaw[last]), heading_error_deg(&on[last].unwrap(), truth_yaw[last]));
         eprintln!("heading at the end: {h_off:.2}° without hindsight, {h_on:.2}° with");
         assert!(h_off > 20.0 && h_on < 1.0, "heading at the end: {h_off:.2}° without hindsight, {h_on:.2}° with");
     }
