@@ -99,6 +99,7 @@ fn dataset_cfg(cfg: &AdaptConfig) -> DatasetConfig {
         support_seconds: 0.0,
         max_interpolation_gap_ms: cfg.max_interpolation_gap_ms,
         max_nearest_gt_ms: cfg.max_nearest_gt_ms,
+        power_on_bias: Default::default(),
     }
 }
 

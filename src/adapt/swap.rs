@@ -184,6 +184,9 @@ impl GyroCorrector for SwappableCorrector {
     fn domain(&self) -> crate::infer::ModelDomain {
         self.inner.domain()
     }
+    fn earlier_power_ons(&self, floor_stddev: f64) -> Option<crate::standstill::BiasPrediction> {
+        self.inner.earlier_power_ons(floor_stddev)
+    }
 }
 
 /// Feeds `corrector` the tail of `history` it needs to reach the running model's state:
@@ -268,6 +271,7 @@ mod tests {
             name: format!("m{seed}"),
             rate_hz: 200.0,
             domain: ModelDomain::Trained,
+            trained_power_ons: Vec::new(),
         }
     }
 
@@ -321,6 +325,7 @@ mod tests {
             name: m.name.clone(),
             rate_hz: m.rate_hz,
             domain: m.domain,
+            trained_power_ons: m.trained_power_ons.clone(),
         };
         let mut reference = Pipeline::new(Box::new(copy(&new)), cfg.clone());
         let want: Vec<_> = imu.iter().map(|s| reference.push(s).unwrap()).collect();
@@ -372,6 +377,7 @@ mod tests {
             name: m.name.clone(),
             rate_hz: m.rate_hz,
             domain: m.domain,
+            trained_power_ons: m.trained_power_ons.clone(),
         };
         let mut reference = Pipeline::new(Box::new(copy(&new)), cfg.clone());
         let want: Vec<_> = imu.iter().map(|s| reference.push(s).unwrap()).collect();

@@ -8,7 +8,7 @@ use imu_fsda::core::{ImuSample, Recording};
 use imu_fsda::eval::{
     evaluate, evaluate_with_path, mean_rate_error, BaselineMethod, EvalOptions, OrientationErrors, OrientationPath, RestDetector,
 };
-use imu_fsda::infer::{choose, ModelDomain};
+use imu_fsda::infer::{choose, predict_from, trained_power_ons, ModelDomain};
 use imu_fsda::model::export::load_metadata;
 use imu_fsda::model::predict::{correct_with_torchscript_at_model_rate, metadata_path};
 use imu_fsda::standstill::{BiasTrack, StandstillConfig};
@@ -416,6 +416,13 @@ impl<'a> Evaluation<'a> {
             // error); one with a single Ĉ_ω as an IMU it was trained on, else as a new one.
             let imu = imu.filter(|n| per_imu || self.metas[model_index].knows_imu(n));
             let (correction, why) = choose(ModelDomain::of(&self.metas[model_index], imu), true, self.args.model_on_new_imu);
+            // As the pipeline: a bias memory file wins over the model's training power-ons.
+            let standstill = &StandstillConfig {
+                remembered: standstill
+                    .remembered
+                    .or_else(|| predict_from(trained_power_ons(&self.metas[model_index], imu), standstill.min_power_on_spread)),
+                ..*standstill
+            };
             let track = correction.removes_power_on_bias().then(|| BiasTrack::over(&source.imu, standstill));
             let input = match (&track, correction.runs_model()) {
                 (Some(t), true) => t.debiased(&source.imu),

@@ -17,6 +17,9 @@ pub enum ModelDomain {
     /// The model was trained on this IMU (named by `imu_calibration`), on its raw stream: its
     /// correction covers this IMU's bias as in training, so a rest is not subtracted before it.
     Trained,
+    /// Trained on this IMU with each training recording's power-on bias removed
+    /// (`dataset.power_on_bias: remove`): this power-on's is removed before it.
+    TrainedAfterPowerOnBias,
     /// Adapted on this IMU after the support's power-on bias was removed.
     AdaptedAfterPowerOnBias,
     /// The same, with the gyro calibration alone kept (Ĉ_ω, the networks' correction off).
@@ -41,10 +44,40 @@ impl ModelDomain {
             }
             (Some(_), _) if meta.power_on_bias_removed => ModelDomain::AdaptedAfterPowerOnBias,
             (Some(_), _) => ModelDomain::AdaptedWithBias,
+            (None, Some(name)) if meta.knows_imu(name) && meta.power_on_bias_removed => ModelDomain::TrainedAfterPowerOnBias,
             (None, Some(name)) if meta.knows_imu(name) => ModelDomain::Trained,
             _ => ModelDomain::NewImu,
         }
     }
+}
+
+/// The training recordings' power-on biases of IMU `imu`, where the model was trained on it
+/// with them removed (empty otherwise: a model trained on the raw stream has them inside).
+pub fn trained_power_ons<'m>(meta: &'m crate::model::ModelMetadata, imu: Option<&str>) -> &'m [crate::model::export::TrainedPowerOn] {
+    match imu {
+        Some(name) if ModelDomain::of(meta, imu) == ModelDomain::TrainedAfterPowerOnBias => {
+            meta.trained_power_on_biases.get(name).map_or(&[], Vec::as_slice)
+        }
+        _ => &[],
+    }
+}
+
+/// What those power-ons predict for this one, as a bias memory file's would
+/// ([`crate::bias_memory::BiasMemory::predict`]: two at least, per axis where the 95 %
+/// prediction interval excludes zero).
+pub fn predict_from(power_ons: &[crate::model::export::TrainedPowerOn], floor_stddev: f64) -> Option<crate::standstill::BiasPrediction> {
+    let memory = crate::bias_memory::BiasMemory {
+        power_ons: power_ons
+            .iter()
+            .map(|p| crate::bias_memory::RememberedBias {
+                bias_rad_s: p.bias_rad_s,
+                stddev_rad_s: p.stddev_rad_s,
+                still_s: p.still_s,
+                power_on: p.recording.clone(),
+            })
+            .collect(),
+    };
+    memory.predict(None, floor_stddev)
 }
 
 /// The correction the pipeline applies.
@@ -90,6 +123,13 @@ pub fn choose(domain: ModelDomain, power_on_bias: bool, model_on_new_imu: bool) 
         ModelDomain::NoModel if power_on_bias => (Correction::PowerOnBias, "no model: the power-on bias measured at standstills"),
         ModelDomain::NoModel => (Correction::Raw, "no model and power_on_bias off: the gyro as measured"),
         ModelDomain::Trained => (Correction::Model, "the model was trained on this IMU (imu_calibration)"),
+        ModelDomain::TrainedAfterPowerOnBias if power_on_bias => (
+            Correction::PowerOnBiasThenModel,
+            "the model was trained on this IMU with each recording's power-on bias removed (imu_calibration): this power-on's is removed before it",
+        ),
+        ModelDomain::TrainedAfterPowerOnBias => {
+            (Correction::Model, "power_on_bias off: the model trained without its recordings' power-on biases runs on the raw gyro")
+        }
         ModelDomain::AdaptedWithBias => {
             (Correction::Model, "the model was adapted on this IMU with its support's constant inside (no power-on rule)")
         }
@@ -133,6 +173,8 @@ mod tests {
         assert_eq!(choose(ModelDomain::NewImu, true, true).0, Correction::Model);
         assert_eq!(choose(ModelDomain::NewImu, false, false).0, Correction::Raw);
         assert_eq!(choose(ModelDomain::Trained, true, false).0, Correction::Model);
+        assert_eq!(choose(ModelDomain::TrainedAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
+        assert_eq!(choose(ModelDomain::TrainedAfterPowerOnBias, false, false).0, Correction::Model);
         assert_eq!(choose(ModelDomain::AdaptedAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
         assert_eq!(choose(ModelDomain::CalibratedAfterPowerOnBias, true, false).0, Correction::PowerOnBiasThenModel);
         assert!(choose(ModelDomain::CalibratedAfterPowerOnBias, true, false).1.contains("gyro calibration"));

@@ -27,6 +27,12 @@ pub trait GyroCorrector: Send {
     fn domain(&self) -> ModelDomain {
         ModelDomain::Trained
     }
+    /// What the corrector knows of this IMU's earlier power-ons' biases (a model trained
+    /// without them: [`super::trained_power_ons`]); `floor_stddev` as for a
+    /// bias memory file.
+    fn earlier_power_ons(&self, _floor_stddev: f64) -> Option<crate::standstill::BiasPrediction> {
+        None
+    }
 }
 
 /// The identity: the raw gyro minus a constant bias. The baseline and the model-free mode.
@@ -83,6 +89,8 @@ pub struct ModelCorrector {
     pub rate_hz: f64,
     /// What the model is for the IMU it was loaded as.
     pub domain: ModelDomain,
+    /// Its training recordings' power-on biases on this IMU (a model trained without them).
+    pub trained_power_ons: Vec<crate::model::export::TrainedPowerOn>,
 }
 
 impl ModelCorrector {
@@ -99,7 +107,8 @@ impl ModelCorrector {
     ) -> Result<(Self, crate::model::ModelMetadata), crate::model::ModelError> {
         let (denoiser, meta) = crate::model::export::load_streaming(&crate::model::predict::metadata_path(model), imu)?;
         let domain = ModelDomain::of(&meta, imu);
-        Ok((ModelCorrector { denoiser, name: meta.name.clone(), rate_hz: meta.rate_hz, domain }, meta))
+        let trained_power_ons = super::trained_power_ons(&meta, imu).to_vec();
+        Ok((ModelCorrector { denoiser, name: meta.name.clone(), rate_hz: meta.rate_hz, domain, trained_power_ons }, meta))
     }
 }
 
@@ -121,6 +130,9 @@ impl GyroCorrector for ModelCorrector {
     }
     fn domain(&self) -> ModelDomain {
         self.domain
+    }
+    fn earlier_power_ons(&self, floor_stddev: f64) -> Option<crate::standstill::BiasPrediction> {
+        super::predict_from(&self.trained_power_ons, floor_stddev)
     }
 }
 

@@ -14,7 +14,7 @@ mod pipeline;
 mod stamps;
 
 pub use attitude::{INIT_TURN_RATE, TURNING_INTERVALS};
-pub use choice::{choose, Correction, ModelDomain};
+pub use choice::{choose, predict_from, trained_power_ons, Correction, ModelDomain};
 pub use config::{PipelineConfig, Platform};
 pub use corrector::{BiasCorrector, FullWindowCorrector, GyroCorrector, ModelCorrector, PassThrough};
 pub use counters::{Counters, Dropped};

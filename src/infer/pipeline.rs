@@ -79,7 +79,12 @@ struct Advance {
 }
 
 impl Pipeline {
-    pub fn new(corrector: Box<dyn GyroCorrector>, cfg: PipelineConfig) -> Self {
+    pub fn new(corrector: Box<dyn GyroCorrector>, mut cfg: PipelineConfig) -> Self {
+        // A bias memory file (this robot's own record) wins over what the model's training
+        // recordings predict.
+        if cfg.standstill.remembered.is_none() {
+            cfg.standstill.remembered = corrector.earlier_power_ons(cfg.standstill.min_power_on_spread);
+        }
         let rate = if cfg.nominal_rate_hz > 0.0 { Some(cfg.nominal_rate_hz) } else { corrector.rate_hz() };
         let nominal_period_ns = rate.map(|r| 1e9 / r);
         // The model's periods, for a corrector with a rate that is not a pass-through.
@@ -667,6 +672,69 @@ mod tests {
         let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
         assert!((out[1000].gyro - imu[1000].gyro - Vector3::new(0.01, 0.0, 0.0)).amax() < 1e-12);
         assert!(p.power_on_bias().is_some());
+    }
+
+    /// [`Wrong`] trained on this IMU with its recordings' power-on biases removed, which it
+    /// remembers (as a model's `trained_power_on_biases`).
+    struct TrainedWithout(Vec<crate::model::export::TrainedPowerOn>);
+
+    impl GyroCorrector for TrainedWithout {
+        fn step(&mut self, gyro: &Vector3<f64>, accel: &Vector3<f64>) -> Vector3<f64> {
+            Wrong(ModelDomain::TrainedAfterPowerOnBias).step(gyro, accel)
+        }
+        fn reset(&mut self) {}
+        fn window(&self) -> usize {
+            1
+        }
+        fn rate_hz(&self) -> Option<f64> {
+            None
+        }
+        fn name(&self) -> &str {
+            "trained without its power-on biases"
+        }
+        fn domain(&self) -> ModelDomain {
+            ModelDomain::TrainedAfterPowerOnBias
+        }
+        fn earlier_power_ons(&self, floor_stddev: f64) -> Option<crate::standstill::BiasPrediction> {
+            crate::infer::predict_from(&self.0, floor_stddev)
+        }
+    }
+
+    #[test]
+    fn a_model_trained_without_its_power_on_biases_starts_from_what_they_predict() {
+        let power_on = |k: usize, bias: [f64; 3]| crate::model::export::TrainedPowerOn {
+            recording: format!("p{k}"),
+            bias_rad_s: bias,
+            stddev_rad_s: [2e-4; 3],
+            still_s: 3.0,
+        };
+        // z repeats, x changes sign between power-ons: only z is predicted.
+        let trained = vec![power_on(1, [0.02, -0.031, 0.079]), power_on(2, [-0.02, -0.029, 0.081]), power_on(3, [0.01, -0.030, 0.080])];
+        let cfg = PipelineConfig { gravity_init_seconds: 0.2, standstill: no_motion_bias(), ..open_loop() };
+        // Moving from the first sample: nothing measured yet.
+        let imu = stream(400, 5_000_000);
+        let offset = Vector3::new(0.01, 0.0, 0.0);
+        let mut p = Pipeline::new(Box::new(TrainedWithout(trained.clone())), cfg.clone());
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert_eq!(p.correction().0, Correction::PowerOnBiasThenModel);
+        let predicted = Vector3::new(0.0, -0.030, 0.080);
+        assert!((out[300].gyro - (imu[300].gyro - predicted + offset)).amax() < 1e-12, "{}", out[300].gyro - imu[300].gyro);
+        // This robot's own bias memory wins over the training recordings'.
+        let own = crate::standstill::BiasPrediction {
+            bias: Vector3::new(0.0, 0.0, 0.05),
+            variance: Vector3::repeat(1e-6),
+            applied: [false, false, true],
+            power_ons: 4,
+        };
+        let with_memory =
+            PipelineConfig { standstill: crate::standstill::StandstillConfig { remembered: Some(own), ..cfg.standstill }, ..cfg.clone() };
+        let mut p = Pipeline::new(Box::new(TrainedWithout(trained)), with_memory);
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!((out[300].gyro - (imu[300].gyro - own.bias + offset)).amax() < 1e-12);
+        // A model trained on the raw stream predicts nothing: the model on the raw gyro.
+        let mut p = Pipeline::new(Box::new(Wrong(ModelDomain::Trained)), cfg);
+        let out: Vec<CorrectedImu> = imu.iter().map(|s| p.push(s).unwrap()).collect();
+        assert!((out[300].gyro - (imu[300].gyro + offset)).amax() < 1e-12);
     }
 
     #[test]

@@ -84,6 +84,12 @@ pub struct ModelMetadata {
     /// [`crate::standstill`]) was removed: the node removes this power-on's before it.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub power_on_bias_removed: bool,
+    /// A model trained with each recording's power-on bias removed (`dataset.power_on_bias:
+    /// remove`): the bias its standstills measured in each training recording, per IMU. They are
+    /// earlier power-ons of that IMU: until a new power-on's first standstill the pipeline
+    /// removes what they predict, as it does from a bias memory file.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub trained_power_on_biases: BTreeMap<String, Vec<TrainedPowerOn>>,
     /// The networks' correction is exactly 0 ([`crate::model::Net::correction_networks_off`]):
     /// the model is its Ĉ_ω alone, a gyro calibration (read from the weights at export).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
@@ -110,6 +116,15 @@ pub struct ModelMetadata {
     /// Seconds since the Unix epoch.
     pub created_unix_s: u64,
     pub files: ExportFiles,
+}
+
+/// One training recording's power-on bias, as its standstills measured it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainedPowerOn {
+    pub recording: String,
+    pub bias_rad_s: [f64; 3],
+    pub stddev_rad_s: [f64; 3],
+    pub still_s: f64,
 }
 
 impl ModelMetadata {
@@ -222,6 +237,8 @@ pub struct ExportInfo {
     pub imu_correction_gains: BTreeMap<String, f64>,
     /// [`ModelMetadata::power_on_bias_removed`].
     pub power_on_bias_removed: bool,
+    /// [`ModelMetadata::trained_power_on_biases`].
+    pub trained_power_on_biases: BTreeMap<String, Vec<TrainedPowerOn>>,
     /// Text files written with the model as one set (`<name>.<suffix>`, contents), e.g. an
     /// adaptation report: all of them or none replace what was there.
     pub side_files: Vec<(String, String)>,
@@ -324,6 +341,7 @@ pub fn export_model(dir: &Path, name: &str, vs: &VarStore, net: &Net, info: &Exp
         imu_correction_gains: info.imu_correction_gains.clone(),
         adapted_from: info.adapted_from.clone(),
         power_on_bias_removed: info.power_on_bias_removed,
+        trained_power_on_biases: info.trained_power_on_biases.clone(),
         correction_networks_off: net.correction_networks_off(),
         correction_constant_rad_s: net.correction_constant(),
         training_data: info.training_data.clone(),

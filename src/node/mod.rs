@@ -249,7 +249,12 @@ fn initial_stats(
     adapt: &AdaptService,
 ) -> NodeStats {
     NodeStats {
-        power_on_bias_memory: memory_writer.map_or(String::new(), power_on::BiasMemoryWriter::started),
+        power_on_bias_memory: match (memory_writer, pipeline.remembered_bias()) {
+            (Some(w), _) => w.started(),
+            // No file: a model trained without its recordings' power-on biases predicts from them.
+            (None, Some(p)) => format!("no file; the model's training recordings of this IMU: {}", p.describe()),
+            (None, None) => String::new(),
+        },
         model: pipeline.corrector_name().to_string(),
         security: env.security.clone(),
         window: pipeline.window(),

@@ -142,6 +142,16 @@ pub struct DatasetConfig {
     /// pose is at most this far away, ms (DIGDL on TUM-VI: 10 ms).
     #[serde(default = "default_nearest")]
     pub max_nearest_gt_ms: f64,
+    /// `keep` (default): the recordings as recorded. `remove`: each recording's power-on gyro
+    /// bias taken out first (its standstills', else the constant its ground truth fits), so
+    /// the model learns the IMU's lasting errors and is run after the node's power-on bias
+    /// ([`super::power_on`]).
+    #[serde(default, skip_serializing_if = "is_keep")]
+    pub power_on_bias: super::power_on::PowerOnBiasInTraining,
+}
+
+fn is_keep(p: &super::power_on::PowerOnBiasInTraining) -> bool {
+    *p == super::power_on::PowerOnBiasInTraining::Keep
 }
 
 impl DatasetConfig {

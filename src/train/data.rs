@@ -30,6 +30,8 @@ use crate::so3::slerp_at;
 pub enum DataError {
     #[error("{source_name}: {msg}")]
     Load { source_name: String, msg: String },
+    #[error("{name}: its power-on bias could not be removed (dataset.power_on_bias: remove): {why}")]
+    PowerOnBias { name: String, why: String },
     #[error("{0}: no ground truth (a bag needs a ground-truth topic such as {GROUND_TRUTH_TOPIC}; training and evaluation need it)")]
     NoGroundTruth(String),
     #[error("{name}: ground truth ({gt_start:.3}–{gt_end:.3} s) does not overlap the IMU ({imu_start:.3}–{imu_end:.3} s) in time")]
@@ -127,6 +129,8 @@ pub struct Task {
     /// Its row of the model's Ĉ_ω ([`crate::model::Net::calibration_row`]; set by the
     /// trainer). `None`: the model's selected Ĉ_ω ([`crate::model::Net::gyro_calibration`]).
     pub calibration_row: Option<i64>,
+    /// The power-on constant taken out of it (`dataset.power_on_bias: remove`).
+    pub power_on_constant: Option<super::power_on::RemovedConstant>,
 }
 
 impl Task {
@@ -407,8 +411,22 @@ pub fn ground_truth_at_imu(rec: &Recording, cfg: &DatasetConfig) -> (Vec<Option<
 
 /// Loads, checks and crops one source into a task. `min_samples` (with its description)
 /// is the shortest usable length.
+/// With `dataset.power_on_bias: remove`, the recording's power-on bias is taken out first
+/// (of the whole recording, before the crop) and said in the task.
 pub fn load_task(root: &Path, src: &SourceConfig, cfg: &DatasetConfig, support_seconds: Option<f64>) -> Result<Task, DataError> {
-    task_from_recording(read_source(root, src)?, src, cfg, support_seconds)
+    let mut rec = read_source(root, src)?;
+    let removed = match cfg.power_on_bias {
+        super::power_on::PowerOnBiasInTraining::Keep => None,
+        super::power_on::PowerOnBiasInTraining::Remove => {
+            let removed = super::power_on::remove_power_on_bias(&mut rec, &crate::standstill::StandstillConfig::default())
+                .map_err(|e| DataError::PowerOnBias { name: rec.name.clone(), why: e.to_string() })?;
+            tracing::info!("{}: {} removed", rec.name, removed.describe());
+            Some(removed)
+        }
+    };
+    let mut task = task_from_recording(rec, src, cfg, support_seconds)?;
+    task.power_on_constant = removed;
+    Ok(task)
 }
 
 /// Per-channel mean and std over every IMU sample of the tasks (f64).
@@ -591,6 +609,7 @@ pub fn task_from_recording(
         longest_valid_run,
         imu_name: src.imu_name(),
         calibration_row: None,
+        power_on_constant: None,
         rec: cropped,
     })
 }
@@ -623,6 +642,7 @@ mod tests {
             support_seconds: 60.0,
             max_interpolation_gap_ms: 50.0,
             max_nearest_gt_ms: 10.0,
+            power_on_bias: Default::default(),
         }
     }
 

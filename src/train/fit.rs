@@ -851,6 +851,7 @@ mod tests {
             support_seconds,
             max_interpolation_gap_ms: 50.0,
             max_nearest_gt_ms: 10.0,
+            power_on_bias: Default::default(),
         };
         let task = data::task_from_recording(rec, &src, &dcfg, Some(support_seconds)).unwrap();
         let _ = task.valid.narrow(0, task.support_end as i64, (task.len() - task.support_end) as i64).fill_(0.0);

@@ -3,7 +3,7 @@
 //! folders or MCAP bags, with TorchScript export. See docs/training.md.
 //!
 //! Files: [`config`] (the YAML), [`data`] (recordings → checked tasks, windows,
-//! normalisation), [`optim`] (Adam with saveable state), [`checkpoint`], [`report`] (the
+//! normalisation), [`optim`] (Adam with saveable state), [`power_on`] (each recording's power-on bias taken out, on request), [`checkpoint`], [`report`] (the
 //! run's JSON), [`curves`] (its figure), [`fit`] (datasets, evaluation, the strategies'
 //! steps), [`run`] (one run as an object with steps: start, epochs, finish), [`seeds`] (restarts: the best of
 //! several seeds by validation score), [`error`].
@@ -15,6 +15,7 @@ pub mod data;
 pub mod error;
 pub mod fit;
 pub mod optim;
+pub mod power_on;
 pub mod report;
 pub mod run;
 pub mod seeds;

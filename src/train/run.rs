@@ -517,6 +517,23 @@ impl<'o> TrainRun<'o> {
         names.into_iter().map(String::from).collect()
     }
 
+    /// Each training recording's power-on bias its standstills measured, per IMU
+    /// (`dataset.power_on_bias: remove`; none otherwise).
+    fn trained_power_on_biases(&self) -> BTreeMap<String, Vec<crate::model::export::TrainedPowerOn>> {
+        let mut out: BTreeMap<String, Vec<crate::model::export::TrainedPowerOn>> = BTreeMap::new();
+        for t in &self.data.train {
+            if let Some(super::power_on::RemovedConstant::Standstill { bias, stddev, still_s }) = &t.power_on_constant {
+                out.entry(t.imu_name.clone()).or_default().push(crate::model::export::TrainedPowerOn {
+                    recording: t.name.clone(),
+                    bias_rad_s: (*bias).into(),
+                    stddev_rad_s: (*stddev).into(),
+                    still_s: *still_s,
+                });
+            }
+        }
+        out
+    }
+
     /// The model and its summary written as one set, then the curves.
     fn export(
         &self,
@@ -539,7 +556,8 @@ impl<'o> TrainRun<'o> {
                 metrics,
                 code_revision: self.code_revision.clone(),
                 adapted_from: None,
-                power_on_bias_removed: false,
+                power_on_bias_removed: self.cfg.dataset.power_on_bias == super::power_on::PowerOnBiasInTraining::Remove,
+                trained_power_on_biases: self.trained_power_on_biases(),
                 imu_correction_gains,
                 side_files: vec![("train.json".into(), summary_json)],
             },
